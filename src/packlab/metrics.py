@@ -1,0 +1,85 @@
+"""Pure packing metrics (DESIGN.md section 5): Success Ratio, Compactness, Overall.
+
+All are judged on *final* poses: a box knocked outside late in an episode does not count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from packlab.types import Container
+
+#: A settled centre may stray this far outside the interior and still count as inside (mm).
+INSIDE_TOLERANCE_MM = 1.0
+
+
+def box_inside(position_mm: Sequence[float] | None, container: Container, tol_mm: float = INSIDE_TOLERANCE_MM) -> bool:
+    """True when a box's settled centre lies within the closed container interior (+ tolerance).
+
+    ``None`` (a box set aside, never placed) is outside. The interior includes the space up to
+    the rim height, so a box whose centre rises above the rim is outside.
+    """
+    if position_mm is None:
+        return False
+    x, y, z = (float(v) for v in position_mm)
+    sx, sy, sz = container.size_mm
+    return -tol_mm <= x <= sx + tol_mm and -tol_mm <= y <= sy + tol_mm and -tol_mm <= z <= sz + tol_mm
+
+
+def success_ratio(inside_volume_mm3: float, total_volume_mm3: float) -> float:
+    """Volume of inside boxes over the volume of all boxes in the case."""
+    if total_volume_mm3 <= 0:
+        raise ValueError(f"total volume must be positive, got {total_volume_mm3}")
+    return float(inside_volume_mm3) / float(total_volume_mm3)
+
+
+def compactness(inside_volume_mm3: float, container: Container, max_height_mm: float) -> float:
+    """Inside volume over X * Y * H with H the max final heightmap; 0 when nothing is inside."""
+    if inside_volume_mm3 <= 0 or max_height_mm <= 0:
+        return 0.0
+    x, y, _ = container.size_mm
+    return float(inside_volume_mm3) / (float(x) * float(y) * float(max_height_mm))
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeMetrics:
+    """Final scores of one episode plus counters."""
+
+    success_ratio: float
+    compactness: float
+    overall: float
+    inside_volume_mm3: int
+    total_volume_mm3: int
+    max_height_mm: int
+    n_objects: int
+    n_inside: int
+    n_set_aside: int
+    invalid_by_reason: dict[str, int] = field(default_factory=dict)
+    settle_steps: int = 0
+    capped_placements: int = 0
+    wall_time_s: float = 0.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def score_final_state(
+    container: Container,
+    volumes_mm3: Sequence[int],
+    positions_mm: Sequence[Sequence[float] | None],
+    heightmap: np.ndarray,
+) -> tuple[float, float, float, int, int, int]:
+    """(success ratio, compactness, overall, inside volume, n inside, max height) of final poses.
+
+    ``positions_mm[i]`` is box i's settled centre or None when it was set aside; ``heightmap``
+    is the final heightmap over the container (int32 mm).
+    """
+    inside = [box_inside(p, container) for p in positions_mm]
+    inside_volume = int(sum(v for v, ok in zip(volumes_mm3, inside) if ok))
+    max_height = int(heightmap.max()) if heightmap.size else 0
+    sr = success_ratio(inside_volume, sum(volumes_mm3))
+    comp = compactness(inside_volume, container, max_height)
+    return sr, comp, sr * comp, inside_volume, sum(inside), max_height

@@ -1,0 +1,38 @@
+"""The oracle: replays a case's perfect layout (``gt_plan``), the ceiling of every suite."""
+
+from __future__ import annotations
+
+from packlab.errors import ConfigError
+from packlab.policies.registry import register_policy
+from packlab.types import Action, Case, Observation, PlanStep
+
+
+class OraclePolicy:
+    """Each step places the shown object that comes first in the plan, where the plan puts it.
+
+    The plan order is a valid placement order (every object supported), and the arrival order
+    of generated cases follows it, so the earliest planned object is always in the window.
+    """
+
+    name = "oracle"
+
+    def __init__(self) -> None:
+        self._plan: dict[int, tuple[int, PlanStep]] = {}
+
+    def reset(self, case: Case, seed: int) -> None:
+        if case.gt_plan is None:
+            raise ConfigError(f"case {case.episode_id!r}: the oracle needs a gt_plan and this case has none")
+        self._plan = {step.internal_id: (order, step) for order, step in enumerate(case.gt_plan)}
+
+    def act(self, observation: Observation) -> Action:
+        planned = [(self._plan[s.internal_id][0], s) for s in observation.shown if s.internal_id in self._plan]
+        if not planned:
+            raise ConfigError("oracle: no shown object is in the plan")
+        _, item = min(planned, key=lambda pair: pair[0])
+        step = self._plan[item.internal_id][1]
+        return Action(object_id=item.shown_index, rotation=step.rotation, x=step.x, y=step.y)
+
+
+@register_policy("oracle")
+def make_oracle() -> OraclePolicy:
+    return OraclePolicy()

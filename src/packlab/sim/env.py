@@ -1,0 +1,148 @@
+"""Gymnasium adapter over the packing ``Episode``, registered as ``packlab/Pack-v0``.
+
+Spaces are fixed per environment instance: the grid and buffer are padded to the largest case
+the environment may draw, so one policy network can train across container sizes.
+
+* Observation (dict):
+  - ``heightmap``: (X, Y) int32 mm; cells outside the drawn container read as its rim height.
+  - ``buffer``: (k, 3) int32, the shown objects' (l, w, h) in mm in shown order, zero padded.
+  - ``buffer_mask``: (k,) int8, 1 where a shown object exists.
+  - ``action_mask``: (k * 2 * X * Y,) int8, 1 where the flattened action is executable
+    (object exists and the footprint lies on the container floor).
+* Action: ``Discrete(k * 2 * X * Y)``, flattened as (object, rotation, x, y) in C order.
+* Reward: the change in packed-volume fraction, i.e. (inside volume after - before) / total
+  case volume, so an episode's undiscounted return equals its final Success Ratio. A placement
+  that knocks earlier boxes out is penalised by exactly the volume it lost.
+* ``info``: per step ``valid``/``reason``; at the end also ``metrics`` (``EpisodeMetrics.to_dict``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from importlib import resources
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from packlab.cases import load_cases
+from packlab.sim.episode import Episode
+from packlab.sim.heightmap import footprint_max
+from packlab.types import Action, Case
+
+ENV_ID = "packlab/Pack-v0"
+
+
+def demo_cases_path() -> str:
+    """The small perfect-layout cases bundled with the package (default for the env)."""
+    return str(resources.files("packlab") / "data" / "demo_cases.jsonl")
+
+
+class PackEnv(gym.Env):
+    """Closed-loop bin packing as a Gymnasium environment (see the module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+
+    def __init__(
+        self,
+        cases: str | os.PathLike[str] | Sequence[Case] | None = None,
+        backend: str = "geometric",
+        physics: Any = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if cases is None:
+            cases = demo_cases_path()
+        self.cases: list[Case] = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
+        if not self.cases:
+            raise ValueError("PackEnv needs at least one case")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode = {render_mode!r}: only 'rgb_array' is supported")
+        self.render_mode = render_mode
+        self.backend_name = backend
+        self.grid = (max(c.container.cells[0] for c in self.cases), max(c.container.cells[1] for c in self.cases))
+        self.k = max(c.buffer_size for c in self.cases)
+        height_bound = max(c.container.height_mm + sum(b.size_mm[2] for b in c.objects) for c in self.cases)
+        size_bound = max(max(b.size_mm) for c in self.cases for b in c.objects)
+        n_actions = self.k * 2 * self.grid[0] * self.grid[1]
+        self.observation_space = spaces.Dict(
+            {
+                "heightmap": spaces.Box(0, height_bound, shape=self.grid, dtype=np.int32),
+                "buffer": spaces.Box(0, size_bound, shape=(self.k, 3), dtype=np.int32),
+                "buffer_mask": spaces.Box(0, 1, shape=(self.k,), dtype=np.int8),
+                "action_mask": spaces.Box(0, 1, shape=(n_actions,), dtype=np.int8),
+            }
+        )
+        self.action_space = spaces.Discrete(n_actions)
+        self._episode = Episode(backend, physics)
+        self._case: Case | None = None
+        self._inside_fraction = 0.0
+
+    # -- encoding --------------------------------------------------------------------------
+    def decode_action(self, index: int) -> Action:
+        obj, rotation, x, y = np.unravel_index(int(index), (self.k, 2, *self.grid))
+        return Action(int(obj), int(rotation), int(x), int(y))
+
+    def encode_action(self, action: Action) -> int:
+        return int(np.ravel_multi_index((action.object_id, action.rotation, action.x, action.y), (self.k, 2, *self.grid)))
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        case = self._case
+        hm = np.full(self.grid, case.container.height_mm, dtype=np.int32)
+        cx, cy = case.container.cells
+        hm[:cx, :cy] = self._episode.heightmap
+        buffer = np.zeros((self.k, 3), dtype=np.int32)
+        buffer_mask = np.zeros(self.k, dtype=np.int8)
+        mask = np.zeros((self.k, 2, *self.grid), dtype=np.int8)
+        if not self._episode.done:
+            for item in self._episode.observe().shown:
+                buffer[item.shown_index] = item.size_mm
+                buffer_mask[item.shown_index] = 1
+                l, w = item.size_cells[:2]
+                for rotation, (fx, fy) in enumerate(((l, w), (w, l))):
+                    fits = footprint_max(self._episode.heightmap, fx, fy)
+                    mask[item.shown_index, rotation, : fits.shape[0], : fits.shape[1]] = 1
+        return {"heightmap": hm, "buffer": buffer, "buffer_mask": buffer_mask, "action_mask": mask.reshape(-1)}
+
+    # -- gymnasium API ---------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        index = options.get("case_index")
+        if index is None:
+            index = int(self.np_random.integers(len(self.cases)))
+        self._case = self.cases[int(index)]
+        run_seed = int(options.get("run_seed", self.np_random.integers(2**31 - 1)))
+        self._episode.reset(self._case, run_seed)
+        self._inside_fraction = 0.0
+        return self._observation(), {"case_id": self._case.episode_id, "run_seed": run_seed}
+
+    def step(self, action):
+        if self._case is None:
+            raise RuntimeError("PackEnv.step() before reset()")
+        result = self._episode.step(self.decode_action(int(action)))
+        metrics = self._episode.metrics()
+        reward = metrics.success_ratio - self._inside_fraction
+        self._inside_fraction = metrics.success_ratio
+        terminated = self._episode.done
+        info: dict[str, Any] = {"valid": result.valid, "reason": result.reason}
+        if terminated:
+            info["metrics"] = metrics.to_dict()
+        return self._observation(), float(reward), terminated, False, info
+
+    def render(self):
+        if self.render_mode != "rgb_array" or self._case is None:
+            return None
+        from packlab.viz.raster import heightmap_to_rgb
+
+        return heightmap_to_rgb(self._episode.heightmap, self._case.container)
+
+
+def register_envs() -> None:
+    """Register ``packlab/Pack-v0`` with Gymnasium (idempotent)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="packlab.sim.env:PackEnv")
+
+
+register_envs()

@@ -1,0 +1,52 @@
+"""Metric definitions (DESIGN.md section 5) with their edge cases."""
+
+import numpy as np
+import pytest
+
+from packlab.metrics import box_inside, compactness, score_final_state, success_ratio
+from packlab.types import Container
+
+C = Container((100, 100, 100), 25, 2)
+
+
+def test_inside_is_a_closed_box_with_tolerance():
+    assert box_inside((50, 50, 50), C)
+    assert box_inside((0, 100, 100), C)  # on the boundary
+    assert box_inside((-0.9, 50, 50), C)  # within 1 mm
+    assert not box_inside((-1.1, 50, 50), C)
+    assert not box_inside((50, 50, 101.5), C)  # centre above the rim
+    assert not box_inside(None, C)  # set aside
+
+
+def test_success_and_compactness_hand_computed():
+    assert success_ratio(300, 400) == 0.75
+    # 100 x 100 base, H = 50 mm -> 500000 mm^3 of used space.
+    assert compactness(250000, C, 50) == 0.5
+    with pytest.raises(ValueError):
+        success_ratio(1, 0)
+
+
+def test_nothing_inside_scores_zero():
+    hm = np.zeros((4, 4), np.int32)
+    sr, comp, overall, vol, n, h = score_final_state(C, [1000], [None], hm)
+    assert (sr, comp, overall, vol, n, h) == (0.0, 0.0, 0.0, 0, 0, 0)
+
+
+def test_box_above_rim_is_unpacked_but_raises_height():
+    # Box A (50x100x100) fills half the floor to the rim; box B (50x100x40) sits above the rim
+    # with its centre at z = 120: outside, yet the heightmap over it reads 140.
+    hm = np.zeros((4, 4), np.int32)
+    hm[:2] = 100
+    hm[2:] = 140
+    sr, comp, overall, vol, n, h = score_final_state(C, [500000, 200000], [(25, 50, 50), (75, 50, 120)], hm)
+    assert vol == 500000 and n == 1 and h == 140
+    assert sr == pytest.approx(500000 / 700000)
+    assert comp == pytest.approx(500000 / (100 * 100 * 140))
+    assert overall == pytest.approx(sr * comp)
+
+
+def test_final_pose_decides_even_if_the_box_was_inside_before():
+    hm = np.full((4, 4), 50, np.int32)
+    inside_then = score_final_state(C, [100, 100], [(50, 50, 25), (50, 50, 75)], hm)
+    knocked_out = score_final_state(C, [100, 100], [(50, 50, 25), (150, 50, 20)], hm)
+    assert inside_then[0] == 1.0 and knocked_out[0] == 0.5
