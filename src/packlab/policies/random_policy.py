@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from packlab.policies.heuristics.candidates import observation_candidates
+from packlab.policies.heuristics.select import rim_pool, to_action
 from packlab.policies.registry import register_policy
 from packlab.sim.buffer import episode_rng
-from packlab.sim.heightmap import footprint_max
 from packlab.types import Action, Case, Observation
 
 
 class RandomPolicy:
-    """Samples uniformly among in-rim candidates; if there are none, among all that fit."""
+    """Samples uniformly from the shared candidate search's rim pool.
+
+    The pool is every in-rim candidate, or the lowest-top ones when none stays within the rim
+    (the same rule the heuristics use), so the row measures placement skill, not rim luck.
+    """
 
     name = "random"
 
@@ -23,22 +28,11 @@ class RandomPolicy:
         self._rng = episode_rng(case.seed + 7919, seed)
 
     def act(self, observation: Observation) -> Action:
-        rim = observation.container.height_mm
-        fitting: list[tuple[int, int, int, int]] = []
-        in_rim: list[tuple[int, int, int, int]] = []
-        for item in observation.shown:
-            l, w, h = item.size_cells[0], item.size_cells[1], item.size_mm[2]
-            for rotation, (fx, fy) in enumerate(((l, w), (w, l))):
-                z = footprint_max(observation.heightmap, fx, fy)
-                xs, ys = np.nonzero(np.ones_like(z, dtype=bool))
-                ok = (z[xs, ys] + h) <= rim
-                fitting += [(item.shown_index, rotation, int(x), int(y)) for x, y in zip(xs, ys)]
-                in_rim += [(item.shown_index, rotation, int(x), int(y)) for x, y in zip(xs[ok], ys[ok])]
-        pool = in_rim or fitting
-        if not pool:  # nothing fits the floor at all: any action is set aside anyway
+        cands = observation_candidates(observation)
+        pool = rim_pool(cands)
+        if pool.size == 0:  # nothing fits the floor at all: the object is set aside anyway
             return Action(0, 0, 0, 0)
-        obj, rot, x, y = pool[int(self._rng.integers(len(pool)))]
-        return Action(obj, rot, x, y)
+        return to_action(cands, int(pool[self._rng.integers(pool.size)]))
 
 
 @register_policy("random")

@@ -28,8 +28,8 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
+from packlab.policies.heuristics.candidates import action_mask, observation_candidates
 from packlab.sim.episode import Episode
-from packlab.sim.heightmap import footprint_max
 from packlab.types import Action, Case
 
 ENV_ID = "packlab/Pack-v0"
@@ -96,13 +96,12 @@ class PackEnv(gym.Env):
         buffer_mask = np.zeros(self.k, dtype=np.int8)
         mask = np.zeros((self.k, 2, *self.grid), dtype=np.int8)
         if not self._episode.done:
-            for item in self._episode.observe().shown:
+            observation = self._episode.observe()
+            for item in observation.shown:
                 buffer[item.shown_index] = item.size_mm
                 buffer_mask[item.shown_index] = 1
-                l, w = item.size_cells[:2]
-                for rotation, (fx, fy) in enumerate(((l, w), (w, l))):
-                    fits = footprint_max(self._episode.heightmap, fx, fy)
-                    mask[item.shown_index, rotation, : fits.shape[0], : fits.shape[1]] = 1
+            fits = action_mask(observation_candidates(observation))  # (shown, 2, cx, cy)
+            mask[: fits.shape[0], :, : fits.shape[2], : fits.shape[3]] = fits
         return {"heightmap": hm, "buffer": buffer, "buffer_mask": buffer_mask, "action_mask": mask.reshape(-1)}
 
     # -- gymnasium API ---------------------------------------------------------------------

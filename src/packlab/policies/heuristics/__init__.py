@@ -1,0 +1,44 @@
+"""The five packing heuristics: pure scorers over one shared, vectorised candidate search.
+
+Importing this package registers the policies "dblf", "hm", "mta", "ffp" and "sdf".
+
+- :mod:`.candidates`: the candidate search (object x rotation x cell, Eq. 2 heights), the dense
+  action mask, for heuristics, ``random`` and RL alike.
+- :mod:`.select`: the rim rule and lexicographic tie-breaking shared by every heuristic.
+- :mod:`.dblf`, :mod:`.hm`, :mod:`.mta`, :mod:`.ffp`, :mod:`.sdf`: one scorer each.
+- :mod:`.policy`: HeuristicPolicy and the registrations.
+"""
+
+from packlab.policies.heuristics.candidates import (
+    CandidateSet,
+    Orientation,
+    action_mask,
+    observation_candidates,
+    scatter,
+    search_candidates,
+)
+from packlab.policies.heuristics.policy import (
+    SCORERS,
+    HeuristicPolicy,
+    decide,
+    make_heuristic,
+)
+from packlab.policies.heuristics.select import Keys, Scorer, choose, rim_pool, to_action
+
+__all__ = [
+    "SCORERS",
+    "CandidateSet",
+    "HeuristicPolicy",
+    "Keys",
+    "Orientation",
+    "Scorer",
+    "action_mask",
+    "choose",
+    "decide",
+    "make_heuristic",
+    "observation_candidates",
+    "rim_pool",
+    "scatter",
+    "search_candidates",
+    "to_action",
+]

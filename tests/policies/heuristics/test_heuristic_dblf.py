@@ -1,0 +1,40 @@
+"""DBLF on hand-made states."""
+
+from __future__ import annotations
+
+import heuristics_reference as ref
+import numpy as np
+
+from packlab.policies.heuristics import dblf
+from packlab.policies.heuristics.candidates import search_candidates
+from packlab.policies.heuristics.select import choose, to_action
+from packlab.types import Action
+
+
+def pick(hm, shown, rim=200) -> Action:
+    c = search_candidates(np.asarray(hm, dtype=np.int32), shown, rim)
+    return to_action(c, choose(c, dblf.score(c)))
+
+
+def test_height_dominates_then_depth_then_left() -> None:
+    hm = [[30, 30, 0],
+          [30, 30, 0],
+          [0, 0, 0]]
+    # Object 0 (2 x 2) rests at 30 mm wherever it goes. Object 1 (1 x 2) reaches the floor at
+    # rotation 0 on x = 2 (y = 0 or 1) and at rotation 1 on y = 2 (x = 0 or 1): the deepest
+    # (smallest x) of those is rotation 1 at (0, 2), even though object 0 comes first.
+    shown = [ref.shown_item(0, 2, 2, 50), ref.shown_item(1, 1, 2, 20)]
+    assert pick(hm, shown) == Action(1, 1, 0, 2)
+
+
+def test_depth_before_left() -> None:
+    # Floor cells (1, 0) and (0, 1): x decides before y, so (0, 1).
+    hm = [[40, 0], [0, 40]]
+    assert pick(hm, [ref.shown_item(0, 1, 1, 10)]) == Action(0, 0, 0, 1)
+
+
+def test_tie_between_objects_and_rotations_goes_to_scan_order() -> None:
+    # Two equal square boxes on an empty floor: both objects and both rotations tie at
+    # (z, x, y) = (0, 0, 0); the first shown object at rotation 0 wins.
+    shown = [ref.shown_item(0, 1, 1, 30), ref.shown_item(1, 1, 1, 30)]
+    assert pick(np.zeros((2, 2)), shown) == Action(0, 0, 0, 0)

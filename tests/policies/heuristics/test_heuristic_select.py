@@ -1,0 +1,46 @@
+"""The rim rule and tie-breaking shared by every heuristic."""
+
+from __future__ import annotations
+
+import heuristics_reference as ref
+import numpy as np
+
+from packlab.policies.heuristics.candidates import search_candidates
+from packlab.policies.heuristics.select import choose, quantise, rim_pool, to_action
+from packlab.types import Action
+
+
+def test_in_rim_candidates_win_even_with_worse_keys() -> None:
+    hm = np.zeros((2, 1), dtype=np.int32)
+    # Object 0 is 150 mm tall: above the 100 mm rim everywhere.
+    c = search_candidates(hm, [ref.shown_item(0, 1, 1, 150), ref.shown_item(1, 1, 1, 50)], 100)
+    prefers_object_0 = c.obj  # lower is better: object 0 would win on this key alone
+    assert to_action(c, choose(c, (prefers_object_0,))) == Action(1, 0, 0, 0)
+
+
+def test_without_in_rim_candidates_the_lowest_top_pool_is_used() -> None:
+    hm = np.array([[0], [10]], dtype=np.int32)
+    c = search_candidates(hm, [ref.shown_item(0, 1, 1, 150), ref.shown_item(1, 1, 1, 120)], 100)
+    assert not c.fits_in_rim.any()
+    pool = rim_pool(c)
+    assert set(zip(c.obj[pool], c.x[pool])) == {(1, 0)}  # top 120, both rotations
+    # A key preferring x = 1 cannot leave the pool; the two rotations tie -> rotation 0.
+    assert to_action(c, choose(c, (-c.x,))) == Action(1, 0, 0, 0)
+
+
+def test_remaining_ties_go_to_scan_order() -> None:
+    hm = np.zeros((2, 2), dtype=np.int32)
+    c = search_candidates(hm, [ref.shown_item(0, 1, 1, 20), ref.shown_item(1, 1, 1, 20)], 100)
+    assert choose(c, ()) == 0
+    assert to_action(c, choose(c, (np.zeros(len(c)),))) == Action(0, 0, 0, 0)
+    assert to_action(c, choose(c, (-c.obj, -c.y))) == Action(1, 0, 0, 1)
+
+
+def test_no_candidates_chooses_nothing() -> None:
+    c = search_candidates(np.zeros((1, 1), dtype=np.int32), [ref.shown_item(0, 2, 2, 10)], 100)
+    assert choose(c, ()) is None
+
+
+def test_quantise_makes_float_near_ties_exact() -> None:
+    a = np.array([0.1 + 0.2, 0.3])
+    assert a[0] != a[1] and quantise(a)[0] == quantise(a)[1]
