@@ -1,0 +1,205 @@
+"""Chat messages (from :mod:`packlab.vlm.prompt`) -> model tensors, for training and inference.
+
+One example is encoded as the model will see it at inference: the chat template renders the
+context with the generation prompt (``<|im_start|>assistant\\n``), each image placeholder is
+expanded to one ``<|image_pad|>`` per merged visual token, and, for training, the answer tokens
+plus the end-of-turn token are appended. Labels are -100 everywhere except those appended tokens
+(the paper's loss on the answer only; the end-of-turn token is included so the model learns to
+stop, which greedy decoding relies on). Building the training sequence as prompt + answer, rather
+than rendering a conversation that contains the answer, guarantees that the trained prefix is
+byte-for-byte the inference prompt whatever the checkpoint's chat template does with past
+assistant turns.
+
+Long histories: :func:`encode_fitting` drops the oldest past step (its user turn and its answer)
+until the sequence fits ``max_length``; the system prompt and the current turn are never cut.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from packlab.vlm.prompt import BLANK_IMAGE
+
+IGNORE_INDEX = -100
+IMAGE_PAD = "<|image_pad|>"
+END_OF_TURN = "<|im_end|>"
+
+
+@dataclass(frozen=True, slots=True)
+class ProcessingConfig:
+    """How messages become tensors."""
+
+    image_size: int = 224  # side of the blank image that replaces the BLANK_IMAGE marker
+    image_root: str | None = None  # base directory of relative image paths (a dataset's root)
+    max_length: int | None = None  # token limit; see encode_fitting
+    # Extra chat-template variables, e.g. {"enable_thinking": False} for Qwen3.5 checkpoints.
+    template_kwargs: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Encoded:
+    """One example. Token tensors are 1-D (seq,); pixel_values (patches, C*T*P*P) float32."""
+
+    input_ids: torch.Tensor  # (seq,) int64
+    mm_token_type_ids: torch.Tensor  # (seq,) int64: 0 text, 1 image token
+    labels: torch.Tensor | None  # (seq,) int64, IGNORE_INDEX outside the answer; None for prompts
+    pixel_values: torch.Tensor | None  # (sum of patches over images, patch_dim) float32
+    image_grid_thw: torch.Tensor | None  # (n_images, 3) int64: temporal, height, width patches
+
+    @property
+    def length(self) -> int:
+        return int(self.input_ids.shape[0])
+
+
+def resolve_image(image: Any, config: ProcessingConfig) -> Image.Image:
+    """An RGB PIL image from a message entry: PIL image, numpy array, path, or BLANK_IMAGE."""
+    if isinstance(image, str) and image == BLANK_IMAGE:
+        return Image.new("RGB", (config.image_size, config.image_size))
+    if isinstance(image, (str, Path)):
+        p = Path(image)
+        if not p.is_absolute() and config.image_root is not None:
+            p = Path(config.image_root) / p
+        with Image.open(p) as im:
+            return im.convert("RGB")
+    if isinstance(image, np.ndarray):
+        return Image.fromarray(image).convert("RGB")
+    if isinstance(image, Image.Image):
+        return image.convert("RGB")
+    raise TypeError(f"cannot use {type(image).__name__} as an image")
+
+
+def message_images(messages: Sequence[dict[str, Any]]) -> list[Any]:
+    """Image entries in the order the chat template emits their placeholders."""
+    return [
+        c["image"]
+        for m in messages
+        if not isinstance(m["content"], str)
+        for c in m["content"]
+        if c.get("type") == "image"
+    ]
+
+
+def end_of_turn_id(tokenizer) -> int:
+    return int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
+
+
+def encode(
+    messages: Sequence[dict[str, Any]],
+    tokenizer,
+    image_processor,
+    answer: str | None = None,
+    config: ProcessingConfig = ProcessingConfig(),
+) -> Encoded:
+    """Encode one context (and, for training, its answer text) into model inputs."""
+    images = [resolve_image(im, config) for im in message_images(messages)]
+    text = tokenizer.apply_chat_template(
+        list(messages), tokenize=False, add_generation_prompt=True, **config.template_kwargs
+    )
+    parts = text.split(IMAGE_PAD)
+    if len(parts) - 1 != len(images):
+        raise ValueError(
+            f"chat template emitted {len(parts) - 1} image placeholders for {len(images)} images"
+        )
+    pixel_values = grid = None
+    if images:
+        vis = image_processor(images=images, return_tensors="pt")
+        pixel_values, grid = vis["pixel_values"].float(), vis["image_grid_thw"].long()
+        merge = int(image_processor.merge_size) ** 2
+        counts = [int(g.prod()) // merge for g in grid]
+        text = parts[0] + "".join(IMAGE_PAD * n + rest for n, rest in zip(counts, parts[1:]))
+    prompt_ids = tokenizer(text, add_special_tokens=False)["input_ids"]
+    ids = list(prompt_ids)
+    labels = None
+    if answer is not None:
+        answer_ids = tokenizer(answer, add_special_tokens=False)["input_ids"] + [
+            end_of_turn_id(tokenizer)
+        ]
+        ids += answer_ids
+        labels = torch.tensor([IGNORE_INDEX] * len(prompt_ids) + answer_ids, dtype=torch.long)
+    input_ids = torch.tensor(ids, dtype=torch.long)
+    image_token = tokenizer.convert_tokens_to_ids(IMAGE_PAD)
+    mm = (input_ids == image_token).long()
+    if grid is not None and int(mm.sum()) != sum(counts):
+        raise ValueError(
+            "image tokens in the sequence do not match the image grids "
+            "(does the tokenizer split <|image_pad|>?)"
+        )
+    return Encoded(input_ids, mm, labels, pixel_values, grid)
+
+
+def drop_oldest_step(messages: Sequence[dict[str, Any]]) -> list[dict[str, Any]] | None:
+    """``messages`` without the oldest past step (user turn and answer); None if there is none.
+
+    Works for every history ablation: a past step is a user turn followed by an optional
+    assistant turn; the system message and the final (current) user turn are kept.
+    """
+    msgs = list(messages)
+    start = 1 if msgs and msgs[0]["role"] == "system" else 0
+    if len(msgs) - start <= 1:
+        return None
+    end = start + 1
+    if end < len(msgs) - 1 and msgs[end]["role"] == "assistant":
+        end += 1
+    return msgs[:start] + msgs[end:]
+
+
+def encode_fitting(
+    messages: Sequence[dict[str, Any]],
+    tokenizer,
+    image_processor,
+    answer: str | None = None,
+    config: ProcessingConfig = ProcessingConfig(),
+) -> tuple[Encoded, int]:
+    """:func:`encode`, dropping the oldest past steps until ``config.max_length`` holds.
+
+    Returns (encoded, number of past steps dropped). Raises ValueError when even the context
+    without any past step is too long.
+    """
+    dropped = 0
+    msgs: list[dict[str, Any]] | None = list(messages)
+    while True:
+        enc = encode(msgs, tokenizer, image_processor, answer, config)  # type: ignore[arg-type]
+        if config.max_length is None or enc.length <= config.max_length:
+            return enc, dropped
+        msgs = drop_oldest_step(msgs)  # type: ignore[arg-type]
+        if msgs is None:
+            raise ValueError(
+                f"{enc.length} tokens without any history exceed max_length={config.max_length}"
+            )
+        dropped += 1
+
+
+def collate(
+    examples: Sequence[Encoded], pad_id: int, padding_side: str = "right"
+) -> dict[str, torch.Tensor]:
+    """Pad a batch. Right padding for training; left padding for batched generation."""
+    if padding_side not in ("left", "right"):
+        raise ValueError(f"padding_side must be 'left' or 'right', got {padding_side!r}")
+    n = max(e.length for e in examples)
+
+    def pad(t: torch.Tensor, value: int) -> torch.Tensor:
+        fill = torch.full((n - t.shape[0],), value, dtype=t.dtype)
+        return torch.cat([fill, t] if padding_side == "left" else [t, fill])
+
+    out = {
+        "input_ids": torch.stack([pad(e.input_ids, pad_id) for e in examples]),
+        "attention_mask": torch.stack([pad(torch.ones_like(e.input_ids), 0) for e in examples]),
+        "mm_token_type_ids": torch.stack([pad(e.mm_token_type_ids, 0) for e in examples]),
+    }
+    if all(e.labels is not None for e in examples):
+        out["labels"] = torch.stack([pad(e.labels, IGNORE_INDEX) for e in examples])  # type: ignore[arg-type]
+    pv = [e.pixel_values for e in examples if e.pixel_values is not None]
+    if pv:
+        # The Qwen-VL models take the patches of all images of the batch as one flat sequence.
+        out["pixel_values"] = torch.cat(pv)
+        out["image_grid_thw"] = torch.cat(
+            [e.image_grid_thw for e in examples if e.image_grid_thw is not None]
+        )
+    return out

@@ -1,0 +1,27 @@
+"""Fixtures shared by the vlm tests: one fixed packing state used by the golden prompt tests."""
+
+from __future__ import annotations
+
+import pytest
+
+from packlab.types import Action, Container, ShownItem, Unparsable
+from packlab.vlm.prompt import TurnState
+
+
+def _item(i: int, internal_id: int, lc: int, wc: int, hc: int) -> ShownItem:
+    # sizes in cells: 25 mm per xy cell, 2 mm per z cell
+    return ShownItem(i, internal_id, (lc * 25, wc * 25, hc * 2), (lc, wc, hc))
+
+
+@pytest.fixture
+def fixed_state():
+    """(container, past, current) for a 3-step-old episode in a 10 x 8 cell container."""
+    container = Container((250, 200, 200))
+    s0 = TurnState("images/ep0/step0.png", (_item(0, 3, 4, 3, 20), _item(1, 0, 2, 2, 10)), 0, 5)
+    s1 = TurnState("images/ep0/step1.png", (_item(0, 0, 2, 2, 10), _item(1, 4, 6, 2, 30)), 1, 4)
+    s2 = TurnState("images/ep0/step2.png", (_item(0, 4, 6, 2, 30), _item(1, 1, 3, 3, 16)), 2, 3)
+    past = [
+        (s0, Action(object_id=0, rotation=0, x=0, y=0)),
+        (s1, Unparsable(text="I would place it left", error="no JSON object found")),
+    ]
+    return container, past, s2

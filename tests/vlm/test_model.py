@@ -1,0 +1,222 @@
+"""Tiny Qwen-VL-family models: build, forward with images, label masking, save/load round trip.
+
+Needs the vlm extra (torch, transformers); skipped in the core install.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("transformers")
+
+from PIL import Image  # noqa: E402
+
+from packlab.types import Action  # noqa: E402
+from packlab.vlm.model import (  # noqa: E402
+    FAMILIES,
+    build_tiny_model,
+    family_of,
+    load_model,
+    mrope_sections,
+    save_model,
+)
+from packlab.vlm.processing import (  # noqa: E402
+    IGNORE_INDEX,
+    ProcessingConfig,
+    collate,
+    drop_oldest_step,
+    encode,
+    encode_fitting,
+)
+from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages  # noqa: E402
+
+pytestmark = pytest.mark.torch
+
+# 224 px images: Qwen3-VL / Qwen3.5 merge 2x2 patches of 16 px -> 7 x 7 = 49 visual tokens;
+# Qwen2.5-VL merges 2x2 patches of 14 px -> 8 x 8 = 64.
+VISUAL_TOKENS = {"qwen3_5": 49, "qwen3_vl": 49, "qwen2_5_vl": 64}
+ANSWER = Action(object_id=1, rotation=1, x=3, y=12)
+
+
+@pytest.fixture(scope="module", params=FAMILIES)
+def vlm(request):
+    return build_tiny_model(request.param, "tiny", seed=0)
+
+
+def _with_images(fixed_state):
+    """The golden state with real 224 px images in place of the dataset paths."""
+    container, past, current = fixed_state
+    colours = iter([(200, 0, 0), (0, 200, 0), (0, 0, 200)])
+
+    def img(t: TurnState) -> TurnState:
+        return TurnState(
+            Image.new("RGB", (224, 224), next(colours)), t.shown, t.step_index, t.remaining
+        )
+
+    return container, [(img(t), a) for t, a in past], img(current)
+
+
+def _greedy(vlm, messages, n=8):
+    enc = encode(messages, vlm.tokenizer, vlm.image_processor)
+    batch = collate([enc], vlm.tokenizer.pad_token_id, padding_side="left")
+    with torch.no_grad():
+        out = vlm.model.generate(**batch, max_new_tokens=n, do_sample=False)
+    return out[0, enc.length :].tolist()
+
+
+def test_forward_with_images(vlm, fixed_state):
+    container, past, current = _with_images(fixed_state)
+    messages = render_messages(container, past[:1], current)
+    enc = encode(messages, vlm.tokenizer, vlm.image_processor, answer=action_text(ANSWER))
+    assert enc.image_grid_thw.shape == (2, 3)
+    assert int(enc.mm_token_type_ids.sum()) == 2 * VISUAL_TOKENS[vlm.family]
+    batch = collate([enc, enc], vlm.tokenizer.pad_token_id)
+    with torch.no_grad():
+        out = vlm.model(**batch)
+    assert out.logits.shape[:2] == (2, enc.length)
+    assert torch.isfinite(out.loss)
+    # Random weights over a ~640-token vocabulary: loss near ln(vocab).
+    assert 4.0 < out.loss.item() < 9.0
+
+
+def test_labels_mask_everything_but_the_answer(vlm, fixed_state):
+    container, past, current = _with_images(fixed_state)
+    messages = render_messages(container, past, current)
+    prompt = encode(messages, vlm.tokenizer, vlm.image_processor)
+    full = encode(messages, vlm.tokenizer, vlm.image_processor, answer=action_text(ANSWER))
+    n = prompt.length
+    # The training prefix is exactly the inference prompt, token by token.
+    assert full.input_ids[:n].tolist() == prompt.input_ids.tolist()
+    assert prompt.labels is None
+    labels, ids = full.labels.tolist(), full.input_ids.tolist()
+    for i in range(len(ids)):
+        if i < n:
+            assert labels[i] == IGNORE_INDEX, f"prompt token {i} is not masked"
+        else:
+            assert labels[i] == ids[i], f"answer token {i} is masked or wrong"
+    answer_tokens = ids[n:]
+    assert vlm.tokenizer.decode(answer_tokens) == action_text(ANSWER) + "<|im_end|>"
+    assert vlm.tokenizer.decode(ids[:n]).endswith("<|im_start|>assistant\n")
+
+
+def test_save_load_gives_identical_generations(vlm, fixed_state, tmp_path):
+    container, _, current = _with_images(fixed_state)
+    messages = render_messages(container, [], current)
+    before = _greedy(vlm, messages)
+    save_model(vlm, tmp_path / "ckpt", extra_meta={"note": "round trip"})
+    assert family_of(tmp_path / "ckpt") == vlm.family
+    loaded = load_model(tmp_path / "ckpt")
+    assert type(loaded.model) is type(vlm.model)
+    assert (
+        loaded.meta["prompt_version"] == "packlab-prompt-v1" and loaded.meta["note"] == "round trip"
+    )
+    assert _greedy(loaded, messages) == before
+    # Same tokenizer after the round trip.
+    text = messages[-1]["content"][-1]["text"]
+    assert loaded.tokenizer.encode(text, add_special_tokens=False) == vlm.tokenizer.encode(
+        text, add_special_tokens=False
+    )
+
+
+def test_blank_and_no_image_ablations_encode(vlm, fixed_state):
+    container, past, current = fixed_state  # dataset-style: blank marker, no files needed
+    blank = render_messages(container, past, current, PromptOptions(image="blank"))
+    enc = encode(blank, vlm.tokenizer, vlm.image_processor, config=ProcessingConfig(image_size=224))
+    assert int(enc.mm_token_type_ids.sum()) == 3 * VISUAL_TOKENS[vlm.family]
+    assert bool(
+        (enc.pixel_values == enc.pixel_values[0]).all()
+    )  # every patch the same: no information
+    none = render_messages(container, past, current, PromptOptions(image="none"))
+    enc = encode(none, vlm.tokenizer, vlm.image_processor, answer=action_text(ANSWER))
+    assert enc.pixel_values is None and int(enc.mm_token_type_ids.sum()) == 0
+    with torch.no_grad():
+        out = vlm.model(**collate([enc], vlm.tokenizer.pad_token_id))
+    assert torch.isfinite(out.loss)
+
+
+def test_dataset_image_paths_resolve_against_root(fixed_state, tmp_path):
+    vlm = build_tiny_model("qwen3_vl")
+    container, _, current = fixed_state
+    (tmp_path / "images/ep0").mkdir(parents=True)
+    Image.new("RGB", (224, 224), (9, 9, 9)).save(tmp_path / current.image)
+    enc = encode(
+        render_messages(container, [], current),
+        vlm.tokenizer,
+        vlm.image_processor,
+        config=ProcessingConfig(image_root=str(tmp_path)),
+    )
+    assert enc.image_grid_thw.tolist() == [[1, 14, 14]]
+
+
+def test_encode_fitting_drops_oldest_steps(fixed_state):
+    vlm = build_tiny_model("qwen3_5")
+    container, past, current = fixed_state
+    messages = render_messages(container, past, current, PromptOptions(image="none"))
+    full = encode(messages, vlm.tokenizer, vlm.image_processor).length
+    only = encode(
+        render_messages(container, [], current, PromptOptions(image="none")),
+        vlm.tokenizer,
+        vlm.image_processor,
+    ).length
+    enc, dropped = encode_fitting(
+        messages, vlm.tokenizer, vlm.image_processor, config=ProcessingConfig(max_length=full - 1)
+    )
+    assert dropped == 1 and enc.length < full
+    enc, dropped = encode_fitting(
+        messages, vlm.tokenizer, vlm.image_processor, config=ProcessingConfig(max_length=only)
+    )
+    assert dropped == 2 and enc.length == only
+    with pytest.raises(ValueError, match="without any history"):
+        encode_fitting(
+            messages,
+            vlm.tokenizer,
+            vlm.image_processor,
+            config=ProcessingConfig(max_length=only - 1),
+        )
+
+
+def test_drop_oldest_step_per_history_mode(fixed_state):
+    container, past, current = fixed_state
+    full = render_messages(container, past, current)
+    assert [m["role"] for m in drop_oldest_step(full)] == ["system", "user", "assistant", "user"]
+    no_act = render_messages(container, past, current, PromptOptions(history="no_actions"))
+    assert [m["role"] for m in drop_oldest_step(no_act)] == ["system", "user", "user"]
+    assert drop_oldest_step(render_messages(container, [], current)) is None
+
+
+def test_collate_padding_sides():
+    from packlab.vlm.processing import Encoded
+
+    def ex(n):
+        ids = torch.arange(1, n + 1)
+        return Encoded(ids, torch.zeros(n, dtype=torch.long), ids.clone(), None, None)
+
+    right = collate([ex(2), ex(4)], pad_id=0)
+    assert right["input_ids"].tolist() == [[1, 2, 0, 0], [1, 2, 3, 4]]
+    assert right["attention_mask"].tolist() == [[1, 1, 0, 0], [1, 1, 1, 1]]
+    assert right["labels"].tolist()[0] == [1, 2, IGNORE_INDEX, IGNORE_INDEX]
+    left = collate([ex(2), ex(4)], pad_id=0, padding_side="left")
+    assert left["input_ids"].tolist()[0] == [0, 0, 1, 2]
+    assert "pixel_values" not in left
+
+
+@pytest.mark.parametrize(
+    "half,ref",
+    [(4, (11, 11, 10)), (16, (24, 20, 20)), (16, (16, 24, 24)), (64, (24, 20, 20)), (3, (1, 1, 1))],
+)
+def test_mrope_sections_add_up(half, ref):
+    s = mrope_sections(half, ref)
+    assert sum(s) == half and min(s) >= 1
+
+
+def test_mrope_sections_too_few():
+    with pytest.raises(ValueError):
+        mrope_sections(2, (11, 11, 10))
+
+
+def test_unknown_family_and_size():
+    with pytest.raises(ValueError, match="family"):
+        build_tiny_model("llava")
+    with pytest.raises(ValueError, match="size"):
+        build_tiny_model("qwen3_5", "huge")
