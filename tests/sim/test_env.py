@@ -6,7 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import packlab.sim.env  # noqa: F401  (registers the id)
-from conftest import make_layered_case
+from layered_cases import make_layered_case
 from packlab.sim.env import ENV_ID, PackEnv
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from conftest import make_layered_case
+from layered_cases import make_layered_case
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.sim.heightmap import quat_to_matrix

@@ -1,0 +1,100 @@
+"""The dataset on disk: parquet schemas, images by relative path, SFT export, datasets loading."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+
+from packlab.cases import case_from_dict
+from packlab.datagen.format import EPISODE_SCHEMA, STEP_SCHEMA, export_sft
+from packlab.types import Action
+from packlab.viz.raster import heightmap_to_rgb
+
+
+def _steps(root):
+    return pq.read_table(sorted((root / "data/steps").glob("*.parquet"))).to_pylist()
+
+
+def test_shards_share_one_schema(tiny_dataset):
+    for path in (tiny_dataset / "data/steps").glob("*.parquet"):
+        assert pq.read_schema(path).remove_metadata() == STEP_SCHEMA
+    for path in (tiny_dataset / "data/episodes").glob("*.parquet"):
+        assert pq.read_schema(path).remove_metadata() == EPISODE_SCHEMA
+
+
+def test_steps_replay_their_episode(tiny_dataset):
+    episodes = {r["episode_id"]: r for r in pq.read_table(sorted((tiny_dataset / "data/episodes").glob("*.parquet"))).to_pylist()}
+    rows = _steps(tiny_dataset)
+    by_episode = {}
+    for r in rows:
+        by_episode.setdefault(r["episode_id"], []).append(r)
+    assert set(by_episode) == set(episodes)
+    for eid, steps in by_episode.items():
+        case = case_from_dict(json.loads(episodes[eid]["case_json"]))
+        plan = {p.internal_id: p for p in case.gt_plan}
+        assert [s["step_index"] for s in steps] == list(range(len(case.objects)))
+        assert episodes[eid]["overall"] == 1.0
+        for s in steps:
+            # object_id indexes the buffer as shown that step, and the action is the plan's.
+            placed = s["shown"][s["action"]["object_id"]]
+            assert placed["internal_id"] == s["internal_id"]
+            p = plan[s["internal_id"]]
+            assert (s["action"]["x"], s["action"]["y"], s["action"]["rotation"]) == (p.x, p.y, p.rotation)
+            assert len(s["shown"]) == min(case.buffer_size, s["remaining"])
+            assert s["action_text"] == json.dumps(s["action"], separators=(",", ":"))
+
+
+def test_images_are_the_rasterised_heightmaps(tiny_dataset):
+    rows = _steps(tiny_dataset)
+    for r in rows[::7]:
+        from packlab.types import Container
+
+        c = Container(tuple(round(v * 10) for v in r["container_size_cm"]))
+        hm = np.array(r["heightmap_mm"], dtype=np.int32)
+        assert not (r["image"].startswith("/") or ".." in r["image"])
+        img = np.asarray(Image.open(tiny_dataset / r["image"]).convert("RGB"))
+        assert (img == heightmap_to_rgb(hm, c, size=64)).all()
+
+
+def test_sft_export_is_what_the_vlm_reader_expects(tiny_dataset):
+    from packlab.vlm.sft_data import load_sft_examples
+
+    examples, root = load_sft_examples(tiny_dataset)
+    rows = _steps(tiny_dataset)
+    assert root == tiny_dataset and len(examples) == len(rows)
+    answers = {(r["episode_id"], r["step_index"]): r["action_text"] for r in rows}
+    for ex in examples:
+        assert ex.answer == answers[(ex.episode_id, ex.step_index)]
+        images = [c["image"] for m in ex.context for c in m["content"] if c.get("type") == "image"]
+        assert len(images) == ex.step_index + 1  # full history: one image per past and current turn
+        assert all((root / im).is_file() for im in images)
+
+
+def test_sft_per_episode_mode(tiny_dataset, tmp_path):
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(tiny_dataset, out)
+    files = export_sft(out, mode="per_episode")
+    lines = [json.loads(line) for f in files for line in f.read_text().splitlines()]
+    assert len(lines) == 10  # one per episode
+    for rec in lines:
+        assistants = [m for m in rec["messages"] if m["role"] == "assistant"]
+        assert len(assistants) == rec["step_index"] + 1
+        Action(**json.loads(assistants[-1]["content"][0]["text"]))
+
+
+def test_dataset_loads_with_hf_datasets(tiny_dataset):
+    datasets = pytest.importorskip("datasets")
+    steps = datasets.load_dataset("parquet", data_files=str(tiny_dataset / "data/steps/*.parquet"), split="train",
+                                  cache_dir=str(tiny_dataset.parent / "hf-cache"))
+    assert steps.num_rows == json.loads((tiny_dataset / "meta/info.json").read_text())["counts"]["steps"]
+    row = steps[0]
+    assert set(row["action"]) == {"object_id", "x", "y", "rotation"} and (tiny_dataset / row["image"]).is_file()
+    episodes = datasets.load_dataset(str(tiny_dataset), "episodes", split="train",
+                                     cache_dir=str(tiny_dataset.parent / "hf-cache"))
+    assert episodes.num_rows == 10
