@@ -10,8 +10,8 @@ from packlab.datagen.engine import RunOptions, generate_dataset
 
 def tiny_config(**overrides) -> DatasetConfig:
     """Three difficulties, a few episodes, geometric replay (instant) and small shards."""
-    fields = dict(difficulties=("easy", "medium", "hard"), episodes=(5, 3, 2), seed=7, shard_size=2,
-                  image_size=64, validation=ValidationConfig(backend="geometric"))
+    fields = {"difficulties": ("easy", "medium", "hard"), "episodes": (5, 3, 2), "seed": 7, "shard_size": 2,
+              "image_size": 64, "validation": ValidationConfig(backend="geometric")}
     fields.update(overrides)
     return DatasetConfig(**fields)
 

@@ -7,8 +7,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-
 from datagen_helpers import make_dataset, tiny_config, tree_bytes
+
 from packlab.datagen import engine
 from packlab.datagen.config import DatasetConfig
 from packlab.datagen.engine import RunOptions, generate_dataset, plan_shards
@@ -111,12 +111,12 @@ def test_foreign_directory_is_refused(tmp_path):
 @pytest.mark.parametrize(
     "fields, message",
     [
-        (dict(episodes=(5, -1, 2)), "episodes for medium = -1"),
-        (dict(difficulties=("easy", "extreme", "hard")), "difficulty = 'extreme'"),
-        (dict(episodes=(5, 3)), "one count per difficulty"),
-        (dict(seed=-4), "seed = -4"),
-        (dict(shard_size=0), "shard_size"),
-        (dict(sft="all"), "sft = 'all'"),
+        ({"episodes": (5, -1, 2)}, "episodes for medium = -1"),
+        ({"difficulties": ("easy", "extreme", "hard")}, "difficulty = 'extreme'"),
+        ({"episodes": (5, 3)}, "one count per difficulty"),
+        ({"seed": -4}, "seed = -4"),
+        ({"shard_size": 0}, "shard_size"),
+        ({"sft": "all"}, "sft = 'all'"),
     ],
 )
 def test_bad_configs_fail_with_one_line(fields, message):

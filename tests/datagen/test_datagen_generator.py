@@ -119,3 +119,25 @@ def test_stage_streams_are_independent():
     b = draw_blueprint(seed, "hard", CaseConfig(anchor=AnchorConfig(corner_prob=0.0)))
     assert a.layout == b.layout and a.rotated == b.rotated
     assert np.all(np.array(a.type_ids) == np.array(b.type_ids))
+
+
+def test_generator_output_is_pinned():
+    """The bench's frozen suites are generate_cases output: any change to what a seed produces
+    must bump GENERATOR_VERSION (and make new suite versions), never slip in silently.
+    numpy's Generator streams are stable for a numpy version; a numpy upgrade that fails this
+    means suites can no longer be regenerated bit for bit on it (the shipped files still load)."""
+    import hashlib
+    import json
+
+    from packlab.datagen.config import GENERATOR_VERSION
+
+    digest = hashlib.sha256()
+    for layout in ("layered", "stepped"):
+        for difficulty in DIFFICULTIES:
+            for case in generate_cases(difficulty, 3, seed=0, validate=False, config=CaseConfig(layout=layout)):
+                digest.update(json.dumps(case_to_dict(case), sort_keys=True).encode())
+    assert GENERATOR_VERSION == "packlab-datagen-1"
+    assert digest.hexdigest() == PINNED_DIGEST
+
+
+PINNED_DIGEST = "a05102a513b9fdde96917c03f6393f7272320866034a746fa428a7f13d5635f5"

@@ -7,7 +7,14 @@ import pytest
 
 from packlab.datagen.config import CaseConfig, difficulty_spec
 from packlab.datagen.generator import draw_blueprint
-from packlab.datagen.layout import Layout, LayoutBox, PieceRules, Rect, guillotine_partition, partition_problems
+from packlab.datagen.layout import (
+    Layout,
+    LayoutBox,
+    PieceRules,
+    Rect,
+    guillotine_partition,
+    partition_problems,
+)
 from packlab.datagen.seeds import case_seed
 
 FAMILIES = ("layered", "stepped")

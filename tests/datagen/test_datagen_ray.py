@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
 from datagen_helpers import tiny_config, tree_bytes
+
 from packlab.datagen.engine import RunOptions, generate_dataset
 
 

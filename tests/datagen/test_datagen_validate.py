@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
-
 from datagen_helpers import make_dataset, tiny_config, tree_bytes
+
 from packlab.datagen.config import CaseConfig, ValidationConfig
 from packlab.datagen.generator import build_case
 from packlab.datagen.seeds import case_seed
@@ -22,11 +22,11 @@ def test_plan_problems_catch_broken_plans():
     assert plan_problems(case) == []
     plan = list(case.gt_plan)
     moved = replace(plan[0], x=plan[0].x + 1, cell_min=(plan[0].x + 1, *plan[0].cell_min[1:]))
-    assert plan_problems(replace(case, gt_plan=tuple([moved, *plan[1:]])))
+    assert plan_problems(replace(case, gt_plan=(moved, *plan[1:])))
     swapped = replace(case, gt_plan=tuple(reversed(plan)), objects=tuple(reversed(case.objects)))
     assert any("drops to" in p for p in plan_problems(swapped))  # top objects first: unsupported
     assert plan_problems(replace(case, gt_plan=None)) == ["case has no gt_plan"]
-    assert check_case(replace(case, gt_plan=tuple([moved, *plan[1:]])), ValidationConfig()).reason == "plan_check"
+    assert check_case(replace(case, gt_plan=(moved, *plan[1:])), ValidationConfig()).reason == "plan_check"
 
 
 def test_judge_reasons():

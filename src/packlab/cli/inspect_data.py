@@ -1,0 +1,35 @@
+"""``packlab inspect-data``: counts, distributions and rejection reasons of a dataset."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from packlab.datagen.stats import collect, dataset_cases, format_report, save_histograms
+from packlab.errors import ConfigError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("inspect-data", help="summarise a PackData dataset directory")
+    p.add_argument("dir", help="dataset directory (holds meta/info.json)")
+    p.add_argument("--plots", metavar="DIR", help="also write PNG histograms into DIR")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    root = Path(args.dir)
+    info_path = root / "meta" / "info.json"
+    if not info_path.is_file():
+        raise ConfigError(f"dir = {str(root)!r}: no meta/info.json; not a finished packlab dataset")
+    info = json.loads(info_path.read_text())
+    dists = collect(dataset_cases(root))
+    if args.json:
+        print(json.dumps({"info": info, "distributions": {k: d.summary() for k, d in dists.items()}}, indent=1))
+    else:
+        print(format_report(info, dists))
+    if args.plots:
+        for path in save_histograms(dists, args.plots):
+            print(f"wrote {path}")
+    return 0

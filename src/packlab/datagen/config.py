@@ -1,0 +1,275 @@
+"""Every published parameter of the data engine, as data, in one place.
+
+The difficulty table (buffer size, object and layer counts, stack-height ratio, container base
+sizes) and the object limits define both PackLab-Bench and PackData, so they live here and
+nowhere else: the sampler, the tests, the dataset card and ``inspect-data`` all read them from
+this module. Lengths are integer millimetres (the core's unit); the comments give the paper's cm.
+
+Config dataclasses validate themselves on creation and raise ``ConfigError`` with one line
+naming the field, so a bad configuration fails before any work starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from packlab.errors import ConfigError
+from packlab.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
+
+#: Bumped whenever the same seed would produce a different case (sampler or layout change).
+GENERATOR_VERSION = "packlab-datagen-1"
+GENERATOR_NAME = "packlab.datagen"
+
+
+@dataclass(frozen=True, slots=True)
+class DifficultySpec:
+    """The published scenario parameters of one difficulty level (inclusive ranges)."""
+
+    name: str
+    buffer_size: int
+    n_objects: tuple[int, int]
+    n_layers: tuple[int, int]
+    height_ratio: tuple[float, float]  # stack height / container height
+    base_sizes_mm: tuple[tuple[int, int, int], ...]  # container (X, Y, Z) before jitter
+
+    def __post_init__(self) -> None:
+        where = f"difficulty {self.name!r}"
+        if self.buffer_size < 1:
+            raise ConfigError(f"{where}: buffer_size = {self.buffer_size}: must be at least 1")
+        for label, (lo, hi) in (("n_objects", self.n_objects), ("n_layers", self.n_layers)):
+            if not 1 <= lo <= hi:
+                raise ConfigError(f"{where}: {label} = {(lo, hi)}: need 1 <= low <= high")
+        if self.n_objects[0] < self.n_layers[1]:
+            raise ConfigError(f"{where}: fewer objects {self.n_objects} than layers {self.n_layers}")
+        lo, hi = self.height_ratio
+        if not 0.0 < lo <= hi <= 1.0:
+            raise ConfigError(f"{where}: height_ratio = {self.height_ratio}: need 0 < low <= high <= 1")
+        if not self.base_sizes_mm:
+            raise ConfigError(f"{where}: base_sizes_mm is empty")
+
+
+def _cm3(x: float, y: float, z: float) -> tuple[int, int, int]:
+    return (round(x * 10), round(y * 10), round(z * 10))
+
+
+#: The paper's three levels. Container sizes are given in cm there.
+DIFFICULTIES: dict[str, DifficultySpec] = {
+    "easy": DifficultySpec(
+        "easy", buffer_size=3, n_objects=(4, 8), n_layers=(1, 2), height_ratio=(0.45, 0.70),
+        base_sizes_mm=(_cm3(50, 50, 40), _cm3(60, 50, 45), _cm3(60, 60, 50), _cm3(80, 60, 55)),
+    ),
+    "medium": DifficultySpec(
+        "medium", buffer_size=5, n_objects=(9, 18), n_layers=(2, 3), height_ratio=(0.45, 0.70),
+        base_sizes_mm=(_cm3(80, 80, 60), _cm3(100, 80, 70), _cm3(100, 100, 80), _cm3(120, 100, 90)),
+    ),
+    "hard": DifficultySpec(
+        "hard", buffer_size=10, n_objects=(19, 32), n_layers=(3, 4), height_ratio=(0.84, 0.96),
+        base_sizes_mm=(_cm3(120, 120, 90), _cm3(140, 120, 100), _cm3(140, 140, 100), _cm3(160, 120, 110)),
+    ),
+}
+
+
+def difficulty_spec(name: str) -> DifficultySpec:
+    """The spec of a difficulty by name; ``ConfigError`` naming the choices otherwise."""
+    try:
+        return DIFFICULTIES[name]
+    except KeyError:
+        raise ConfigError(
+            f"difficulty = {name!r}: unknown; choose from {', '.join(DIFFICULTIES)}"
+        ) from None
+
+
+@dataclass(frozen=True, slots=True)
+class ContainerLimits:
+    """Jitter and clamps applied to a container base size (shared by all difficulties)."""
+
+    jitter_xy_mm: int = 100  # +-10 cm, in whole cells (multiples of cell_xy_mm)
+    jitter_z_mm: int = 100  # +-10 cm, in whole cm
+    jitter_z_step_mm: int = 10
+    clamp_xy_mm: tuple[int, int] = (500, 1700)  # [50, 170] cm
+    clamp_z_mm: tuple[int, int] = (350, 1200)  # [35, 120] cm
+
+
+@dataclass(frozen=True, slots=True)
+class ObjectLimits:
+    """Shape limits of every generated object."""
+
+    min_side_mm: int = 75  # 7.5 cm = 3 grid cells
+    max_aspect: float = 3.0  # long over short side of the footprint
+    layer_height_mm: tuple[int, int] = (80, 560)  # 8-56 cm
+    height_step_mm: int = 10  # layer heights in whole cm
+    rotated_fraction: float = 0.25  # objects presented with rotation 1 in the plan
+
+
+#: Layout families (see ``packlab.datagen.layout``): "layered" is the paper's, "stepped" is the
+#: opt-in richer family (regions of a layer split at different heights).
+LAYOUT_FAMILIES = ("layered", "stepped")
+
+#: Corners of the floor a first placement may be anchored at: (x at max?, y at max?).
+CORNERS: dict[str, tuple[bool, bool]] = {
+    "x0y0": (False, False),
+    "x1y0": (True, False),
+    "x0y1": (False, True),
+    "x1y1": (True, True),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class AnchorConfig:
+    """Where the first placement goes: a corner with ``corner_prob``, else any floor object."""
+
+    corner_prob: float = 0.8
+    corners: tuple[str, ...] = tuple(CORNERS)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.corner_prob <= 1.0:
+            raise ConfigError(f"anchor.corner_prob = {self.corner_prob!r}: must be in [0, 1]")
+        bad = [c for c in self.corners if c not in CORNERS]
+        if bad or not self.corners:
+            raise ConfigError(f"anchor.corners = {self.corners!r}: choose from {', '.join(CORNERS)}")
+
+
+@dataclass(frozen=True, slots=True)
+class CaseConfig:
+    """Everything that decides what case a case seed turns into (besides the difficulty)."""
+
+    layout: str = "layered"
+    #: Stepped family only: chance that a region of a layer is split into two sub-layers.
+    step_prob: float = 0.6
+    anchor: AnchorConfig = field(default_factory=AnchorConfig)
+    container: ContainerLimits = field(default_factory=ContainerLimits)
+    objects: ObjectLimits = field(default_factory=ObjectLimits)
+    cell_xy_mm: int = DEFAULT_CELL_XY_MM
+    cell_z_mm: int = DEFAULT_CELL_Z_MM
+    #: Distinct colour ids given to objects (``type_id`` only picks a colour).
+    n_types: int = 8
+
+    def __post_init__(self) -> None:
+        if self.layout not in LAYOUT_FAMILIES:
+            raise ConfigError(f"layout = {self.layout!r}: unknown; choose from {', '.join(LAYOUT_FAMILIES)}")
+        if not 0.0 <= self.step_prob <= 1.0:
+            raise ConfigError(f"step_prob = {self.step_prob!r}: must be in [0, 1]")
+        if self.objects.min_side_mm % self.cell_xy_mm:
+            raise ConfigError(f"objects.min_side_mm = {self.objects.min_side_mm}: not a multiple of the grid")
+        if self.n_types < 1:
+            raise ConfigError(f"n_types = {self.n_types}: must be at least 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+#: What replay validation runs each plan on: physics (the default) or exact Eq. 2 (fast checks).
+VALIDATION_BACKENDS = ("mujoco", "geometric")
+
+
+@dataclass(frozen=True, slots=True)
+class ValidationConfig:
+    """Replay validation: backend, the run seed of the shuffle, and when a replay is accepted."""
+
+    backend: str = "mujoco"
+    run_seed: int = 0
+    min_overall: float = 0.99
+    #: Fresh case seeds tried for one dataset slot before the slot is reported as failed.
+    max_attempts: int = 20
+
+    def __post_init__(self) -> None:
+        if self.backend not in VALIDATION_BACKENDS:
+            raise ConfigError(
+                f"validation = {self.backend!r}: unknown; choose from {', '.join(VALIDATION_BACKENDS)}"
+            )
+        if not 0.0 <= self.min_overall <= 1.0:
+            raise ConfigError(f"min_overall = {self.min_overall!r}: must be in [0, 1]")
+        if self.max_attempts < 1:
+            raise ConfigError(f"max_attempts = {self.max_attempts}: must be at least 1")
+
+
+@dataclass(frozen=True, slots=True)
+class Recipe:
+    """A named, reproducible dataset: difficulties, episode counts and seed."""
+
+    name: str
+    difficulties: tuple[str, ...]
+    episodes: tuple[int, ...]
+    seed: int
+    description: str = ""
+
+
+#: Named datasets; ``packlab generate --recipe NAME`` reproduces one in one flag.
+RECIPES: dict[str, Recipe] = {
+    "packdata-20k": Recipe(
+        "packdata-20k", ("easy", "medium", "hard"), (9000, 7000, 4000), seed=20250,
+        description="PackData-20K: 9000 easy, 7000 medium, 4000 hard validated trajectories",
+    ),
+    "packdata-mini": Recipe(
+        "packdata-mini", ("easy", "medium", "hard"), (18, 14, 8), seed=20250,
+        description="A 40-episode slice with the 20K mix, for a quick try",
+    ),
+}
+
+
+#: SFT export: one chat example per step (its whole history as context) or per episode.
+SFT_MODES = ("per_step", "per_episode", "none")
+
+
+@dataclass(frozen=True, slots=True)
+class DatasetConfig:
+    """Everything that decides a dataset's *contents* (how it is run is ``engine.RunOptions``).
+
+    Saved as ``generator_config`` in ``meta/info.json``; a rerun into the same directory must
+    match it exactly, which is what makes resuming safe.
+    """
+
+    difficulties: tuple[str, ...]
+    episodes: tuple[int, ...]
+    seed: int
+    case: CaseConfig = field(default_factory=CaseConfig)
+    validation: ValidationConfig = field(default_factory=ValidationConfig)
+    shard_size: int = 100
+    image_size: int = 224
+    sft: str = "per_step"
+    recipe: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.difficulties:
+            raise ConfigError("difficulty: give at least one of " + ", ".join(DIFFICULTIES))
+        for name in self.difficulties:
+            difficulty_spec(name)
+        if len(set(self.difficulties)) != len(self.difficulties):
+            raise ConfigError(f"difficulty = {','.join(self.difficulties)}: a difficulty is repeated")
+        if len(self.episodes) != len(self.difficulties):
+            raise ConfigError(
+                f"episodes = {','.join(map(str, self.episodes))}: give one count per difficulty "
+                f"({len(self.difficulties)})"
+            )
+        for name, n in zip(self.difficulties, self.episodes):
+            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+                raise ConfigError(f"episodes for {name} = {n!r}: must be a whole number >= 0")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"seed = {self.seed!r}: must be a whole number >= 0")
+        if self.shard_size < 1:
+            raise ConfigError(f"shard_size = {self.shard_size}: must be at least 1")
+        if not 16 <= self.image_size <= 4096:
+            raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
+        if self.sft not in SFT_MODES:
+            raise ConfigError(f"sft = {self.sft!r}: choose from {', '.join(SFT_MODES)}")
+        if self.recipe is not None and self.recipe not in RECIPES:
+            raise ConfigError(f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}")
+
+    @property
+    def total_episodes(self) -> int:
+        return sum(self.episodes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_recipe(cls, name: str, **overrides: Any) -> DatasetConfig:
+        """The config of a named recipe; ``overrides`` (e.g. ``seed``) replace its fields."""
+        if name not in RECIPES:
+            raise ConfigError(f"recipe = {name!r}: unknown; choose from {', '.join(RECIPES)}")
+        r = RECIPES[name]
+        fields: dict[str, Any] = {"difficulties": r.difficulties, "episodes": r.episodes, "seed": r.seed,
+                                  "recipe": name}
+        fields.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**fields)

@@ -1,0 +1,369 @@
+"""The data engine: dataset config -> shards of validated episodes on disk, in parallel, resumable.
+
+Work is cut into shards of ``shard_size`` consecutive slots of one difficulty. A shard is a pure
+function of (config, difficulty, shard index): slot ``i`` tries the case seeds
+``case_seed(seed, "train", difficulty, i, attempt)`` for attempt = 0, 1, ... until one passes
+replay validation, so the output never depends on the number of workers, the backend or the
+order shards finish in. Each finished shard leaves a marker (``meta/shards/<shard>.json``,
+written after all its files); a rerun of the same command skips marked shards and redoes the
+rest, so killing a run loses at most the shards in flight.
+
+Backends: ``process`` (default; a local process pool, one shard per task), ``serial`` (in this
+process) and ``ray`` (one Ray task per shard; the output directory must be on storage every Ray
+node can write).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from packlab.datagen import format as fmt
+from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig
+from packlab.datagen.generator import SlotOutcome, fill_slot
+from packlab.errors import ConfigError
+
+#: The seed domain of training data (see packlab.datagen.seeds): disjoint from the bench's.
+TRAIN_DOMAIN = "train"
+EXEC_BACKENDS = ("process", "serial", "ray")
+
+#: Called once per finished slot with (kept?, rejected attempts) for progress reporting.
+Report = Callable[[bool, int], None]
+
+
+@dataclass(frozen=True, slots=True)
+class RunOptions:
+    """How a dataset is produced (never what it contains)."""
+
+    out: str
+    workers: int = 0  # 0: one per CPU core
+    backend: str = "process"
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.backend not in EXEC_BACKENDS:
+            raise ConfigError(f"backend = {self.backend!r}: unknown; choose from {', '.join(EXEC_BACKENDS)}")
+        if self.workers < 0:
+            raise ConfigError(f"workers = {self.workers}: must be >= 0 (0 = one per core)")
+
+    @property
+    def n_workers(self) -> int:
+        return self.workers or os.cpu_count() or 1
+
+
+@dataclass(frozen=True, slots=True)
+class ShardSpec:
+    """Slots ``start .. start + count - 1`` of one difficulty."""
+
+    difficulty: str
+    index: int
+    start: int
+    count: int
+
+    @property
+    def name(self) -> str:
+        return fmt.shard_name(self.difficulty, self.index)
+
+
+@dataclass(frozen=True, slots=True)
+class ShardStats:
+    """What one shard produced; its JSON is the shard's completion marker."""
+
+    shard: str
+    difficulty: str
+    slots: int
+    episodes: int
+    steps: int
+    attempts: int
+    rejections: dict[str, int] = field(default_factory=dict)
+    failed_slots: tuple[int, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["failed_slots"] = list(self.failed_slots)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ShardStats:
+        return cls(**{**d, "failed_slots": tuple(d.get("failed_slots", ()))})
+
+
+def plan_shards(cfg: DatasetConfig) -> list[ShardSpec]:
+    """Every shard of the dataset, in a fixed order (difficulty, then index)."""
+    shards = []
+    for difficulty, n in zip(cfg.difficulties, cfg.episodes):
+        for index, start in enumerate(range(0, n, cfg.shard_size)):
+            shards.append(ShardSpec(difficulty, index, start, min(cfg.shard_size, n - start)))
+    return shards
+
+
+# -- one slot, one shard ----------------------------------------------------------------------
+
+def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
+    """The slot's first validated case in the training seed space, with its replay."""
+    return fill_slot(cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-")
+
+
+def run_shard(cfg: DatasetConfig, spec: ShardSpec, root: Path, report: Report | None = None) -> ShardStats:
+    """Produce one shard's files under ``root`` and, last, its marker; returns its stats."""
+    root = Path(root)
+    step_rows: list[dict[str, Any]] = []
+    episode_rows: list[dict[str, Any]] = []
+    rejections: Counter[str] = Counter()
+    failed: list[int] = []
+    attempts = 0
+    images = fmt.ShardImages(root, spec.difficulty, spec.name)
+    for slot in range(spec.start, spec.start + spec.count):
+        outcome = produce_slot(cfg, spec.difficulty, slot)
+        trajectory, rejected = outcome.trajectory, outcome.rejected
+        rejections.update(rejected)
+        attempts += len(rejected) + (trajectory is not None)
+        if trajectory is None:
+            failed.append(slot)
+        else:
+            rows = fmt.step_rows(trajectory, spec.name)
+            container = trajectory.case.container
+            for row, seen in zip(rows, trajectory.steps):
+                images.write(row["image"], fmt.encode_png(seen.heightmap, container, cfg.image_size))
+            step_rows += rows
+            episode_rows.append(fmt.episode_row(trajectory))
+        if report is not None:
+            report(trajectory is not None, len(rejected))
+    images.commit()
+    fmt.write_parquet(root / fmt.STEPS_DIR / f"{spec.name}.parquet", fmt.steps_table(step_rows))
+    fmt.write_parquet(root / fmt.EPISODES_DIR / f"{spec.name}.parquet", fmt.episodes_table(episode_rows))
+    if cfg.sft != "none":
+        fmt.atomic_write_bytes(root / fmt.SFT_DIR / f"{spec.name}.jsonl", fmt.sft_jsonl(step_rows, cfg.sft))
+    stats = ShardStats(spec.name, spec.difficulty, spec.count, len(episode_rows), len(step_rows), attempts,
+                       dict(sorted(rejections.items())), tuple(failed))
+    fmt.atomic_write_json(root / fmt.SHARDS_DIR / f"{spec.name}.json", stats.to_dict())
+    return stats
+
+
+# -- the output directory ---------------------------------------------------------------------
+
+def _config_json(cfg: DatasetConfig) -> dict[str, Any]:
+    # A JSON round trip turns tuples into lists, so stored and fresh configs compare equal.
+    return json.loads(json.dumps(cfg.to_dict()))
+
+
+def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
+    """Create or reopen the dataset directory; fail with one line before any work starts."""
+    root = Path(out)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        probe = root / ".packlab-write-probe.tmp"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"out = {str(root)!r}: cannot write there ({exc.strerror or exc})") from None
+    config_path = root / fmt.META_DIR / "config.json"
+    wanted = _config_json(cfg)
+    if config_path.exists():
+        stored = json.loads(config_path.read_text())
+        if stored != wanted:
+            diff = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
+            raise ConfigError(
+                f"out = {str(root)!r}: holds a dataset made with a different config ({', '.join(diff)} "
+                "differ); rerun with the same options to resume, or choose another --out"
+            )
+    elif any(p.name != ".packlab-write-probe.tmp" for p in root.iterdir()):
+        raise ConfigError(f"out = {str(root)!r}: exists and is not an empty directory or a packlab dataset")
+    else:
+        fmt.atomic_write_json(config_path, wanted)
+    fmt.remove_stale_temporaries(root)
+    return root
+
+
+def finished_shards(root: Path) -> dict[str, ShardStats]:
+    """Stats of every shard whose marker exists (the shard is complete)."""
+    out = {}
+    for path in sorted((root / fmt.SHARDS_DIR).glob("*.json")):
+        out[path.stem] = ShardStats.from_dict(json.loads(path.read_text()))
+    return out
+
+
+def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> dict[str, Any]:
+    """``meta/info.json``: what the directory holds and how it was made (deterministic)."""
+    from packlab.vlm.prompt import PROMPT_VERSION
+
+    per: dict[str, dict[str, Any]] = {}
+    for d in cfg.difficulties:
+        mine = [s for s in shards if s.difficulty == d]
+        rej: Counter[str] = Counter()
+        for s in mine:
+            rej.update(s.rejections)
+        attempts = sum(s.attempts for s in mine)
+        episodes = sum(s.episodes for s in mine)
+        per[d] = {
+            "requested": cfg.episodes[cfg.difficulties.index(d)],
+            "episodes": episodes,
+            "steps": sum(s.steps for s in mine),
+            "attempts": attempts,
+            "rejected": sum(rej.values()),
+            "acceptance_rate": round(episodes / attempts, 6) if attempts else None,
+            "rejections": dict(sorted(rej.items())),
+            "failed_slots": sorted(slot for s in mine for slot in s.failed_slots),
+        }
+    total_rej: Counter[str] = Counter()
+    for v in per.values():
+        total_rej.update(v["rejections"])
+    return {
+        "format_version": fmt.FORMAT_VERSION,
+        "name": cfg.recipe or "packdata-custom",
+        "generator": {"name": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed_domain": TRAIN_DOMAIN},
+        "generator_config": _config_json(cfg),
+        "validation_backend": cfg.validation.backend,
+        "prompt_version": PROMPT_VERSION,
+        "counts": {
+            "episodes": sum(v["episodes"] for v in per.values()),
+            "steps": sum(v["steps"] for v in per.values()),
+            "shards": len(shards),
+            "by_difficulty": per,
+        },
+        "rejections": dict(sorted(total_rej.items())),
+        "image": {"size": cfg.image_size, "format": "png", "mode": "P", "axes": "x=columns left->right, "
+                  "y=rows top->bottom, cell (0,0) top-left", "colour": "absolute height, floor to rim"},
+        "files": {"steps": f"{fmt.STEPS_DIR}/*.parquet", "episodes": f"{fmt.EPISODES_DIR}/*.parquet",
+                  "sft": f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None, "sft_mode": cfg.sft,
+                  "images": f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png"},
+    }
+
+
+def write_info(cfg: DatasetConfig, root: Path) -> dict[str, Any]:
+    wanted = {s.name for s in plan_shards(cfg)}
+    shards = [s for name, s in finished_shards(root).items() if name in wanted]
+    info = dataset_info(cfg, shards)
+    fmt.atomic_write_json(root / fmt.META_DIR / "info.json", info)
+    fmt.atomic_write_bytes(root / "README.md", fmt.dataset_card(info).encode())
+    return info
+
+
+# -- running shards ---------------------------------------------------------------------------
+
+class _Progress:
+    """tqdm on stderr counting slots, with rejections in the postfix."""
+
+    def __init__(self, total: int, initial: int, enabled: bool) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, initial=initial, unit="ep", desc="generate", file=sys.stderr,
+                        disable=not enabled, dynamic_ncols=True, smoothing=0.05)
+        self.rejected = 0
+
+    def __call__(self, kept: bool, rejected: int) -> None:
+        self.advance(1, rejected)
+
+    def advance(self, slots: int, rejected: int) -> None:
+        self.rejected += rejected
+        self.bar.set_postfix(rejected=self.rejected, refresh=False)
+        self.bar.update(slots)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+_WORKER_QUEUE: Any = None
+
+
+def _init_worker(queue: Any) -> None:
+    global _WORKER_QUEUE
+    _WORKER_QUEUE = queue
+    # Ctrl-C reaches every process of the terminal's group; only the parent handles it (by
+    # terminating the pool), so a worker never dies half-way through reporting.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _pool_task(cfg: DatasetConfig, spec: ShardSpec, root: str) -> ShardStats:
+    return run_shard(cfg, spec, Path(root), lambda kept, rej: _WORKER_QUEUE.put((kept, rej)))
+
+
+def _run_process_pool(cfg: DatasetConfig, pending: list[ShardSpec], root: Path, workers: int,
+                      progress: _Progress) -> None:
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    # spawn: workers start clean (no inherited threads or engine state from this process).
+    ctx = mp.get_context("spawn")
+    reports = ctx.Queue()
+
+    def drain(timeout: float) -> None:
+        try:
+            progress(*reports.get(timeout=timeout))
+            while True:
+                progress(*reports.get_nowait())
+        except queue_mod.Empty:
+            pass
+
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(reports,))
+    try:
+        running = [pool.apply_async(_pool_task, (cfg, spec, str(root))) for spec in pending]
+        while running:
+            drain(0.2)
+            for result in [r for r in running if r.ready()]:
+                result.get()  # a worker's exception surfaces here
+                running.remove(result)
+        pool.close()
+        pool.join()
+        drain(0.0)
+    except BaseException:
+        # Interrupted or failed: stop the workers now. Shards in flight have no marker and are
+        # redone by the next run; their staged files are removed then.
+        pool.terminate()
+        pool.join()
+        raise
+
+
+def _run_ray(cfg: DatasetConfig, pending: list[ShardSpec], root: Path, workers: int, progress: _Progress) -> None:
+    try:
+        import ray
+    except ModuleNotFoundError:
+        raise ConfigError("backend = 'ray' needs the ray extra: pip install 'packlab[ray]'") from None
+    if not ray.is_initialized():
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    task = ray.remote(num_cpus=1)(run_shard)
+    refs = {task.remote(cfg, spec, root): spec for spec in pending}
+    while refs:
+        ready, _ = ray.wait(list(refs), num_returns=1)
+        for ref in ready:
+            stats: ShardStats = ray.get(ref)
+            spec = refs.pop(ref)
+            # Ray reports per shard, not per slot: advance by the shard's slots at once.
+            progress.advance(spec.count, stats.attempts - stats.episodes)
+
+
+def shard_order(pending: list[ShardSpec]) -> list[ShardSpec]:
+    """Longest first (hard, then medium, then easy) so the last tasks are short: better balance."""
+    weight = {"hard": 0, "medium": 1, "easy": 2}
+    return sorted(pending, key=lambda s: (weight.get(s.difficulty, 3), s.difficulty, s.index))
+
+
+def generate_dataset(cfg: DatasetConfig, options: RunOptions) -> dict[str, Any]:
+    """Make (or finish) the dataset of ``cfg`` in ``options.out``; returns its ``info.json``."""
+    root = prepare_output(cfg, options.out)
+    shards = plan_shards(cfg)
+    done = finished_shards(root)
+    pending = shard_order([s for s in shards if s.name not in done])
+    total = sum(s.count for s in shards)
+    progress = _Progress(total, total - sum(s.count for s in pending), options.progress)
+    try:
+        workers = min(options.n_workers, max(len(pending), 1))
+        if not pending:
+            pass
+        elif options.backend == "ray":
+            _run_ray(cfg, pending, root, workers, progress)
+        elif options.backend == "serial" or workers == 1:
+            for spec in pending:
+                run_shard(cfg, spec, root, progress)
+        else:
+            _run_process_pool(cfg, pending, root, workers, progress)
+    finally:
+        progress.close()
+    return write_info(cfg, root)

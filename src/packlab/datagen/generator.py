@@ -1,0 +1,163 @@
+"""Case seed -> Case: scenario, layout, presentation and placement order put together.
+
+``build_case`` is pure: the same (seed, difficulty, config) always gives the same case.
+``generate_cases`` is the public entry point for frozen suites (the bench) and shares every line
+of case making with the dataset engine, so suites and datasets come from one generator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from packlab.datagen.config import (
+    GENERATOR_NAME,
+    GENERATOR_VERSION,
+    CaseConfig,
+    ValidationConfig,
+    difficulty_spec,
+)
+from packlab.datagen.layout import Layout, build_layout
+from packlab.datagen.removal import PlacementOrder, reverse_removal
+from packlab.datagen.scenario import Scenario, sample_scenario
+from packlab.datagen.seeds import case_seed, case_streams, domain_tag
+from packlab.errors import ConfigError, PacklabError
+from packlab.types import Box, Case, PlanStep
+
+
+@dataclass(frozen=True, slots=True)
+class Blueprint:
+    """Everything drawn for one case, kept for checks and statistics."""
+
+    scenario: Scenario
+    layout: Layout
+    order: PlacementOrder
+    rotated: tuple[bool, ...]  # per layout box: presented at rotation 1
+    type_ids: tuple[int, ...]  # per layout box
+
+
+def draw_blueprint(seed: int, difficulty: str, cfg: CaseConfig) -> Blueprint:
+    """The random draws of one case, each stage from its own stream of the case seed."""
+    spec = difficulty_spec(difficulty)
+    scenario_rng, layout_rng, present_rng, order_rng = case_streams(seed, 4)
+    scenario = sample_scenario(spec, cfg, scenario_rng)
+    layout = build_layout(scenario, cfg, layout_rng)
+    n = len(layout.boxes)
+    rotated = tuple(bool(r) for r in present_rng.random(n) < cfg.objects.rotated_fraction)
+    type_ids = tuple(int(t) for t in present_rng.integers(cfg.n_types, size=n))
+    order = reverse_removal(layout, cfg.anchor, order_rng)
+    return Blueprint(scenario, layout, order, rotated, type_ids)
+
+
+def _cm(mm: int) -> float | int:
+    cm = mm / 10
+    return int(cm) if cm.is_integer() else cm
+
+
+def case_from_blueprint(bp: Blueprint, seed: int, difficulty: str, episode_id: str,
+                        provenance: dict[str, Any] | None = None) -> Case:
+    """The case of a blueprint: arrival order = placement order, and the plan that replays it.
+
+    ``internal_id`` is the object's index in the layout and ``gt_index`` its position in the
+    plan. A rotated object's own size is (w, l, h) of its footprint, so rotation 1 puts it back
+    where the layout has it (``Box.footprint_mm(1)`` swaps l and w).
+    """
+    spec = difficulty_spec(difficulty)
+    c = bp.scenario.container
+    objects, plan = [], []
+    for gt_index, i in enumerate(bp.order.order):
+        b = bp.layout.boxes[i]
+        rotation = int(bp.rotated[i])
+        fx, fy, h = b.dx * c.cell_xy_mm, b.dy * c.cell_xy_mm, b.dz * c.cell_z_mm
+        size = (fy, fx, h) if rotation else (fx, fy, h)
+        objects.append(Box(internal_id=i, size_mm=size, gt_index=gt_index, type_id=bp.type_ids[i]))
+        plan.append(PlanStep(internal_id=i, gt_index=gt_index, layer_index=b.layer_index,
+                             cell_min=(b.x, b.y, b.z), cell_size=(b.dx, b.dy, b.dz),
+                             x=b.x, y=b.y, rotation=rotation))
+    first = bp.layout.boxes[bp.order.order[0]]
+    generator = {
+        "name": GENERATOR_NAME,
+        "version": GENERATOR_VERSION,
+        "layout": bp.layout.family,
+        "anchor": bp.order.anchor,
+        "first_cell": [first.x, first.y],
+        "n_layers": len(bp.scenario.layer_heights_mm),
+        "stack_height_cm": _cm(bp.scenario.stack_height_mm),
+        "layer_heights_cm": [_cm(h) for h in bp.scenario.layer_heights_mm],
+        "base_size_cm": [_cm(v) for v in bp.scenario.base_size_mm],
+        **(provenance or {}),
+    }
+    return Case(episode_id=episode_id, container=c, buffer_size=spec.buffer_size, objects=tuple(objects),
+                seed=seed, difficulty=difficulty, gt_plan=tuple(plan), generator=generator)
+
+
+def build_case(seed: int, difficulty: str, cfg: CaseConfig | None = None, episode_id: str | None = None,
+               provenance: dict[str, Any] | None = None) -> Case:
+    """The case of a case seed (pure and deterministic)."""
+    cfg = cfg or CaseConfig()
+    bp = draw_blueprint(seed, difficulty, cfg)
+    return case_from_blueprint(bp, seed, difficulty, episode_id or f"{difficulty}-{seed}", provenance)
+
+
+def slot_case(user_seed: int, domain: str, difficulty: str, slot: int, attempt: int, cfg: CaseConfig,
+              id_prefix: str) -> Case:
+    """The case tried for one slot of a suite or dataset at one attempt."""
+    seed = case_seed(user_seed, domain, difficulty, slot, attempt)
+    provenance = {"domain": domain, "user_seed": int(user_seed), "slot": int(slot), "attempt": int(attempt)}
+    return build_case(seed, difficulty, cfg, f"{id_prefix}{difficulty}-{slot:05d}", provenance)
+
+
+@dataclass(frozen=True, slots=True)
+class SlotOutcome:
+    """The first accepted attempt of a slot (``case`` None when all failed) and the rejections."""
+
+    case: Case | None
+    trajectory: Any  # validate.Trajectory of the accepted replay; None without replay
+    rejected: tuple[str, ...]  # reasons of the rejected attempts, in order
+
+
+def fill_slot(user_seed: int, domain: str, difficulty: str, slot: int, cfg: CaseConfig,
+              validation: ValidationConfig, id_prefix: str, replay_plan: bool = True) -> SlotOutcome:
+    """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out)."""
+    from packlab.datagen.validate import check_case  # validate imports the episode loop
+
+    rejected = []
+    for attempt in range(validation.max_attempts):
+        case = slot_case(user_seed, domain, difficulty, slot, attempt, cfg, id_prefix)
+        verdict = check_case(case, validation, replay_plan=replay_plan)
+        if verdict.accepted:
+            return SlotOutcome(case, verdict.trajectory, tuple(rejected))
+        rejected.append(verdict.reason)
+    return SlotOutcome(None, None, tuple(rejected))
+
+
+def generate_cases(difficulty: str, n: int, seed: int, validate: bool = True, *,
+                   config: CaseConfig | None = None, validation: ValidationConfig | None = None,
+                   domain: str = "bench", start: int = 0, id_prefix: str | None = None) -> list[Case]:
+    """``n`` cases of one difficulty, deterministic for ``seed``; the bench's suite maker.
+
+    Slot ``i`` (``start <= i < start + n``) takes the first attempt whose case passes the plan
+    checks and, with ``validate``, the replay validation (mujoco by default, see
+    ``ValidationConfig``). ``domain`` picks the seed space (see ``packlab.datagen.seeds``): the
+    bench's default keeps suites disjoint from training data. Episode ids are
+    ``{id_prefix}{difficulty}-{slot:05d}`` with ``id_prefix`` defaulting to ``"{domain}-"``.
+    """
+    difficulty_spec(difficulty)
+    domain_tag(domain)
+    if n < 0 or start < 0:
+        raise ConfigError(f"n = {n}, start = {start}: must not be negative")
+    cfg = config or CaseConfig()
+    val = validation or ValidationConfig()
+    prefix = f"{domain}-" if id_prefix is None else id_prefix
+    cases = []
+    for slot in range(start, start + n):
+        outcome = fill_slot(seed, domain, difficulty, slot, cfg, val, prefix, replay_plan=validate)
+        if outcome.case is None:
+            raise PacklabError(f"{difficulty} slot {slot}: no valid case in {val.max_attempts} attempts "
+                               f"({', '.join(outcome.rejected)})")
+        cases.append(outcome.case)
+    return cases
+
+
+__all__ = ["Blueprint", "SlotOutcome", "build_case", "case_from_blueprint", "draw_blueprint", "fill_slot",
+           "generate_cases", "slot_case"]
