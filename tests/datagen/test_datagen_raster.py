@@ -10,6 +10,7 @@ import pytest
 from packlab.types import Container
 from packlab.viz.raster import (
     BACKGROUND_INDEX,
+    FRAME_INDEX,
     LEVELS,
     PALETTE,
     height_colour,
@@ -69,11 +70,13 @@ def test_colour_scale_is_fixed_and_monotone():
 
 def test_grid_lines_darken_without_hiding_height():
     hm = np.full(C.cells, 400, np.int32)
-    idx = heightmap_to_indices(hm, C, size=224)
-    row = idx[100]
     level = height_levels(np.array([[400]]), C.height_mm)[0, 0]
-    values = set(np.unique(row)) - {BACKGROUND_INDEX}
-    assert {level, level + LEVELS, level + 2 * LEVELS} <= values  # interior, thin line, major line
+    # 5 px cells: interior and major lines only (thin lines would dominate so small a cell).
+    values = set(np.unique(heightmap_to_indices(hm, C, size=224)[100])) - {BACKGROUND_INDEX, FRAME_INDEX}
+    assert values == {level, level + 2 * LEVELS}
+    # 10 px cells: interior, thin line, major line.
+    values = set(np.unique(heightmap_to_indices(hm, C, size=448)[200])) - {BACKGROUND_INDEX, FRAME_INDEX}
+    assert values == {level, level + LEVELS, level + 2 * LEVELS}
 
 
 @pytest.mark.parametrize("cells", [(20, 20), (68, 48), (7, 3), (300, 10)])

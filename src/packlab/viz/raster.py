@@ -14,7 +14,7 @@ Convention (the VLM prompt and every figure rely on it):
   container, so heights can be compared across steps. ``LEVELS`` ramp steps over the container
   height (1.5 cm per step for the tallest 120 cm container).
 * Grid lines darken the cell colour (so they never hide a height): a thin line on every cell
-  boundary when cells are at least 3 px, and a stronger line every ``major_every`` cells (cell
+  boundary when cells are at least 6 px, and a stronger line every ``major_every`` cells (cell
   indices 5, 10, ... by default) so coordinates can be counted.
 
 The image is palette-indexed internally (``heightmap_to_indices`` + ``PALETTE``), which makes
@@ -40,7 +40,9 @@ DEFAULT_SIZE = 224
 LEVELS = 84
 _RAMP = LEVELS - 2
 #: Shades of each level: cell interior, thin grid line, major grid line (multipliers).
-_SHADES = (1.0, 0.72, 0.45)
+_SHADES = (1.0, 0.8, 0.5)
+#: Smallest cell size (px) that gets a thin line on every cell boundary.
+THIN_LINES_MIN_PX = 6
 BACKGROUND_INDEX = LEVELS * len(_SHADES)
 FRAME_INDEX = BACKGROUND_INDEX + 1
 
@@ -98,7 +100,9 @@ def _line_shade(cells: np.ndarray, px_per_cell: int, major_every: int) -> np.nda
     if px_per_cell < 2:
         return shade
     first = np.r_[False, cells[1:] != cells[:-1]]
-    if px_per_cell >= 3:
+    # Thin lines on every cell only when cells are big enough for them not to dominate the
+    # picture; below that only the major lines are drawn, which still let coordinates be counted.
+    if px_per_cell >= THIN_LINES_MIN_PX:
         shade[first] = 1
     if major_every > 0:
         shade[first & (cells % major_every == 0)] = 2
