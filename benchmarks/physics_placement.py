@@ -35,18 +35,9 @@ def cases_with(difficulty: str, n_objects: int, count: int):
     return out
 
 
-def planned_centres(case) -> dict[int, np.ndarray]:
-    cell, cz = case.container.cell_xy_mm, case.container.cell_z_mm
-    centres = {}
-    for p in case.gt_plan:
-        box = case.box_by_id(p.internal_id)
-        fx, fy = box.footprint_mm(p.rotation)
-        centres[p.internal_id] = np.array([p.x * cell + fx / 2, p.y * cell + fy / 2, p.cell_min[2] * cz + box.size_mm[2] / 2])
-    return centres
-
-
 def measure_size(args: tuple[str, int, int]) -> dict:
     difficulty, n_objects, episodes = args
+    from packlab.metrics import plan_drift_mm
     from packlab.policies import make_policy
     from packlab.sim.episode import run_episode
 
@@ -57,8 +48,7 @@ def measure_size(args: tuple[str, int, int]) -> dict:
         times += [s.wall_time_s for s in result.steps]
         settle += [s.settle_steps for s in result.steps]
         overall.append(result.metrics.overall)
-        for i, c in planned_centres(case).items():
-            drift = max(drift, float(np.abs(np.array(result.poses[i].position_mm) - c).max()))
+        drift = max(drift, plan_drift_mm(case, result.poses))
     container = cases[0].container.size_mm
     return {
         "difficulty": difficulty,

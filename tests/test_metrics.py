@@ -50,3 +50,20 @@ def test_final_pose_decides_even_if_the_box_was_inside_before():
     inside_then = score_final_state(C, [100, 100], [(50, 50, 25), (50, 50, 75)], hm)
     knocked_out = score_final_state(C, [100, 100], [(50, 50, 25), (150, 50, 20)], hm)
     assert inside_then[0] == 1.0 and knocked_out[0] == 0.5
+
+
+def test_plan_drift_measures_the_largest_axis_deviation():
+    from layered_cases import make_layered_case
+    from packlab.metrics import plan_drift_mm, planned_centres_mm
+    from packlab.types import Pose
+
+    case = make_layered_case(0)
+    centres = planned_centres_mm(case)
+    poses = {i: Pose(c, (1.0, 0.0, 0.0, 0.0)) for i, c in centres.items()}
+    assert plan_drift_mm(case, poses) == 0.0
+    first = next(iter(centres))
+    x, y, z = centres[first]
+    poses[first] = Pose((x, y + 3.5, z - 1.0), (1.0, 0.0, 0.0, 0.0))
+    assert plan_drift_mm(case, poses) == 3.5
+    poses[first] = None
+    assert plan_drift_mm(case, poses) == float("inf")

@@ -83,3 +83,30 @@ def score_final_state(
     sr = success_ratio(inside_volume, sum(volumes_mm3))
     comp = compactness(inside_volume, container, max_height)
     return sr, comp, sr * comp, inside_volume, sum(inside), max_height
+
+
+def planned_centres_mm(case) -> dict[int, tuple[float, float, float]]:
+    """Centre (mm) of every object in the case's perfect layout, by internal id."""
+    if case.gt_plan is None:
+        raise ValueError(f"case {case.episode_id!r} has no gt_plan")
+    cell, cell_z = case.container.cell_xy_mm, case.container.cell_z_mm
+    centres = {}
+    for p in case.gt_plan:
+        box = case.box_by_id(p.internal_id)
+        fx, fy = box.footprint_mm(p.rotation)
+        centres[p.internal_id] = (p.x * cell + fx / 2, p.y * cell + fy / 2, p.cell_min[2] * cell_z + box.size_mm[2] / 2)
+    return centres
+
+
+def plan_drift_mm(case, poses) -> float:
+    """Largest per-axis distance (mm) between settled centres and the plan; inf if one is missing.
+
+    ``poses`` maps internal id to a ``Pose`` (or None for an object never placed).
+    """
+    worst = 0.0
+    for internal_id, centre in planned_centres_mm(case).items():
+        pose = poses.get(internal_id)
+        if pose is None:
+            return float("inf")
+        worst = max(worst, max(abs(a - b) for a, b in zip(pose.position_mm, centre)))
+    return worst

@@ -9,20 +9,10 @@ from packlab.sim.episode import Episode, run_episode
 from packlab.sim.heightmap import quat_to_matrix
 from packlab.sim.physics.mujoco_backend import PhysicsConfig
 from packlab.errors import ConfigError
+from packlab.metrics import plan_drift_mm
 from packlab.types import Action, Box, Case, Container
 
 pytestmark = pytest.mark.physics
-
-
-def _planned_centres(case):
-    cell = case.container.cell_xy_mm
-    out = {}
-    for p in case.gt_plan:
-        box = case.box_by_id(p.internal_id)
-        fx, fy = box.footprint_mm(p.rotation)
-        out[p.internal_id] = np.array([p.x * cell + fx / 2, p.y * cell + fy / 2,
-                                       p.cell_min[2] * case.container.cell_z_mm + box.size_mm[2] / 2])
-    return out
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -32,9 +22,7 @@ def test_oracle_replay_of_perfect_layouts_stays_put(seed):
     assert all(s.valid for s in result.steps)
     assert result.metrics.capped_placements == 0
     assert result.metrics.overall >= 0.99
-    planned = _planned_centres(case)
-    drift = max(np.abs(np.array(result.poses[i].position_mm) - c).max() for i, c in planned.items())
-    assert drift <= 5.0
+    assert plan_drift_mm(case, result.poses) <= 5.0
     # Flush neighbours touch without pushing each other up: every box stays level.
     for pose in result.poses.values():
         assert quat_to_matrix(pose.quaternion)[2, 2] > 0.9999
