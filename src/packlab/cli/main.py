@@ -11,7 +11,7 @@ import importlib
 import sys
 
 #: Subcommand modules, in help order.
-COMMANDS = ("bench", "generate", "inspect_data", "train", "viz")
+COMMANDS = ("bench", "generate", "inspect_data", "train", "serve", "viz")
 
 
 from packlab.errors import PacklabError

@@ -1,0 +1,20 @@
+"""``packlab serve``: a local OpenAI-compatible chat-completions server of a packing VLM (tests
+and trials; needs the vlm extra). The ``endpoint`` policy can then be pointed at it."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from packlab.vlm.serve import add_arguments, run_server  # stdlib only at import
+
+    p = subparsers.add_parser(
+        "serve",
+        help="serve a packing VLM over an OpenAI-compatible API (test server)",
+        description="Serve a checkpoint (or a tiny random model) at http://HOST:PORT/v1 for the "
+        "endpoint policy: packlab bench --policies endpoint with "
+        "base_url=http://HOST:PORT/v1.",
+    )
+    add_arguments(p)
+    p.set_defaults(func=run_server)

@@ -1,0 +1,421 @@
+"""Greedy generation for the packing VLM that reuses the conversation prefix across steps.
+
+A closed-loop episode asks the model once per step, and each step's context X_t is the previous
+one plus the previous answer and one new user turn. Re-encoding the whole history at every step
+costs O(t) per step (O(t^2) per episode); :class:`PrefixCachedGenerator` keeps the model's cache
+of the previous step and only feeds the tokens that are new.
+
+How reuse is decided, each step (never by assumption, always by comparison):
+
+1. The context is encoded exactly as :func:`packlab.vlm.processing.encode` does for training (the
+   same function, with an image processor that memoises each distinct image's pixels, so past
+   heightmaps are preprocessed once per episode).
+2. The new token sequence is compared with the one whose state the cache holds: tokens must be
+   equal *and* every image whose placeholder tokens lie in the shared prefix must be the same
+   image (placeholder tokens say nothing about pixels, so images are compared by content hash).
+3. The cache is brought back to the longest usable point of the shared prefix and only the rest
+   is fed, with its pixel values and its own slice of the full sequence's 3-D (M-RoPE) position
+   ids, which are always computed over the whole sequence by the model's own ``get_rope_index``.
+   Attention-only caches (Qwen3-VL, Qwen2.5-VL) can be cropped to any point that does not cut an
+   image; Qwen3.5's gated-delta-net layers keep a recurrent state that cannot be rolled back, so
+   for them the usable points are the end of what the cache holds (the previous prompt plus the
+   answer, which matches when the answer re-tokenises as it was generated) and a snapshot taken
+   at the start of the previous step's generation header (``<|im_start|>assistant``), which
+   every next context extends whatever the answer was.
+4. Anything else (first step, a new episode, a history that was cut to fit ``max_length``) is a
+   full re-encode into a fresh cache.
+
+Decoding is a plain greedy loop over the same cache (explicit position ids, no sampling), so
+cached and uncached runs compute the same thing and give the same tokens; the tests check this
+against ``model.generate`` too. Imports torch/transformers: only the vlm extra may import this
+module.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from packlab.vlm.processing import ProcessingConfig, encode, encode_fitting
+
+IM_START = "<|im_start|>"
+
+
+def image_key(image: Any) -> tuple:
+    """A content key of a PIL image (mode, size, pixel hash): equal keys mean equal pixels."""
+    digest = hashlib.sha1(
+        image.tobytes(), usedforsecurity=False
+    ).hexdigest()  # identity, not security
+    return (image.mode, image.size, digest)
+
+
+class MemoImageProcessor:
+    """Wraps a Qwen-VL image processor so that each distinct image is preprocessed only once.
+
+    The Qwen2-VL-family processors treat images independently and concatenate their patches, so
+    processing one image at a time and concatenating gives the same tensors as one batched call
+    (tests check this). ``last_keys`` holds the content keys of the images of the latest call, in
+    order; other attributes (``merge_size``, ...) are the wrapped processor's.
+    """
+
+    def __init__(self, inner: Any, max_items: int = 1024) -> None:
+        self.inner = inner
+        self.max_items = max_items
+        self.last_keys: list[tuple] = []
+        self._memo: OrderedDict[tuple, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "inner":  # not set yet (e.g. during unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def clear(self) -> None:
+        self._memo.clear()
+        self.last_keys = []
+
+    def __call__(self, images: Sequence[Any], return_tensors: str = "pt", **kwargs: Any):
+        keys, pixels, grids = [], [], []
+        for im in images:
+            key = image_key(im)
+            hit = self._memo.get(key)
+            if hit is None:
+                out = self.inner(images=[im], return_tensors="pt", **kwargs)
+                hit = (out["pixel_values"], out["image_grid_thw"])
+                self._memo[key] = hit
+                if len(self._memo) > self.max_items:
+                    self._memo.popitem(last=False)
+            else:
+                self._memo.move_to_end(key)
+            keys.append(key)
+            pixels.append(hit[0])
+            grids.append(hit[1])
+        self.last_keys = keys
+        return {"pixel_values": torch.cat(pixels), "image_grid_thw": torch.cat(grids)}
+
+
+@dataclass(frozen=True, slots=True)
+class Generation:
+    """One greedy answer and what it cost."""
+
+    text: str  # decoded answer, special tokens (end of turn) removed
+    token_ids: tuple[int, ...]  # generated ids, the end-of-turn token included when reached
+    finished: bool  # True when an end-of-turn / eos token ended the answer
+    prompt_tokens: int  # length of the encoded context
+    reused_tokens: int  # context tokens whose state came from the cache (0: full encode)
+    dropped_steps: int  # past steps dropped to fit max_length (processing.encode_fitting)
+    encode_s: float  # rendering to tokens and pixels
+    prefill_s: float  # feeding the new context tokens
+    decode_s: float  # the token-by-token loop
+
+    @property
+    def total_s(self) -> float:
+        return self.encode_s + self.prefill_s + self.decode_s
+
+
+def _image_spans(mm: list[int]) -> list[tuple[int, int]]:
+    """[start, end) of each run of image tokens (one run per image: the template brackets each
+    image with vision start/end tokens, so two images never touch)."""
+    spans, start = [], None
+    for i, v in enumerate(mm):
+        if v and start is None:
+            start = i
+        elif not v and start is not None:
+            spans.append((start, i))
+            start = None
+    if start is not None:
+        spans.append((start, len(mm)))
+    return spans
+
+
+def _common_prefix(a: Sequence[int], b: Sequence[int]) -> int:
+    n = min(len(a), len(b))
+    ta, tb = torch.as_tensor(list(a[:n])), torch.as_tensor(list(b[:n]))
+    diff = (ta != tb).nonzero()
+    return int(diff[0]) if len(diff) else n
+
+
+def _outside_images(p: int, spans: Sequence[tuple[int, int]]) -> int:
+    """``p`` moved back to the start of the image it would cut, if any."""
+    for s, e in spans:
+        if s < p < e:
+            return s
+    return p
+
+
+class _Snapshot:
+    """Cache state after the first ``length`` tokens: attention lengths and cloned linear states."""
+
+    def __init__(self, cache: Any, length: int) -> None:
+        from transformers.cache_utils import LinearAttentionCacheLayerMixin
+
+        self.length = length
+        self.linear: dict[int, tuple[dict, dict]] = {}
+        for i, layer in enumerate(cache.layers):
+            if isinstance(layer, LinearAttentionCacheLayerMixin):
+                self.linear[i] = (
+                    {k: None if v is None else v.clone() for k, v in layer.conv_states.items()},
+                    {
+                        k: None if v is None else v.clone()
+                        for k, v in layer.recurrent_states.items()
+                    },
+                )
+
+    def restore(self, cache: Any) -> None:
+        from transformers.cache_utils import DynamicLayer
+
+        for i, layer in enumerate(cache.layers):
+            if isinstance(layer, DynamicLayer):
+                extra = layer.get_seq_length() - self.length
+                if extra > 0:
+                    DynamicLayer.crop(layer, -extra)
+            if i in self.linear:
+                conv, rec = self.linear[i]
+                for store, saved in ((layer.conv_states, conv), (layer.recurrent_states, rec)):
+                    for k, v in saved.items():
+                        if v is not None:
+                            store[k].copy_(v)  # in place: keeps the snapshot itself intact
+
+
+def cache_kind(cache: Any) -> str:
+    """``"croppable"`` (attention layers only), ``"recurrent"`` (attention + linear-attention
+    layers we can snapshot) or ``"opaque"`` (anything else: never rolled back)."""
+    from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
+
+    kinds = set()
+    for layer in cache.layers:
+        if isinstance(layer, LinearAttentionCacheLayerMixin):
+            kinds.add("recurrent")
+        elif type(layer) is DynamicLayer:
+            kinds.add("croppable")
+        else:
+            return "opaque"
+    if "recurrent" in kinds:
+        # A layer that mixes both kinds in one object is not handled by _Snapshot.
+        if any(
+            isinstance(layer, DynamicLayer) and isinstance(layer, LinearAttentionCacheLayerMixin)
+            for layer in cache.layers
+        ):
+            return "opaque"
+        return "recurrent"
+    return "croppable"
+
+
+class PrefixCachedGenerator:
+    """Greedy answers to chat contexts, reusing the previous step's cache when the new context
+    extends it (see the module docstring). ``reuse_prefix=False`` re-encodes every context from
+    scratch (the reference the cached path must match)."""
+
+    def __init__(
+        self,
+        vlm: Any,
+        config: ProcessingConfig | None = None,
+        max_new_tokens: int = 64,
+        reuse_prefix: bool = True,
+    ) -> None:
+        if max_new_tokens < 1:
+            raise ValueError(f"max_new_tokens = {max_new_tokens}: must be >= 1")
+        self.vlm = vlm
+        self.model = vlm.model
+        self.tokenizer = vlm.tokenizer
+        self.config = config if config is not None else ProcessingConfig()
+        self.max_new_tokens = max_new_tokens
+        self.reuse_prefix = reuse_prefix
+        self.processor = MemoImageProcessor(vlm.image_processor)
+        eos = self.model.generation_config.eos_token_id
+        eos_ids = set(eos if isinstance(eos, (list, tuple)) else [eos] if eos is not None else [])
+        eos_ids.add(int(self.tokenizer.convert_tokens_to_ids("<|im_end|>")))
+        self.eos_ids = frozenset(int(e) for e in eos_ids)
+        self.im_start_id = int(self.tokenizer.convert_tokens_to_ids(IM_START))
+        inner = getattr(self.model, "model", None)
+        self._rope_owner = inner if hasattr(inner, "get_rope_index") else self.model
+        self.device = next(self.model.parameters()).device
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the cache and the memoised images (call at the start of an episode)."""
+        self._cache: Any = None
+        self._ids: list[int] = []  # tokens whose state the cache holds
+        self._spans: list[tuple[int, int]] = []  # image spans among them
+        self._keys: list[tuple] = []  # content keys of those images, in order
+        self._snapshot: _Snapshot | None = None
+        self.processor.clear()
+
+    # -- positions ---------------------------------------------------------------------------
+    def _positions(self, input_ids: torch.Tensor, mm: torch.Tensor, grid: torch.Tensor | None):
+        """(4, 1, L) position ids of the whole sequence: row 0 the plain index (as generate
+        passes it), rows 1-3 the model's own M-RoPE (t, h, w) positions."""
+        n = input_ids.shape[0]
+        text = torch.arange(n, device=self.device).view(1, 1, n)
+        if grid is None:
+            return text.expand(4, 1, n)
+        mrope, _ = self._rope_owner.get_rope_index(
+            input_ids.view(1, n).to(self.device),
+            mm_token_type_ids=mm.view(1, n).to(self.device),
+            image_grid_thw=grid.to(self.device),
+        )
+        return torch.cat([text, mrope.to(self.device)], dim=0)
+
+    # -- cache bookkeeping -------------------------------------------------------------------
+    def _usable_prefix(self, ids: list[int], spans, keys) -> int:
+        """How many leading tokens of ``ids`` the cache can be brought back to (0: none)."""
+        if not self.reuse_prefix or self._cache is None:
+            return 0
+        common = _common_prefix(self._ids, ids)
+        for i, (s, _e) in enumerate(spans):
+            if s >= common:
+                break
+            if i >= len(self._keys) or self._keys[i] != keys[i]:
+                common = s
+                break
+        limit = min(common, len(ids) - 1)  # at least one token must be fed to get logits
+        kind = cache_kind(self._cache)
+        points = [len(self._ids)]
+        if self._snapshot is not None:
+            points.append(self._snapshot.length)
+        if kind == "croppable":
+            points.append(_outside_images(limit, spans))
+        usable = [p for p in points if 0 < p <= limit and _outside_images(p, spans) == p]
+        return max(usable, default=0)
+
+    def _bring_back(self, p: int) -> None:
+        held = len(self._ids)
+        if p == held:
+            return
+        if self._snapshot is not None and p == self._snapshot.length:
+            self._snapshot.restore(self._cache)
+        else:  # croppable cache
+            self._cache.crop(-(held - p))
+        if self._snapshot is not None and self._snapshot.length > p:
+            self._snapshot = None
+
+    def _feed(
+        self,
+        ids: torch.Tensor,
+        pos: torch.Tensor,
+        a: int,
+        b: int,
+        mm: torch.Tensor,
+        pixel_values,
+        grid,
+        spans,
+    ) -> torch.Tensor:
+        """Run tokens [a, b) through the model on the cache; logits of the last one."""
+        kwargs: dict[str, Any] = {}
+        inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
+        if any(s < a < e or s < b < e for s, e in spans):
+            raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
+        if inside:
+            per_image = [int(g.prod()) for g in grid]
+            offsets = [0]
+            for n in per_image:
+                offsets.append(offsets[-1] + n)
+            lo, hi = inside[0], inside[-1] + 1
+            kwargs["pixel_values"] = pixel_values[offsets[lo] : offsets[hi]].to(self.device)
+            kwargs["image_grid_thw"] = grid[lo:hi].to(self.device)
+        out = self.model(
+            input_ids=ids[a:b].view(1, -1).to(self.device),
+            position_ids=pos[:, :, a:b],
+            mm_token_type_ids=mm[a:b].view(1, -1).to(self.device),
+            past_key_values=self._cache,
+            use_cache=True,
+            logits_to_keep=1,
+            **kwargs,
+        )
+        return out.logits[0, -1]
+
+    # -- the step ----------------------------------------------------------------------------
+    @torch.inference_mode()
+    def generate(self, messages: Sequence[dict[str, Any]]) -> Generation:
+        """The greedy answer to ``messages`` (a context ending with the current user turn)."""
+        from transformers import DynamicCache
+
+        t0 = time.perf_counter()
+        self.processor.last_keys = []
+        if self.config.max_length is not None:
+            enc, dropped = encode_fitting(
+                messages, self.tokenizer, self.processor, config=self.config
+            )
+        else:
+            enc, dropped = encode(messages, self.tokenizer, self.processor, config=self.config), 0
+        keys = list(self.processor.last_keys) if enc.image_grid_thw is not None else []
+        ids_list = enc.input_ids.tolist()
+        spans = _image_spans(enc.mm_token_type_ids.tolist())
+        pos = self._positions(enc.input_ids, enc.mm_token_type_ids, enc.image_grid_thw)
+        n = len(ids_list)
+        t1 = time.perf_counter()
+
+        p = self._usable_prefix(ids_list, spans, keys)
+        if p:
+            self._bring_back(p)
+        else:
+            self._cache = DynamicCache(config=self.model.config)
+            self._snapshot = None
+        kind = cache_kind(self._cache)
+        # Where to snapshot a cache that cannot be cropped: the start of the generation header.
+        header = next((i for i in range(n - 1, -1, -1) if ids_list[i] == self.im_start_id), -1)
+        chunks = [(p, n)]
+        if self.reuse_prefix and kind != "croppable" and p < header < n:
+            chunks = [(p, header), (header, n)]
+        for a, b in chunks:
+            logits = self._feed(
+                enc.input_ids,
+                pos,
+                a,
+                b,
+                enc.mm_token_type_ids,
+                enc.pixel_values,
+                enc.image_grid_thw,
+                spans,
+            )
+            if b == header and cache_kind(self._cache) == "recurrent":
+                self._snapshot = _Snapshot(self._cache, header)
+        t2 = time.perf_counter()
+
+        generated: list[int] = []
+        next_mrope = int(pos[1:].max()) + 1  # as generate: text after the context's last position
+        finished = False
+        while True:
+            tok = int(torch.argmax(logits))
+            generated.append(tok)
+            if tok in self.eos_ids:
+                finished = True
+                break
+            if len(generated) >= self.max_new_tokens:
+                break
+            k = len(generated) - 1  # index of tok among the generated tokens
+            step_pos = torch.tensor([n + k] + [next_mrope + k] * 3, device=self.device).view(
+                4, 1, 1
+            )
+            out = self.model(
+                input_ids=torch.tensor([[tok]], device=self.device),
+                position_ids=step_pos,
+                past_key_values=self._cache,
+                use_cache=True,
+            )
+            logits = out.logits[0, -1]
+        t3 = time.perf_counter()
+
+        # The cache now holds the context and every generated token but the last.
+        self._ids = ids_list + generated[:-1]
+        self._spans, self._keys = spans, keys
+        if not self.reuse_prefix:
+            self._cache, self._snapshot = None, None
+        answer = generated[:-1] if finished else generated
+        text = self.tokenizer.decode(answer, skip_special_tokens=True)
+        return Generation(
+            text=text,
+            token_ids=tuple(generated),
+            finished=finished,
+            prompt_tokens=n,
+            reused_tokens=p,
+            dropped_steps=dropped,
+            encode_s=t1 - t0,
+            prefill_s=t2 - t1,
+            decode_s=t3 - t2,
+        )

@@ -1,0 +1,324 @@
+"""The VLM inference policies: ``vlm`` (a local transformers model), ``vlm-small`` (the checkpoint
+shipped in the package) and ``endpoint`` (any OpenAI-compatible chat-completions server).
+
+Each step renders the context X_t from the observation with :mod:`packlab.vlm.prompt` (the same
+code the SFT export used, so training and inference read the same text), asks the model, and
+parses the answer with :func:`packlab.vlm.parse.parse_or_unparsable`. An answer that does not
+parse is returned as :class:`~packlab.types.Unparsable`; the episode records it as an invalid step
+with reason ``unparsable`` and goes on (DESIGN.md section 4). Run untrained (a base checkpoint),
+the same policy is the paper's zero-shot baseline.
+
+Importing this module is cheap: torch and transformers are imported when a ``vlm`` policy loads
+its model (lazily, on the first :meth:`VLMPolicy.reset`), so policies are picklable and cheap to
+build in the parent process and each worker loads its own copy.
+
+Per-step diagnostics (token counts, prefix reuse, timings, transport attempts) are kept in the
+policy's ``step_log`` (a list of dicts, one per ``act`` of the current episode).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+from packlab.errors import ConfigError
+from packlab.policies.registry import register_policy
+from packlab.types import Action, Case, Observation, Unparsable
+from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
+from packlab.vlm.endpoint import EndpointPolicy
+from packlab.vlm.parse import parse_or_unparsable
+from packlab.vlm.prompt import PROMPT_VERSION, PromptOptions
+
+__all__ = [
+    "SHIPPED_MODEL_DIR",
+    "EndpointPolicy",
+    "VLMPolicy",
+    "make_endpoint",
+    "make_vlm",
+    "make_vlm_small",
+]
+
+#: Where the package ships its own trained checkpoint (``vlm-small``), when it does.
+SHIPPED_MODEL_DIR = Path(__file__).resolve().parent.parent / "data" / "models" / "vlm-small"
+
+VLM_EXTRA_HINT = (
+    "the vlm extra is not installed: pip install torch==2.13.0 (CPU wheel, first), "
+    "then pip install -e '.[vlm]'"
+)
+
+
+def _resolve_device(device: str) -> str:
+    import torch
+
+    if device != "auto":
+        return device
+    if torch.cuda.is_available():
+        return "cuda"
+    return "cpu"
+
+
+def _resolve_dtype(dtype: str, device: str):
+    import torch
+
+    if dtype == "auto":
+        if device.startswith("cuda") and torch.cuda.is_bf16_supported():
+            return torch.bfloat16
+        return torch.float32
+    table = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
+    if dtype not in table:
+        raise ConfigError(f"dtype = {dtype!r}: expected auto, {', '.join(table)}")
+    return table[dtype]
+
+
+#: Models loaded in this process, most recent last: the bench runner builds a policy per
+#: episode, and each must not reload the weights. Weights are only read at inference; the
+#: per-episode state (cache, images) lives in each policy's generator.
+_LOADED: OrderedDict[tuple, Any] = OrderedDict()
+_LOADED_MAX = 2
+_LOADED_LOCK = threading.Lock()
+
+
+def _load_vlm(spec: str, device: str, dtype: Any, seed: int) -> Any:
+    """Build (``tiny:F:S``) or load (a directory) a VLM, reusing one already loaded here."""
+    from packlab.vlm.model import build_tiny_model, load_model
+
+    stamp = None
+    if not spec.startswith("tiny:"):
+        stamp = (Path(spec) / "config.json").stat().st_mtime_ns  # a retrained dir reloads
+    key = (spec, device, str(dtype), seed if spec.startswith("tiny:") else None, stamp)
+    with _LOADED_LOCK:
+        if key in _LOADED:
+            _LOADED.move_to_end(key)
+            return _LOADED[key]
+        if spec.startswith("tiny:"):
+            parts = spec.split(":")
+            if len(parts) != 3:
+                raise ConfigError(f"model = {spec!r}: expected tiny:<family>:<size>")
+            try:
+                vlm = build_tiny_model(parts[1], parts[2], seed=seed)
+            except ValueError as exc:
+                raise ConfigError(f"model = {spec!r}: {exc}") from None
+            vlm.model.to(device=device, dtype=dtype)
+        else:
+            vlm = load_model(spec, dtype=dtype, device=device)
+        _LOADED[key] = vlm
+        while len(_LOADED) > _LOADED_MAX:
+            _LOADED.popitem(last=False)
+        return vlm
+
+
+class VLMPolicy:
+    """Greedy answers of a local Qwen-VL-family model, reusing the conversation's cached prefix.
+
+    ``model`` is a local checkpoint directory or ``tiny:<family>:<size>`` (a random-weight model,
+    for tests and latency runs). ``history``/``image``/``max_length``/``template_kwargs`` left at
+    None take the values the checkpoint was trained with (its ``packlab_model.json``), else the
+    defaults (full history, heightmap images, no length limit). ``reuse_cache=False`` re-encodes
+    the whole context every step (same answers, slower; for checks and latency comparisons).
+    """
+
+    def __init__(
+        self,
+        model: str = "tiny:qwen3_5:tiny",
+        history: str | None = None,
+        image: str | None = None,
+        max_new_tokens: int = 64,
+        device: str = "auto",
+        dtype: str = "auto",
+        max_length: int | None = None,
+        template_kwargs: dict[str, Any] | None = None,
+        image_size: int = DEFAULT_IMAGE_SIZE,
+        reuse_cache: bool = True,
+        model_seed: int = 0,
+        threads: int | None = None,
+        name: str = "vlm",
+    ) -> None:
+        if not isinstance(model, str) or not model:
+            raise ConfigError(
+                f"model = {model!r}: expected a checkpoint directory or tiny:<family>:<size>"
+            )
+        if not model.startswith("tiny:") and not (Path(model) / "config.json").is_file():
+            raise ConfigError(f"model = {model!r}: not a checkpoint directory (no config.json)")
+        if max_new_tokens < 1:
+            raise ConfigError(f"max_new_tokens = {max_new_tokens}: must be >= 1")
+        if max_length is not None and max_length < 64:
+            raise ConfigError(f"max_length = {max_length}: must be >= 64 tokens")
+        if threads is not None and threads < 1:
+            raise ConfigError(f"threads = {threads}: must be >= 1")
+        for field, value, allowed in (
+            ("history", history, ("full", "current_only", "no_actions")),
+            ("image", image, ("heightmap", "blank", "none")),
+        ):
+            if value is not None and value not in allowed:
+                raise ConfigError(f"{field} = {value!r}: expected one of {allowed}")
+        self.name = name
+        self.model_spec = model
+        self.history, self.image = history, image
+        self.max_new_tokens = max_new_tokens
+        self.device, self.dtype = device, dtype
+        self.max_length = max_length
+        self.template_kwargs = template_kwargs
+        self.image_size = image_size
+        self.reuse_cache = reuse_cache
+        self.model_seed = model_seed
+        self.threads = threads
+        self.step_log: list[dict[str, Any]] = []
+        self._generator: Any = None
+        self._renderer: ContextRenderer | None = None
+        self.resolved: dict[str, Any] = {}
+
+    # -- pickling: config only; each process loads its own model -----------------------------
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_generator"], state["_renderer"], state["step_log"] = None, None, []
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
+    # -- loading -----------------------------------------------------------------------------
+    def load(self) -> None:
+        """Load (or build) the model now; :meth:`reset` does it on first use."""
+        if self._generator is not None:
+            return
+        try:
+            import torch
+
+            import packlab.vlm.model  # noqa: F401  (transformers)
+            from packlab.vlm.inference import PrefixCachedGenerator
+            from packlab.vlm.processing import ProcessingConfig
+        except ModuleNotFoundError as exc:
+            raise ConfigError(
+                f"policy {self.name!r}: {VLM_EXTRA_HINT} ({exc.name} missing)"
+            ) from None
+
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        device = _resolve_device(self.device)
+        dtype = _resolve_dtype(self.dtype, device)
+        vlm = _load_vlm(self.model_spec, device, dtype, self.model_seed)
+        meta = vlm.meta or {}
+        trained_with = meta.get("prompt_version")
+        if trained_with is not None and trained_with != PROMPT_VERSION:
+            raise ConfigError(
+                f"model = {self.model_spec!r}: trained with prompt {trained_with!r}, this packlab "
+                f"renders {PROMPT_VERSION!r}; retrain or use the packlab version it was made with"
+            )
+        sft = meta.get("sft_config") or {}
+        options = PromptOptions(
+            history=self.history or sft.get("history", "full"),
+            image=self.image or sft.get("image", "heightmap"),
+        )
+        max_length = self.max_length if self.max_length is not None else sft.get("max_length")
+        template_kwargs = (
+            self.template_kwargs
+            if self.template_kwargs is not None
+            else dict(sft.get("template_kwargs") or {})
+        )
+        config = ProcessingConfig(
+            image_size=self.image_size, max_length=max_length, template_kwargs=template_kwargs
+        )
+        self._generator = PrefixCachedGenerator(vlm, config, self.max_new_tokens, self.reuse_cache)
+        self._renderer = ContextRenderer(options, self.image_size)
+        self.resolved = {
+            "model": self.model_spec,
+            "family": vlm.family,
+            "device": device,
+            "dtype": str(dtype).replace("torch.", ""),
+            "options": options.to_dict(),
+            "max_length": max_length,
+            "template_kwargs": template_kwargs,
+            "max_new_tokens": self.max_new_tokens,
+            "reuse_cache": self.reuse_cache,
+            "image_size": self.image_size,
+            "greedy": True,
+        }
+
+    def config(self) -> dict[str, Any]:
+        """The requested configuration, plus what loading resolved (device, dtype, options
+        taken from the checkpoint, ...) once the model is loaded; for run records."""
+        requested = {
+            "model": self.model_spec,
+            "history": self.history,
+            "image": self.image,
+            "max_new_tokens": self.max_new_tokens,
+            "device": self.device,
+            "dtype": self.dtype,
+            "max_length": self.max_length,
+            "template_kwargs": self.template_kwargs,
+            "image_size": self.image_size,
+            "reuse_cache": self.reuse_cache,
+            "model_seed": self.model_seed,
+        }
+        return {**requested, **self.resolved}
+
+    @property
+    def generator(self) -> Any:
+        """The :class:`packlab.vlm.inference.PrefixCachedGenerator` (after :meth:`load`)."""
+        return self._generator
+
+    # -- the Policy protocol -----------------------------------------------------------------
+    def reset(self, case: Case, seed: int) -> None:
+        self.load()
+        self._generator.reset()
+        self._renderer.reset()
+        self.step_log = []
+
+    def act(self, observation: Observation) -> Action | Unparsable:
+        if self._generator is None:
+            raise RuntimeError(f"policy {self.name!r}: act() before reset()")
+        t0 = time.perf_counter()
+        messages = self._renderer.messages(observation)
+        render_s = time.perf_counter() - t0
+        gen = self._generator.generate(messages)
+        action = parse_or_unparsable(gen.text)
+        self.step_log.append(
+            {
+                "step": observation.step_index,
+                "prompt_tokens": gen.prompt_tokens,
+                "reused_tokens": gen.reused_tokens,
+                "new_tokens": len(gen.token_ids),
+                "finished": gen.finished,
+                "dropped_steps": gen.dropped_steps,
+                "render_s": round(render_s, 6),
+                "encode_s": round(gen.encode_s, 6),
+                "prefill_s": round(gen.prefill_s, 6),
+                "decode_s": round(gen.decode_s, 6),
+                "parsed": isinstance(action, Action),
+            }
+        )
+        return action
+
+
+@register_policy("vlm")
+def make_vlm(**kwargs: Any) -> VLMPolicy:
+    """``vlm``: a local checkpoint (``model=DIR``) or a random tiny model (``model=tiny:F:S``)."""
+    return VLMPolicy(**kwargs)
+
+
+@register_policy("vlm-small")
+def make_vlm_small(**kwargs: Any) -> VLMPolicy:
+    """``vlm-small``: the checkpoint shipped in the package (``packlab/data/models/vlm-small``)."""
+    if "model" in kwargs:
+        raise ConfigError(
+            "policy 'vlm-small' uses the shipped checkpoint; use policy 'vlm' with "
+            "model=DIR for another one"
+        )
+    if not (SHIPPED_MODEL_DIR / "config.json").is_file():
+        raise ConfigError(
+            f"policy 'vlm-small': no checkpoint is shipped in this install ({SHIPPED_MODEL_DIR} "
+            "has no config.json). Reproduce it: generate a PackData set with `packlab generate`, "
+            "train with `packlab train sft --data DATA --model tiny:qwen3_5:small --out RUN`, then "
+            f"copy RUN/final to {SHIPPED_MODEL_DIR} or run policy 'vlm' with model=RUN/final"
+        )
+    kwargs.setdefault("name", "vlm-small")
+    return VLMPolicy(model=str(SHIPPED_MODEL_DIR), **kwargs)
+
+
+@register_policy("endpoint")
+def make_endpoint(**kwargs: Any) -> EndpointPolicy:
+    """``endpoint``: an OpenAI-compatible ``/v1/chat/completions`` server (vLLM, SGLang, ...)."""
+    return EndpointPolicy(**kwargs)
