@@ -1,5 +1,6 @@
-"""The ``packlab`` console script: one subcommand per module in ``packlab.cli``.
+"""packlab: simulate, generate data for, benchmark and train closed-loop bin-packing policies.
 
+One subcommand per module in ``packlab.cli``.
 Each subcommand module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` (called with the parsed namespace, returning an exit code).
 """
@@ -18,7 +19,7 @@ from packlab.errors import PacklabError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])  # the first line
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         module_name = f"packlab.cli.{name}"

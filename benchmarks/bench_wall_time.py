@@ -1,0 +1,153 @@
+"""Wall time of the default ``packlab bench`` run, and time per decision of every policy.
+
+Usage:
+    python benchmarks/bench_wall_time.py                   # a quarter of the suite, extrapolated
+    python benchmarks/bench_wall_time.py --fraction 1      # the whole default run, measured
+    python benchmarks/bench_wall_time.py --records DIR     # only the tables, from an existing run
+
+It runs the default configuration (every heuristic + random + oracle, seeds 0,1,2, mujoco, all
+local cores) on every k-th case of each difficulty of packlab-bench-v1, in a scratch directory,
+and reports:
+
+* the measured wall time and the extrapolation to the full suite: per difficulty, the summed
+  episode CPU time scaled by (cases in the suite / cases run), divided by the parallel speed-up
+  this run achieved (CPU time / wall time). Episode cost depends strongly on difficulty (hard
+  piles take longest to settle), which is why the scaling is per difficulty;
+* per policy and difficulty, the mean milliseconds per decision (``act``) and per environment
+  step (placement + physics settling), from the records' timings.
+
+The machine is shared: other processes' load shows up in these numbers, so the load average
+at start and end is printed too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+from packlab.bench.config import RunConfig, local_cores, parse_physics
+from packlab.bench.describe import difficulty_order
+from packlab.bench.records import read_records
+from packlab.bench.runner import run_bench
+from packlab.bench.suites import DEFAULT_SUITE, load_suite
+from packlab.bench.table import display_name
+from packlab.cases import save_cases
+
+
+def subset(fraction: float) -> tuple[list, dict[str, int]]:
+    """Every k-th case of each difficulty (k = round(1 / fraction)), and the suite's counts."""
+    cases = load_suite(DEFAULT_SUITE)
+    step = max(1, round(1 / fraction))
+    counts: dict[str, int] = defaultdict(int)
+    chosen = []
+    for d in difficulty_order([c.difficulty for c in cases]):
+        level = [c for c in cases if c.difficulty == d]
+        counts[d] = len(level)
+        chosen += level[::step]
+    return chosen, dict(counts)
+
+
+def timing_tables(records: list[dict], suite_counts: dict[str, int] | None, wall_s: float | None,
+                  workers: int) -> str:
+    ok = [r for r in records if r.get("status") == "ok"]
+    levels = difficulty_order([r["difficulty"] for r in ok])
+    policies = list(dict.fromkeys(r["policy"] for r in ok))
+    lines = []
+    wall_ep, cpu_ep = defaultdict(float), defaultdict(float)
+    ran_cases = defaultdict(set)
+    for r in ok:
+        wall_ep[r["difficulty"]] += r["timing"]["episode_s"]
+        cpu_ep[r["difficulty"]] += r["timing"].get("cpu_s", r["timing"]["episode_s"])
+        ran_cases[r["difficulty"]].add(r["case_id"])
+    total_wall, total_cpu = sum(wall_ep.values()), sum(cpu_ep.values())
+    scale = {d: (suite_counts[d] / len(ran_cases[d]) if suite_counts else 1.0) for d in levels}
+    full_cpu = sum(cpu_ep[d] * scale[d] for d in levels)
+    if wall_s is not None:
+        lines.append(f"measured: {len(records)} episodes on {workers} workers in {wall_s:.1f} s wall; "
+                     f"episode CPU {total_cpu:.1f} s (episode wall {total_wall:.1f} s: the excess is waiting "
+                     f"for a core on a shared machine)")
+        if suite_counts:
+            lines.append(f"full default run, extrapolated per difficulty: CPU {full_cpu:.0f} s -> "
+                         f"~{full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min) on {workers} idle cores; "
+                         f"~{wall_s * full_cpu / total_cpu:.0f} s at this run's load")
+        else:
+            lines.append(f"CPU / workers = {full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min): "
+                         f"the wall time on {workers} idle cores")
+    else:
+        lines.append(f"{len(records)} episodes: episode CPU {total_cpu:.1f} s -> ~{total_cpu / workers:.0f} s "
+                     f"({total_cpu / workers / 60:.1f} min) on {workers} idle cores (records without cpu_s "
+                     f"count their wall time)")
+    lines.append("")
+    head = f"{'method':<18}" + "".join(f"{d + ' ms/dec':>16}{d + ' ms/step':>17}" for d in levels) + \
+        f"{'CPU s/ep':>10}{'CPU share':>11}"
+    lines += ["time per decision (policy.act) and per environment step (place + settle), means (wall):", head,
+              "-" * len(head)]
+    for p in policies:
+        row = f"{display_name(p):<18}"
+        mine = [r for r in ok if r["policy"] == p]
+        for d in levels:
+            rs = [r for r in mine if r["difficulty"] == d]
+            dec = sum(r["timing"]["decisions"] for r in rs)
+            row += (f"{1000 * sum(r['timing']['policy_s'] for r in rs) / dec:>16.2f}"
+                    f"{1000 * sum(r['timing']['env_s'] for r in rs) / dec:>17.2f}") if dec else f"{'-':>16}{'-':>17}"
+        cpu = sum(r["timing"].get("cpu_s", r["timing"]["episode_s"]) * scale[r["difficulty"]] for r in mine)
+        row += f"{cpu / max(1, len(mine)) / (sum(scale[r['difficulty']] for r in mine) / max(1, len(mine))):>10.3f}"
+        row += f"{100 * cpu / full_cpu:>10.1f}%"
+        lines.append(row)
+    return "\n".join(lines)
+
+
+def outcome_workers(cfg: RunConfig) -> int:
+    return cfg.workers or local_cores()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--fraction", type=float, default=0.25, help="share of each difficulty's cases to run")
+    p.add_argument("--workers", type=int, default=0, help="0 = all local cores")
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
+    p.add_argument("--physics", action="append", default=[], metavar="KEY=VALUE",
+                   help="PhysicsConfig override, as packlab bench --physics (repeatable)")
+    p.add_argument("--keep", metavar="DIR", help="write the run here instead of a scratch directory")
+    p.add_argument("--records", help="print the timing tables of an existing run directory and exit")
+    args = p.parse_args(argv)
+    print(f"python {platform.python_version()}, {platform.machine()}, {local_cores()} cores, "
+          f"load average {os.getloadavg()[0]:.2f}")
+    if args.records:
+        cfg = json.loads((Path(args.records) / "config.json").read_text())
+        print(timing_tables(read_records(Path(args.records) / "episodes.jsonl"), None, None,
+                            cfg["execution"]["workers"]))
+        return 0
+    if not 0 < args.fraction <= 1:
+        print("--fraction must be in (0, 1]", file=sys.stderr)
+        return 2
+    cases, counts = subset(args.fraction)
+    with tempfile.TemporaryDirectory(prefix="packlab-bench-time-") as scratch:
+        suite = Path(scratch) / f"{DEFAULT_SUITE}-subset.jsonl"
+        save_cases(cases, suite)
+        cfg = RunConfig(cases=str(suite), out=args.keep or str(Path(scratch) / "run"), backend=args.backend,
+                        seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
+                        physics_overrides=parse_physics(args.physics))
+        t0 = time.perf_counter()
+        outcome = run_bench(cfg, figures=False)
+        wall = time.perf_counter() - t0
+        records = read_records(outcome.run_dir / "episodes.jsonl")
+    print(f"{len(cases)} of {sum(counts.values())} cases ({', '.join(f'{d} {n}' for d, n in counts.items())} "
+          f"in the suite), seeds {args.seeds}, backend {args.backend}, {outcome.planned} episodes; "
+          f"load average now {os.getloadavg()[0]:.2f}")
+    print(timing_tables(records, counts if args.fraction < 1 else None, wall, outcome_workers(cfg)))
+    print()
+    print(json.dumps({"wall_s": round(wall, 2), "episodes": outcome.planned}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""PackLab-Bench: frozen suites, a resumable runner, and reports rebuilt from records.
+
+- :mod:`.suites`: bundled case files with checksums (``packlab-bench-v1``), any case file too.
+- :mod:`.describe`: a suite's statistics per difficulty (``packlab bench --describe``).
+- :mod:`.config`: ``RunConfig`` (what to run) and its resolved form saved as config.json.
+- :mod:`.task` / :mod:`.executors`: one episode -> one record; serial, process pool or Ray.
+- :mod:`.records`: episodes.jsonl (append, resume, torn-tail repair).
+- :mod:`.runner`: ``run_bench``, the ``packlab bench`` entry point.
+- :mod:`.summary` / :mod:`.table` / :mod:`.report`: records -> numbers -> Table 2 and figures.
+- :mod:`.replay`: recorded actions -> step heightmaps (for ``packlab viz episode``).
+"""
+
+from packlab.bench.config import ResolvedRun, RunConfig, resolve
+from packlab.bench.report import build_report
+from packlab.bench.runner import BenchOutcome, run_bench
+from packlab.bench.suites import (
+    DEFAULT_SUITE,
+    SUITES,
+    SuiteIntegrityError,
+    load_suite,
+    resolve_cases,
+)
+from packlab.bench.summary import summarize
+
+__all__ = [
+    "DEFAULT_SUITE",
+    "SUITES",
+    "BenchOutcome",
+    "ResolvedRun",
+    "RunConfig",
+    "SuiteIntegrityError",
+    "build_report",
+    "load_suite",
+    "resolve",
+    "resolve_cases",
+    "run_bench",
+    "summarize",
+]

@@ -1,0 +1,213 @@
+"""Frozen benchmark suites: case files shipped inside the package, verified by checksum on load.
+
+A suite is a JSONL case file under ``packlab/data/suites/`` plus a ``NAME.sha256`` file in
+``sha256sum`` format. Loading recomputes the digest and refuses a file that does not match:
+the cases behind a published number must never change silently, so a changed file is a new
+suite version (a new name here), never an edit of an old one.
+
+Each suite's provenance is its ``SuiteSpec``: the data engine's ``generate_cases`` run with a
+fixed user seed in the ``bench`` seed domain, which is disjoint from every training seed by
+construction (see ``packlab.datagen.seeds``). ``scripts/make_bench_suite.py`` rebuilds the file
+from the spec, and ``--check`` proves the bundled bytes are what the spec produces.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from packlab.cases import load_cases, save_cases
+from packlab.errors import ConfigError, PacklabError
+from packlab.types import Case
+
+#: Where the bundled suites live inside the installed package.
+SUITE_PACKAGE_DIR = ("data", "suites")
+
+
+class SuiteIntegrityError(PacklabError):
+    """A bundled suite file does not match its recorded checksum (or its spec)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SuiteSpec:
+    """How a suite was made: per difficulty the number of cases, from one fixed user seed."""
+
+    name: str
+    counts: tuple[tuple[str, int], ...]  # (difficulty, number of cases), in file order
+    seed: int  # user seed of datagen.generate_cases in the ``domain`` seed space
+    domain: str = "bench"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.counts or any(n < 1 for _, n in self.counts):
+            raise ConfigError(f"suite {self.name!r}: counts = {self.counts!r}: need at least one case per difficulty")
+
+    @property
+    def n_cases(self) -> int:
+        return sum(n for _, n in self.counts)
+
+
+#: The registered suites. Never edit an entry whose file has shipped: add a new version.
+SUITES: dict[str, SuiteSpec] = {
+    "packlab-bench-v1": SuiteSpec(
+        "packlab-bench-v1",
+        counts=(("easy", 20), ("medium", 20), ("hard", 20)),
+        seed=0,
+        description="PackLab-Bench v1: 20 easy (buffer 3), 20 medium (buffer 5), 20 hard (buffer 10)",
+    ),
+}
+
+DEFAULT_SUITE = "packlab-bench-v1"
+
+
+def suite_spec(name: str) -> SuiteSpec:
+    try:
+        return SUITES[name]
+    except KeyError:
+        raise ConfigError(f"suite = {name!r}: unknown; available: {', '.join(SUITES)}") from None
+
+
+def suite_dir() -> Path:
+    """The directory of the bundled suite files (inside the installed package)."""
+    return Path(str(resources.files("packlab").joinpath(*SUITE_PACKAGE_DIR)))
+
+
+def suite_files(name: str, directory: str | os.PathLike[str] | None = None) -> tuple[Path, Path]:
+    """(case file, checksum file) of a suite, in ``directory`` or the bundled location."""
+    base = Path(directory) if directory is not None else suite_dir()
+    return base / f"{name}.jsonl", base / f"{name}.sha256"
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_checksum(path: Path, expected_name: str) -> str:
+    """The digest recorded in a ``sha256sum``-format file for ``expected_name``."""
+    if not path.is_file():
+        raise SuiteIntegrityError(f"{path}: checksum file missing; a suite without one cannot be verified")
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        parts = line.split()
+        if len(parts) == 2 and parts[1].lstrip("*") == expected_name:
+            digest = parts[0].lower()
+            if len(digest) != 64 or any(ch not in "0123456789abcdef" for ch in digest):
+                raise SuiteIntegrityError(f"{path}:{lineno}: '{parts[0]}' is not a sha256 digest")
+            return digest
+    raise SuiteIntegrityError(f"{path}: no checksum line for {expected_name!r}")
+
+
+def verify_suite_file(cases_path: Path, checksum_path: Path) -> str:
+    """Raise ``SuiteIntegrityError`` unless the case file's sha256 is the recorded one."""
+    if not cases_path.is_file():
+        raise SuiteIntegrityError(f"{cases_path}: suite file missing")
+    recorded = read_checksum(checksum_path, cases_path.name)
+    actual = file_sha256(cases_path)
+    if actual != recorded:
+        raise SuiteIntegrityError(
+            f"{cases_path}: sha256 {actual[:12]}... does not match the recorded {recorded[:12]}... "
+            f"in {checksum_path.name}; the suite file was changed. A changed case file is a new "
+            f"suite version: restore the original or register the new file under a new suite name"
+        )
+    return actual
+
+
+def _check_counts(spec: SuiteSpec, cases: Sequence[Case], source: Path) -> None:
+    # A checksum proves the bytes are the recorded ones; this proves the recorded file is the
+    # suite the spec describes (a mix-up of files with valid checksums would pass the first).
+    have = Counter(c.difficulty for c in cases)
+    want = dict(spec.counts)
+    if dict(have) != want:
+        raise SuiteIntegrityError(f"{source}: cases per difficulty {dict(have)} differ from the spec {want}")
+
+
+def load_suite(name: str = DEFAULT_SUITE, directory: str | os.PathLike[str] | None = None) -> list[Case]:
+    """The verified cases of a registered suite (``SuiteIntegrityError`` if the file changed)."""
+    spec = suite_spec(name)
+    cases_path, checksum_path = suite_files(name, directory)
+    verify_suite_file(cases_path, checksum_path)
+    cases = load_cases(cases_path)
+    _check_counts(spec, cases, cases_path)
+    return cases
+
+
+def suite_digest(name: str, directory: str | os.PathLike[str] | None = None) -> str:
+    """The recorded sha256 of a suite's case file (for run configs and provenance)."""
+    cases_path, checksum_path = suite_files(name, directory)
+    return read_checksum(checksum_path, cases_path.name)
+
+
+def build_suite(spec: SuiteSpec, progress: bool = False) -> list[Case]:
+    """Regenerate a suite's cases from its spec (deterministic; slow: replays every plan)."""
+    from packlab.datagen import generate_cases  # the data engine; only suite makers need it
+
+    cases: list[Case] = []
+    for difficulty, n in spec.counts:
+        if progress:
+            print(f"{spec.name}: generating {n} {difficulty} cases ...", flush=True)
+        cases += generate_cases(difficulty, n, spec.seed, validate=True, domain=spec.domain)
+    return cases
+
+
+def write_suite(spec: SuiteSpec, cases: Sequence[Case], directory: str | os.PathLike[str]) -> tuple[Path, str]:
+    """Write ``NAME.jsonl`` and ``NAME.sha256`` into ``directory``; returns (case file, digest)."""
+    cases_path, checksum_path = suite_files(spec.name, directory)
+    _check_counts(spec, cases, cases_path)
+    save_cases(cases, cases_path)
+    digest = file_sha256(cases_path)
+    tmp = checksum_path.with_name(checksum_path.name + ".tmp")
+    tmp.write_text(f"{digest}  {cases_path.name}\n", encoding="utf-8")
+    os.replace(tmp, checksum_path)
+    return cases_path, digest
+
+
+@dataclass(frozen=True, slots=True)
+class CaseSource:
+    """The cases a run uses and where they came from (a suite name or a file path)."""
+
+    label: str  # suite name, or the case file's stem
+    origin: str  # "suite:NAME" or the file path as given
+    sha256: str  # digest of the case file (for the run's config)
+    cases: tuple[Case, ...]
+
+
+def resolve_cases(cases: str | None = None) -> CaseSource:
+    """A registered suite by name (default ``packlab-bench-v1``) or any case file by path."""
+    if cases is None or cases in SUITES:
+        name = cases or DEFAULT_SUITE
+        loaded = load_suite(name)
+        return CaseSource(name, f"suite:{name}", suite_digest(name), tuple(loaded))
+    path = Path(cases)
+    if not path.exists():
+        raise ConfigError(f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing file")
+    loaded = load_cases(path)
+    if not loaded:
+        raise ConfigError(f"cases = {cases!r}: the file holds no cases")
+    return CaseSource(path.stem, str(path), file_sha256(path), tuple(loaded))
+
+
+__all__ = [
+    "DEFAULT_SUITE",
+    "SUITES",
+    "CaseSource",
+    "SuiteIntegrityError",
+    "SuiteSpec",
+    "build_suite",
+    "file_sha256",
+    "load_suite",
+    "resolve_cases",
+    "suite_digest",
+    "suite_dir",
+    "suite_files",
+    "suite_spec",
+    "verify_suite_file",
+    "write_suite",
+]

@@ -1,0 +1,86 @@
+"""Summary -> the Table-2-style Markdown table (and a run-details table), pure string building."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from packlab.bench.summary import AVERAGE, METRICS
+
+#: How methods are called in tables and figures (the paper's names); others print as registered.
+DISPLAY_NAMES = {
+    "dblf": "DBLF", "hm": "HM", "mta": "MTA", "ffp": "FFP", "sdf": "SDF-Pack",
+    "random": "Random", "oracle": "Oracle (gt plan)",
+}
+METRIC_SHORT = {"success_ratio": "SR", "compactness": "Compact.", "overall": "Overall"}
+
+
+def display_name(policy: str) -> str:
+    return DISPLAY_NAMES.get(policy, policy)
+
+
+def group_title(group: str) -> str:
+    return "Average" if group == AVERAGE else (group.capitalize() if group else "Unlabelled")
+
+
+def format_cell(cell: dict[str, Any] | None, digits: int = 3) -> str:
+    """``"0.812 ± 0.010"``: mean over seeds ± sample std across seeds; ``-`` when nothing ran."""
+    if not cell or cell.get("mean") is None:
+        return "-"
+    return f"{cell['mean']:.{digits}f} ± {cell['std']:.{digits}f}"
+
+
+def _row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def results_table(summary: dict[str, Any], digits: int = 3) -> str:
+    """Rows = methods; column groups = difficulties and the average; SR, Compactness, Overall."""
+    groups = [*summary["difficulties"], AVERAGE] if len(summary["difficulties"]) > 1 else summary["difficulties"]
+    header = ["Method"] + [f"{group_title(g)} {METRIC_SHORT[m]}" for g in groups for m in METRICS]
+    lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
+    for p in summary["policies"]:
+        flag = " *" if summary["counts"][p]["errors"] else ""
+        cells = [f"{display_name(p)}{flag}"]
+        cells += [format_cell(summary["table"][p].get(g, {}).get(m), digits) for g in groups for m in METRICS]
+        lines.append(_row(cells))
+    return "\n".join(lines)
+
+
+def details_table(summary: dict[str, Any]) -> str:
+    """Per method: episodes, failures, invalid steps, objects set aside, time per decision."""
+    header = ["Method", "episodes", "errors", "invalid steps", "set aside", "capped settles",
+              "ms / decision", "ms / env step", "s / episode"]
+    lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
+
+    def num(v: Any, fmt: str) -> str:
+        return "-" if v is None else format(v, fmt)
+
+    for p in summary["policies"]:
+        c = summary["counts"][p]
+        lines.append(_row([display_name(p), str(c["episodes"]), str(c["errors"]), str(c["invalid_steps"]),
+                           str(c["set_aside"]), str(c["capped_placements"]), num(c["decision_ms"], ".2f"),
+                           num(c["step_ms"], ".2f"), num(c["episode_s"], ".3f")]))
+    return "\n".join(lines)
+
+
+def headline(summary: dict[str, Any]) -> str:
+    seeds = ",".join(str(s) for s in summary["seeds"])
+    n_cases = summary.get("n_cases")
+    cases = f", {n_cases} cases" if n_cases is not None else ""
+    return (f"{summary.get('suite', 'bench')}: backend {summary.get('backend', '?')}, seeds {seeds}{cases}; "
+            f"mean over seeds ± sample std across seeds")
+
+
+def render_markdown(summary: dict[str, Any]) -> str:
+    """The whole table.md: headline, results table, failure note, details table."""
+    parts = [f"## {headline(summary)}", "", results_table(summary), ""]
+    if summary["errors"]:
+        n = len(summary["errors"])
+        parts += [(f"\\* {n} episode(s) failed and are left out of the means; see summary.json 'errors' "
+                   "and the tracebacks in episodes.jsonl."), ""]
+    parts += ["### Run details", "", details_table(summary), ""]
+    return "\n".join(parts)
+
+
+__all__ = ["DISPLAY_NAMES", "details_table", "display_name", "format_cell", "group_title", "headline",
+           "render_markdown", "results_table"]

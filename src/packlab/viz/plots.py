@@ -1,0 +1,151 @@
+"""Bench figures from a run summary: per-case Overall distributions and average-Overall bars.
+
+Figures are built on ``matplotlib.figure.Figure`` directly (no pyplot state, no GUI backend), so
+they can be made in worker processes and tests alike; ``save_figure`` writes PNGs via Agg.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from packlab.bench.summary import AVERAGE
+from packlab.bench.table import display_name, group_title
+
+#: Fixed colours, so a method looks the same in every figure of every run.
+_METHOD_COLOURS = {
+    "dblf": "#4C72B0", "hm": "#55A868", "mta": "#C44E52", "ffp": "#8172B2", "sdf": "#DD8452",
+    "random": "#9A9A9A", "oracle": "#333333",
+}
+_EXTRA = ["#64B5CD", "#CCB974", "#DA8BC3", "#8C613C", "#2F9E8F", "#B279A2"]
+#: Difficulty shading of grouped bars (light to dark), the average in a saturated tone.
+_GROUP_ALPHA = {0: 0.35, 1: 0.55, 2: 0.75}
+
+
+def method_colour(policy: str, order: list[str] | None = None) -> str:
+    if policy in _METHOD_COLOURS:
+        return _METHOD_COLOURS[policy]
+    extras = [p for p in (order or [policy]) if p not in _METHOD_COLOURS]
+    return _EXTRA[(extras.index(policy) if policy in extras else 0) % len(_EXTRA)]
+
+
+def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 130) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=dpi, bbox_inches="tight", facecolor="white")
+    tmp.replace(path)
+    return path
+
+
+def _case_overall(summary: dict[str, Any], policy: str, difficulty: str) -> np.ndarray:
+    """Per-case Overall (mean over seeds) of one method on one difficulty."""
+    per_case = summary["per_case"].get(policy, {})
+    vals = [c["overall"]["mean"] for c in per_case.values()
+            if c["difficulty"] == difficulty and c["overall"]["mean"] is not None]
+    return np.asarray(vals, dtype=float)
+
+
+def overall_distribution_figure(summary: dict[str, Any]) -> Figure:
+    """One panel per difficulty: a box per method over its cases' Overall, with every case as a dot.
+
+    Each dot is one case's Overall averaged over the run seeds; dots are jittered sideways with
+    a fixed RNG so the picture is the same every time it is rebuilt.
+    """
+    policies, groups = summary["policies"], summary["difficulties"]
+    fig = Figure(figsize=(max(6.0, 0.55 * len(policies) * len(groups) + 2.0), 4.4))
+    axes = fig.subplots(1, len(groups), sharey=True, squeeze=False)[0]
+    rng = np.random.default_rng(0)
+    for ax, group in zip(axes, groups):
+        data = [_case_overall(summary, p, group) for p in policies]
+        pos = np.arange(1, len(policies) + 1)
+        shown = [(i, d) for i, d in enumerate(data) if d.size]
+        if shown:
+            bp = ax.boxplot([d for _, d in shown], positions=[pos[i] for i, _ in shown], widths=0.62,
+                            patch_artist=True, showfliers=False, medianprops={"color": "black", "linewidth": 1.4},
+                            whiskerprops={"color": "#555555"}, capprops={"color": "#555555"})
+            for patch, (i, _) in zip(bp["boxes"], shown):
+                patch.set_facecolor(method_colour(policies[i], policies))
+                patch.set_alpha(0.35)
+                patch.set_edgecolor("#444444")
+        for i, d in shown:
+            jitter = rng.uniform(-0.17, 0.17, size=d.size)
+            ax.scatter(pos[i] + jitter, d, s=13, color=method_colour(policies[i], policies), alpha=0.85,
+                       edgecolors="white", linewidths=0.4, zorder=3)
+        n_cases = max((d.size for d in data), default=0)
+        ax.set_title(f"{group_title(group)} ({n_cases} cases)", fontsize=11)
+        ax.set_xticks(pos)
+        ax.set_xticklabels([display_name(p).replace(" (gt plan)", "") for p in policies], rotation=35,
+                           ha="right", fontsize=9)
+        ax.set_ylim(-0.02, 1.05)
+        ax.grid(axis="y", color="#DDDDDD", linewidth=0.7)
+        ax.set_axisbelow(True)
+        for side in ("top", "right"):
+            ax.spines[side].set_visible(False)
+    axes[0].set_ylabel("Overall per case (mean over seeds)")
+    n_seeds = len(summary["seeds"])
+    fig.suptitle(f"{summary.get('suite', 'bench')}: Overall by case ({summary.get('backend', '')}, "
+                 f"{n_seeds} seed{'s' if n_seeds != 1 else ''})", fontsize=12)
+    fig.tight_layout()
+    return fig
+
+
+def average_overall_figure(summary: dict[str, Any]) -> Figure:
+    """Bars of mean Overall per method: one per difficulty (light) and the average (solid).
+
+    Error bars are the sample standard deviation across run seeds; the average's value is
+    printed above its bar.
+    """
+    policies, diffs = summary["policies"], summary["difficulties"]
+    groups = [*diffs, AVERAGE] if len(diffs) > 1 else list(diffs)
+    n = len(groups)
+    width = 0.8 / n
+    x = np.arange(len(policies))
+    fig = Figure(figsize=(max(6.5, 1.15 * len(policies) + 1.5), 4.2))
+    ax = fig.subplots()
+    for j, group in enumerate(groups):
+        means, stds = [], []
+        for p in policies:
+            cell = summary["table"][p].get(group, {}).get("overall") or {}
+            means.append(np.nan if cell.get("mean") is None else cell["mean"])
+            stds.append(0.0 if cell.get("std") is None else cell["std"])
+        colours = [method_colour(p, policies) for p in policies]
+        is_avg = group == AVERAGE or n == 1
+        offs = x - 0.4 + width * (j + 0.5)
+        bars = ax.bar(offs, means, width * 0.92, yerr=stds, color=colours,
+                      alpha=1.0 if is_avg else _GROUP_ALPHA.get(j, 0.5), edgecolor="#333333" if is_avg else "none",
+                      linewidth=0.6, error_kw={"elinewidth": 0.8, "capsize": 2, "ecolor": "#333333"},
+                      label=group_title(group))
+        if is_avg:
+            for bar, m in zip(bars, means):
+                if not np.isnan(m):
+                    ax.text(bar.get_x() + bar.get_width() / 2, m + 0.025, f"{m:.3f}", ha="center", va="bottom",
+                            fontsize=8)
+    ax.set_xticks(x)
+    ax.set_xticklabels([display_name(p) for p in policies], fontsize=9)
+    ax.set_ylim(0, 1.12)
+    ax.set_ylabel("Overall (mean over cases and seeds)")
+    ax.grid(axis="y", color="#DDDDDD", linewidth=0.7)
+    ax.set_axisbelow(True)
+    for side in ("top", "right"):
+        ax.spines[side].set_visible(False)
+    if n > 1:
+        # Legend by group shade, drawn in neutral grey so it does not suggest one method.
+        from matplotlib.patches import Patch
+
+        handles = [Patch(facecolor="#555555", alpha=1.0 if g == AVERAGE else _GROUP_ALPHA.get(j, 0.5),
+                         edgecolor="#333333" if g == AVERAGE else "none", label=group_title(g))
+                   for j, g in enumerate(groups)]
+        ax.legend(handles=handles, ncol=n, fontsize=8, frameon=False, loc="upper left")
+    bars_are = "bars: difficulties, then average; " if n > 1 else ""
+    ax.set_title(f"{summary.get('suite', 'bench')}: mean Overall per method ({bars_are}± std across seeds)",
+                 fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+__all__ = ["average_overall_figure", "method_colour", "overall_distribution_figure", "save_figure"]
