@@ -18,10 +18,10 @@
 set -euo pipefail
 
 OUT=${1:-runs/vlm-small}
-EPISODES=${EPISODES:-600,300,100}          # easy,medium,hard trajectories
+EPISODES=${EPISODES:-300,150,50}           # easy,medium,hard trajectories (about 6,300 step examples)
 DATA_SEED=${DATA_SEED:-7}
 MODEL=${MODEL:-tiny:qwen3_vl:small}         # family:size of the random-weight model
-EPOCHS=${EPOCHS:-2}
+EPOCHS=${EPOCHS:-1}                         # about 2 h on a 2-core CPU at these sizes
 MAX_STEPS=${MAX_STEPS:-}                    # optional optimizer-step cap
 MAX_LENGTH=${MAX_LENGTH:-3072}              # tokens; oldest past steps are dropped to fit
 GRAD_ACCUM=${GRAD_ACCUM:-8}
