@@ -9,7 +9,9 @@ case per episode.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import signal
+import sys
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -24,9 +26,25 @@ _PHYSICS: Any = None
 _POLICY_KWARGS: dict[str, dict[str, Any]] = {}
 
 
-def _init_worker(cases: Sequence[Case], backend: str, physics: Any, policy_kwargs: dict[str, dict[str, Any]]) -> None:
+def _share_cores(workers: int) -> None:
+    """Give each worker its share of the cores for math libraries (torch, BLAS).
+
+    Without it every worker's torch starts one thread per core, and model policies (``vlm``)
+    run several times slower from oversubscription. A user's explicit OMP_NUM_THREADS wins.
+    """
+    threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, threads)
+    torch = sys.modules.get("torch")  # already imported by the parent before the fork
+    if torch is not None:
+        torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+
+
+def _init_worker(cases: Sequence[Case], backend: str, physics: Any, policy_kwargs: dict[str, dict[str, Any]],
+                 workers: int = 1) -> None:
     global _CASES, _BACKEND, _PHYSICS, _POLICY_KWARGS
     _CASES, _BACKEND, _PHYSICS, _POLICY_KWARGS = cases, backend, physics, policy_kwargs
+    _share_cores(workers)
     # Ctrl-C goes to the whole process group; only the parent should act on it (it stops the
     # pool and keeps every record written so far). Workers dying mid-task would just add noise.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -59,7 +77,7 @@ def run_pool(cases: Sequence[Case], tasks: Sequence[Task], backend: str, physics
     out one at a time keeps every core busy to the end (the tasks come longest first). The pool
     is forked here, eagerly, before the caller starts any thread (e.g. a progress bar's).
     """
-    pool = _context().Pool(workers, initializer=_init_worker, initargs=(tuple(cases), backend, physics, policy_kwargs))
+    pool = _context().Pool(workers, initializer=_init_worker, initargs=(tuple(cases), backend, physics, policy_kwargs, workers))
     return _drain(pool, pool.imap_unordered(_pool_run, tasks, chunksize=1))
 
 
