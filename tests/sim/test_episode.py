@@ -134,3 +134,16 @@ def test_history_holds_heightmap_before_each_action(layered_case):
     assert len(obs2.history) == 1
     assert np.array_equal(obs2.history[0].heightmap, obs.heightmap)
     assert obs2.history[0].shown == obs.shown
+
+
+def test_step_result_carries_settled_poses_of_all_boxes(layered_case):
+    ep = Episode("geometric")
+    obs = ep.reset(layered_case, 0)
+    policy = make_policy("oracle")
+    policy.reset(layered_case, 0)
+    first = ep.step(policy.act(obs))
+    n = len(layered_case.objects)
+    assert first.positions_mm.shape == (n, 3) and first.quaternions.shape == (n, 4)
+    placed = [i for i, b in enumerate(layered_case.objects) if b.internal_id == first.internal_id]
+    assert not np.isnan(first.positions_mm[placed]).any()
+    assert np.isnan(first.positions_mm).any(axis=1).sum() == n - 1  # the others are not placed yet

@@ -37,6 +37,11 @@ class StepResult:
     settle_steps: int
     capped: bool
     wall_time_s: float
+    #: Settled poses of *all* boxes after this step, indexed like ``case.objects``: centres
+    #: (n, 3) float mm and quaternions (n, 4) wxyz; NaN rows for boxes not in the container
+    #: (not yet placed, or set aside). Kept out of ``to_record`` to keep records compact.
+    positions_mm: np.ndarray = field(default=None, repr=False, compare=False)
+    quaternions: np.ndarray = field(default=None, repr=False, compare=False)
 
     def to_record(self) -> dict[str, Any]:
         action = (self.action.to_dict() if isinstance(self.action, Action)
@@ -174,6 +179,7 @@ class Episode:
             self._heightmap = final.heightmap
             settle_steps += final.settle_steps
             capped = capped or final.capped
+        positions, quaternions = self.backend.poses()
         result = StepResult(
             step_index=len(self.steps),
             action=action,
@@ -185,6 +191,8 @@ class Episode:
             settle_steps=settle_steps,
             capped=capped,
             wall_time_s=time.perf_counter() - started,
+            positions_mm=positions,
+            quaternions=quaternions,
         )
         self._history.append(HistoryEntry(heightmap_before, self._shown, action, not reason))
         self.steps.append(result)
