@@ -365,3 +365,19 @@ def test_endpoint_against_the_tiny_model_server_matches_the_local_policy(torch):
         s["prompt_tokens"] for s in local.step_log
     ]
     assert {s["finish_reason"] for s in remote.step_log} <= {"stop", "length"}
+
+
+@pytest.mark.torch
+def test_shipped_vlm_small_checkpoint_plays_a_bench_case():
+    import packlab.vlm.policies as vp
+    from packlab.bench.suites import load_suite
+
+    if not (vp.SHIPPED_MODEL_DIR / "packlab_model.json").exists():
+        pytest.skip("no vlm-small checkpoint in this install")
+    pytest.importorskip("torch")
+    case = next(c for c in load_suite("packlab-bench-v1") if c.difficulty == "easy")
+    result = run_episode(case, make_policy("vlm-small"), seed=0, backend="geometric")
+    assert result.policy == "vlm-small"
+    assert len(result.steps) == len(case.objects)
+    # The trained model answers in the action format: nothing it says is unparsable.
+    assert result.metrics.invalid_by_reason.get("unparsable", 0) == 0
