@@ -124,3 +124,34 @@ def test_config_validated():
         SFTConfig(data="d", out="o", data_fraction=0.0)
     assert SFTConfig(data="d", out="o").resolved_lr == 1e-3
     assert SFTConfig(data="d", out="o", model="/ckpt").resolved_lr == 1e-5
+
+
+@pytest.mark.slow
+def test_two_process_cpu_run(fixed_state, tmp_path):
+    """The multi-process path (what FSDP/DDP on GPUs uses): 2 ranks on CPU over gloo, launched
+    with torchrun. Each rank sees half the data, the schedule is laid out over the steps every
+    rank really takes, only rank 0 writes and reports."""
+    import os
+    import subprocess
+    import sys
+
+    data = _write_dataset(tmp_path / "data", fixed_state)
+    run = tmp_path / "run"
+    env = dict(os.environ, ACCELERATE_USE_CPU="true", OMP_NUM_THREADS="1")
+    cmd = [
+        sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+        "-m", "packlab.cli.main", "train", "sft", "--data", str(data), "--out", str(run),
+        "--model", "tiny:qwen3_vl:tiny", "--epochs", "3", "--max-steps", "2",
+        "--micro-batch", "1", "--grad-accum", "1", "--lr", "1e-3", "--warmup-ratio", "0",
+        "--history", "current_only",
+    ]  # fmt: skip
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.count("trained 2 steps") == 1, proc.stdout
+    resolved = json.loads((run / "sft_config.json").read_text())
+    assert resolved["devices"] == 2 and resolved["global_batch"] == 2
+    assert resolved["updates_per_epoch"] == 1 and resolved["total_updates"] == 2
+    lrs = [json.loads(line)["lr"] for line in (run / "loss_log.jsonl").read_text().splitlines()]
+    # cosine over 2 steps: half-way after the first, zero after the last (not restarted)
+    assert lrs == pytest.approx([5e-4, 0.0], abs=1e-9)
+    assert load_model(run / "final").meta["prompt_version"] == PROMPT_VERSION

@@ -117,6 +117,8 @@ def run_sft(args: argparse.Namespace) -> int:
             raise PacklabError(VLM_EXTRA_HINT) from None
         raise
     res = train_sft(cfg)
+    if not res.is_main_process:
+        return 0  # under accelerate/torchrun only rank 0 reports
     print(
         f"trained {res.optimizer_steps} steps on {res.n_examples} examples "
         f"in {res.wall_time_s:.0f} s; "

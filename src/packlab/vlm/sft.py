@@ -39,6 +39,7 @@ class SFTResult:
     n_examples: int
     optimizer_steps: int
     wall_time_s: float
+    is_main_process: bool = True  # False on the other ranks of a multi-process run
 
 
 def make_model(spec: str, seed: int = 0) -> VLM:
@@ -171,16 +172,24 @@ def train_sft(
         collate_fn=make_batch,
         generator=gen,
     )
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.AdamW(params, lr=cfg.resolved_lr, weight_decay=cfg.weight_decay)
+    model, optimizer, loader = acc.prepare(model, optimizer, loader)
+    # Counted after prepare: under several processes each one sees its shard of the loader, and
+    # these are the optimizer steps every process takes (the global batch covers all of them).
     updates_per_epoch = math.ceil(len(loader) / cfg.grad_accum)
     total_updates = updates_per_epoch * cfg.epochs
     if cfg.max_steps is not None:
         total_updates = min(total_updates, cfg.max_steps)
-    params = [p for p in model.parameters() if p.requires_grad]
-    optimizer = torch.optim.AdamW(params, lr=cfg.resolved_lr, weight_decay=cfg.weight_decay)
+    # accelerate advances a prepared scheduler once per process at every optimizer step, so the
+    # schedule is laid out over num_processes times as many ticks.
+    ticks = acc.num_processes
     scheduler = get_cosine_schedule_with_warmup(
-        optimizer, int(cfg.warmup_ratio * total_updates), max(total_updates, 1)
+        optimizer,
+        int(cfg.warmup_ratio * total_updates) * ticks,
+        max(total_updates, 1) * ticks,
     )
-    model, optimizer, loader, scheduler = acc.prepare(model, optimizer, loader, scheduler)
+    scheduler = acc.prepare(scheduler)
 
     if acc.is_main_process:
         out.mkdir(parents=True, exist_ok=True)
@@ -283,4 +292,12 @@ def train_sft(
             "wall_time_s": round(time.perf_counter() - t0, 2),
         }
         (out / "sft_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    return SFTResult(out, final, tuple(losses), len(examples), step, time.perf_counter() - t0)
+    return SFTResult(
+        out,
+        final,
+        tuple(losses),
+        len(examples),
+        step,
+        time.perf_counter() - t0,
+        acc.is_main_process,
+    )
