@@ -15,6 +15,7 @@ import pytest
 from _cases import small_case
 from PIL import Image
 
+from packlab.errors import ConfigError
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.types import Action, Unparsable
@@ -160,6 +161,19 @@ def test_ablations_change_the_request(server_factory):
     assert IMAGE_LINE in blank[0]["content"] and IMAGE_LINE not in none[0]["content"]
     assert not _decode(blank[1]["content"][0]["image_url"]["url"]).any()  # all black
     assert isinstance(none[1]["content"], str)  # no image part at all
+
+
+def test_max_past_steps_keeps_the_most_recent_steps(server_factory):
+    case = small_case()
+    server = server_factory([action_text(Action(0, 0, 0, 0))] * 20)
+    policy = make_policy("endpoint", base_url=server.base_url, max_past_steps=2, **FAST)
+    run_episode(case, policy, seed=0, backend="geometric")
+    roles = [[m["role"] for m in r["messages"]] for r in server.requests]
+    assert roles[0] == ["system", "user"]
+    assert roles[1] == ["system", "user", "assistant", "user"]
+    assert all(len(r) == 6 for r in roles[2:]) and len(roles) > 3  # 2 past steps, then current
+    with pytest.raises(ConfigError, match="max_past_steps"):
+        EndpointPolicy(max_past_steps=-1)
 
 
 def test_client_errors_are_not_retried(server_factory):

@@ -20,6 +20,8 @@ from packlab.vlm.prompt import (
     ablate,
     action_text,
     blank_like,
+    drop_oldest_step,
+    keep_last_steps,
     render_messages,
     split_target,
     turns_from_observation,
@@ -164,3 +166,18 @@ def test_prompt_module_imports_no_torch():
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_keep_last_steps(fixed_state):
+    container, past, current = fixed_state
+    full = render_messages(container, past, current)
+    assert len(past) == 2
+    assert keep_last_steps(full, 2) == full and keep_last_steps(full, 9) == full
+    assert keep_last_steps(full, 1) == drop_oldest_step(full)
+    latest = keep_last_steps(full, 1)
+    assert latest[1] == full[3] and latest[2] == full[4]  # the most recent step survives
+    assert [m["role"] for m in keep_last_steps(full, 0)] == ["system", "user"]
+    no_act = render_messages(container, past, current, PromptOptions(history="no_actions"))
+    assert [m["role"] for m in keep_last_steps(no_act, 1)] == ["system", "user", "user"]
+    with pytest.raises(ValueError, match="n = -1"):
+        keep_last_steps(full, -1)

@@ -41,7 +41,7 @@ from packlab.errors import ConfigError, PacklabError
 from packlab.types import Action, Case, Observation, Unparsable
 from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.parse import parse_or_unparsable
-from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions
+from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, keep_last_steps
 
 RETRY_STATUS = frozenset({408, 429, 500, 502, 503, 504})
 FATAL_STATUS = frozenset({401, 403, 404})
@@ -190,6 +190,7 @@ class EndpointPolicy:
         seed: int | None = None,
         extra_body: dict[str, Any] | None = None,
         max_consecutive_failures: int = 5,
+        max_past_steps: int | None = None,
         name: str = "endpoint",
     ) -> None:
         if not isinstance(base_url, str) or not base_url.startswith(("http://", "https://")):
@@ -209,6 +210,15 @@ class EndpointPolicy:
                 "must be >= 1",
             ),
         ]
+        if max_past_steps is not None:
+            checks.append(
+                (
+                    isinstance(max_past_steps, int) and max_past_steps >= 0,
+                    "max_past_steps",
+                    max_past_steps,
+                    "must be an int >= 0 (or unset for the whole history)",
+                )
+            )
         for ok, field, value, rule in checks:
             if not ok:
                 raise ConfigError(f"{field} = {value!r}: {rule}")
@@ -226,6 +236,9 @@ class EndpointPolicy:
         self.temperature, self.max_tokens, self.seed = temperature, max_tokens, seed
         self.extra_body = dict(extra_body or {})
         self.max_consecutive_failures = max_consecutive_failures
+        # Servers cap the context (vLLM's max_model_len, images per prompt); keep the most recent
+        # past steps, by the same rule the trainer uses to fit max_length.
+        self.max_past_steps = max_past_steps
         self.step_log: list[dict[str, Any]] = []
         self._renderer: ContextRenderer | None = None
         self._urls: dict[int, tuple[Any, str]] = {}  # id(image) -> (image, data URL)
@@ -252,6 +265,7 @@ class EndpointPolicy:
             "options": self.options.to_dict(),
             "image_size": self.image_size,
             "extra_body": self.extra_body,
+            "max_past_steps": self.max_past_steps,
         }
 
     # -- request building ----------------------------------------------------------------------
@@ -275,6 +289,8 @@ class EndpointPolicy:
         if self._renderer is None:
             self._renderer = ContextRenderer(self.options, self.image_size)
         messages = self._renderer.messages(observation)
+        if self.max_past_steps is not None:
+            messages = keep_last_steps(messages, self.max_past_steps)
         body: dict[str, Any] = {
             "model": self.model,
             "messages": to_openai_messages(messages, self._image_url),

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from packlab.vlm.prompt import BLANK_IMAGE
+from packlab.vlm.prompt import BLANK_IMAGE, drop_oldest_step
 
 IGNORE_INDEX = -100
 IMAGE_PAD = "<|image_pad|>"
@@ -132,22 +132,6 @@ def encode(
             "(does the tokenizer split <|image_pad|>?)"
         )
     return Encoded(input_ids, mm, labels, pixel_values, grid)
-
-
-def drop_oldest_step(messages: Sequence[dict[str, Any]]) -> list[dict[str, Any]] | None:
-    """``messages`` without the oldest past step (user turn and answer); None if there is none.
-
-    Works for every history ablation: a past step is a user turn followed by an optional
-    assistant turn; the system message and the final (current) user turn are kept.
-    """
-    msgs = list(messages)
-    start = 1 if msgs and msgs[0]["role"] == "system" else 0
-    if len(msgs) - start <= 1:
-        return None
-    end = start + 1
-    if end < len(msgs) - 1 and msgs[end]["role"] == "assistant":
-        end += 1
-    return msgs[:start] + msgs[end:]
 
 
 def encode_fitting(

@@ -234,6 +234,37 @@ def ablate(
     return msgs
 
 
+def drop_oldest_step(messages: Sequence[dict[str, Any]]) -> list[dict[str, Any]] | None:
+    """``messages`` without the oldest past step (user turn and answer); None if there is none.
+
+    Works for every history ablation: a past step is a user turn followed by an optional
+    assistant turn; the system message and the final (current) user turn are kept.
+    """
+    msgs = list(messages)
+    start = 1 if msgs and msgs[0]["role"] == "system" else 0
+    if len(msgs) - start <= 1:
+        return None
+    end = start + 1
+    if end < len(msgs) - 1 and msgs[end]["role"] == "assistant":
+        end += 1
+    return msgs[:start] + msgs[end:]
+
+
+def keep_last_steps(messages: Sequence[dict[str, Any]], n: int) -> list[dict[str, Any]]:
+    """``messages`` with only the ``n`` most recent past steps (the rule of
+    :func:`drop_oldest_step`, applied until at most ``n`` remain)."""
+    if n < 0:
+        raise ValueError(f"n = {n}: must be >= 0")
+    msgs = list(messages)
+    start = 1 if msgs and msgs[0]["role"] == "system" else 0
+    while sum(m["role"] == "user" for m in msgs[start:]) - 1 > n:
+        shorter = drop_oldest_step(msgs)
+        if shorter is None:
+            break
+        msgs = shorter
+    return msgs
+
+
 def split_target(messages: Sequence[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
     """(context, answer text) of an SFT example whose last turn is the assistant's target."""
     if not messages or messages[-1]["role"] != "assistant":
