@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
 from layered_cases import make_layered_case
+
 from packlab.types import Case
 
 

@@ -5,8 +5,8 @@ import json
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-
 from layered_cases import make_layered_case
+
 from packlab.cases import case_to_dict, load_cases, save_cases
 from packlab.errors import CaseFormatError
 

@@ -54,6 +54,7 @@ def test_final_pose_decides_even_if_the_box_was_inside_before():
 
 def test_plan_drift_measures_the_largest_axis_deviation():
     from layered_cases import make_layered_case
+
     from packlab.metrics import plan_drift_mm, planned_centres_mm
     from packlab.types import Pose
 

@@ -4,9 +4,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from layered_cases import make_layered_case
 
 import packlab.sim.env  # noqa: F401  (registers the id)
-from layered_cases import make_layered_case
 from packlab.sim.env import ENV_ID, PackEnv
 
 

@@ -4,8 +4,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from layered_cases import make_layered_case
+
 from packlab.policies import make_policy
 from packlab.sim.episode import INVALID_REASONS, Episode, run_episode
 from packlab.types import Action, Box, Case, Container, Unparsable

@@ -10,10 +10,10 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
-from PIL import Image  # noqa: E402
+from PIL import Image
 
-from packlab.types import Action  # noqa: E402
-from packlab.vlm.model import (  # noqa: E402
+from packlab.types import Action
+from packlab.vlm.model import (
     FAMILIES,
     build_tiny_model,
     family_of,
@@ -21,7 +21,7 @@ from packlab.vlm.model import (  # noqa: E402
     mrope_sections,
     save_model,
 )
-from packlab.vlm.processing import (  # noqa: E402
+from packlab.vlm.processing import (
     IGNORE_INDEX,
     ProcessingConfig,
     collate,
@@ -29,7 +29,7 @@ from packlab.vlm.processing import (  # noqa: E402
     encode,
     encode_fitting,
 )
-from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages  # noqa: E402
+from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages
 
 pytestmark = pytest.mark.torch
 

@@ -10,14 +10,14 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 pytest.importorskip("accelerate")
 
-from PIL import Image  # noqa: E402
+from PIL import Image
 
-from packlab.errors import ConfigError  # noqa: E402
-from packlab.types import Action  # noqa: E402
-from packlab.vlm.model import load_model  # noqa: E402
-from packlab.vlm.prompt import PROMPT_VERSION, render_messages, with_answer  # noqa: E402
-from packlab.vlm.sft import SFTConfig, train_sft  # noqa: E402
-from packlab.vlm.sft_data import load_sft_examples, select_examples  # noqa: E402
+from packlab.errors import ConfigError
+from packlab.types import Action
+from packlab.vlm.model import load_model
+from packlab.vlm.prompt import PROMPT_VERSION, render_messages, with_answer
+from packlab.vlm.sft import SFTConfig, train_sft
+from packlab.vlm.sft_data import load_sft_examples, select_examples
 
 pytestmark = pytest.mark.torch
 
@@ -145,7 +145,7 @@ def test_two_process_cpu_run(fixed_state, tmp_path):
         "--micro-batch", "1", "--grad-accum", "1", "--lr", "1e-3", "--warmup-ratio", "0",
         "--history", "current_only",
     ]  # fmt: skip
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.count("trained 2 steps") == 1, proc.stdout
     resolved = json.loads((run / "sft_config.json").read_text())

@@ -25,11 +25,11 @@ def register_policy(name: str) -> Callable[[Callable[..., Policy]], Callable[...
 
 def _load_builtins() -> None:
     # Importing the modules runs their @register_policy decorators.
-    import packlab.policies.oracle  # noqa: F401
-    import packlab.policies.random_policy  # noqa: F401
+    import packlab.policies.oracle
+    import packlab.policies.random_policy
 
     try:
-        import packlab.policies.heuristics  # noqa: F401
+        import packlab.policies.heuristics
     except ModuleNotFoundError as exc:  # heuristics not built in this checkout
         if exc.name != "packlab.policies.heuristics":
             raise
