@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from packlab.bench.config import (
     EXEC_BACKENDS,
@@ -46,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=run)
 
-    sub = p.add_subparsers(dest="bench_command", metavar="{report}")
+    sub = p.add_subparsers(dest="bench_command", metavar="{report,compare}")
     r = sub.add_parser("report", help="rebuild summary, table and figures of a run from its records",
                        description="Rebuild summary.json, table.md and the figures of a run directory from "
                                    "its files alone (config.json, cases.jsonl, episodes.jsonl).")
@@ -55,6 +56,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--seed", type=int, help="run seed of that figure (default: the first seed)")
     r.add_argument("--no-figures", action="store_true", help="tables only")
     r.set_defaults(func=run_report)
+    c = sub.add_parser("compare", help="one table over several runs (ablations, checkpoints)",
+                       description="Put the results of several run directories (same cases, seeds and "
+                                   "backend) in one table; rows are named by run.")
+    c.add_argument("dirs", nargs="+", help="bench run directories")
+    c.add_argument("--labels", help="comma-separated row labels (default: the directory names)")
+    c.add_argument("--out", help="also write the Markdown to this file")
+    c.set_defaults(func=run_compare)
 
 
 def config_from_args(args: argparse.Namespace) -> RunConfig:
@@ -112,3 +120,15 @@ if __name__ == "__main__":  # pragma: no cover
     from packlab.cli.main import main
 
     sys.exit(main(["bench", *sys.argv[1:]]))
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from packlab.bench.compare import compare_markdown
+
+    labels = [x.strip() for x in args.labels.split(",")] if args.labels else None
+    text = compare_markdown(args.dirs, labels)
+    print(text)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text, encoding="utf-8")
+    return 0
