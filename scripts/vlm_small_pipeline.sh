@@ -18,11 +18,11 @@
 set -euo pipefail
 
 OUT=${1:-runs/vlm-small}
-EPISODES=${EPISODES:-300,150,50}           # easy,medium,hard trajectories (about 6,300 step examples)
+EPISODES=${EPISODES:-550,275,90}           # easy,medium,hard trajectories (9,301 step examples)
 DATA_SEED=${DATA_SEED:-7}
 MODEL=${MODEL:-tiny:qwen3_vl:small}         # family:size of the random-weight model
-EPOCHS=${EPOCHS:-1}                         # about 2 h on a 2-core CPU at these sizes
-MAX_STEPS=${MAX_STEPS:-}                    # optional optimizer-step cap
+EPOCHS=${EPOCHS:-1}
+MAX_STEPS=${MAX_STEPS:-1150}                # optimizer steps (x8 examples): about 85 min on 2 CPU cores
 MAX_LENGTH=${MAX_LENGTH:-3072}              # tokens; oldest past steps are dropped to fit
 GRAD_ACCUM=${GRAD_ACCUM:-8}
 SEEDS=${SEEDS:-0,1,2}
@@ -50,4 +50,8 @@ packlab bench "${bench_args[@]}" --policy-arg "$model_arg" --policy-arg vlm:imag
 packlab bench "${bench_args[@]}" --policy-arg "$model_arg" --policy-arg vlm:history=current_only --out "$OUT/bench-current-only"
 packlab bench "${bench_args[@]}" --policy-arg "$model_arg" --policy-arg vlm:history=no_actions --out "$OUT/bench-no-actions"
 
-echo "== done: loss curve $OUT/sft/loss_curve.png; tables $OUT/bench-*/table.md" >&2
+packlab bench compare "$OUT/bench-full" "$OUT/bench-blank-image" "$OUT/bench-current-only" \
+    "$OUT/bench-no-actions" --labels "full context,blank image,current step only,no past actions" \
+    --out "$OUT/ablations.md"
+
+echo "== done: loss curve $OUT/sft/loss_curve.png; tables $OUT/bench-*/table.md, $OUT/ablations.md" >&2
