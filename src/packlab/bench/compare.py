@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from packlab.bench.table import details_table, display_name, headline, results_table
+from packlab.bench.table import display_name, render_markdown
 from packlab.errors import PacklabError
 
 #: Summary fields that must agree for rows of different runs to share one table.
@@ -60,8 +60,6 @@ def merge_summaries(summaries: Sequence[dict[str, Any]], labels: Sequence[str]) 
 
 
 def compare_markdown(run_dirs: Sequence[str | os.PathLike[str]], labels: Sequence[str] | None = None) -> str:
-    """The comparison as Markdown: headline, results table, run details."""
+    """The comparison as Markdown, laid out as a run's table.md."""
     names = list(labels) if labels else [Path(d).name for d in run_dirs]
-    merged = merge_summaries([load_summary(d) for d in run_dirs], names)
-    return "\n".join([f"## {headline(merged)}", "", results_table(merged), "", "### Run details", "",
-                      details_table(merged), ""])
+    return render_markdown(merge_summaries([load_summary(d) for d in run_dirs], names))

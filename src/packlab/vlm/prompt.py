@@ -257,11 +257,9 @@ def keep_last_steps(messages: Sequence[dict[str, Any]], n: int) -> list[dict[str
         raise ValueError(f"n = {n}: must be >= 0")
     msgs = list(messages)
     start = 1 if msgs and msgs[0]["role"] == "system" else 0
+    # Every past step has one user turn; the last user turn is the current state.
     while sum(m["role"] == "user" for m in msgs[start:]) - 1 > n:
-        shorter = drop_oldest_step(msgs)
-        if shorter is None:
-            break
-        msgs = shorter
+        msgs = drop_oldest_step(msgs)  # type: ignore[assignment]  (a past step exists here)
     return msgs
 
 
