@@ -18,3 +18,24 @@ class CaseFormatError(PacklabError, ValueError):
 
 class ConfigError(PacklabError, ValueError):
     """A configuration value is invalid; the message names the field and value."""
+
+
+class EndpointUnavailable(PacklabError):
+    """A model server could not be used: refused, timed out, or answered 5xx after its retries.
+
+    Raised by remote policies (``endpoint``) instead of returning an action: a transport failure
+    says nothing about the policy's packing, so the bench records the episode as an error of kind
+    ``transport`` and counts consecutive ones in its circuit breaker (see docs/robustness.md).
+    """
+
+
+class RunAborted(PacklabError):
+    """A bench run stopped early (circuit breaker, run deadline); the records written are kept."""
+
+
+#: Process exit codes of the ``packlab`` commands (documented in docs/robustness.md).
+EXIT_OK = 0  # everything asked for ran
+EXIT_EPISODE_ERRORS = 1  # the run finished, but some episodes ended in error (count on the last line)
+EXIT_USAGE = 2  # bad input or configuration: nothing was run or written half-way
+EXIT_ABORTED = 3  # the run stopped early (circuit breaker, run deadline); finished records are kept
+EXIT_INTERRUPTED = 130  # Ctrl-C; rerun the same command to resume
