@@ -16,6 +16,11 @@ import numpy as np
 DEFAULT_CELL_XY_MM = 25
 DEFAULT_CELL_Z_MM = 2
 
+#: An object's identity within its case, kept exactly as the case file gives it: packlab's
+#: generator numbers objects (``3``), the reference writes strings (``"obj_00003"``). All ids of
+#: one case have the same type (checked on load), so they compare and sort without surprises.
+InternalId = int | str
+
 
 @dataclass(frozen=True, slots=True)
 class Container:
@@ -44,7 +49,7 @@ class Container:
 class Box:
     """One object of a case: a cuboid of ``size_mm = (l, w, h)`` at rotation 0 (l along x)."""
 
-    internal_id: int
+    internal_id: InternalId
     size_mm: tuple[int, int, int]
     gt_index: int = -1
     type_id: int = 0
@@ -67,7 +72,7 @@ class PlanStep:
     ``cell_min``/``cell_size`` are (x, y, z) in (xy cells, xy cells, z cells) of the final box.
     """
 
-    internal_id: int
+    internal_id: InternalId
     gt_index: int
     layer_index: int
     cell_min: tuple[int, int, int]
@@ -75,6 +80,18 @@ class PlanStep:
     x: int
     y: int
     rotation: int
+
+
+@dataclass(frozen=True, slots=True)
+class CaseOrigin:
+    """Where a case's row sat in a reference-layout file: its ``extra_info.split`` and ``index``.
+
+    Provenance, not content: it takes no part in a case's equality or checksum and is not
+    written to packlab's own JSONL; the reference exporter writes it back into ``extra_info``.
+    """
+
+    split: str | None  # None: the row had no ``split``
+    index: int | None  # None: the row had no ``index``
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,16 +106,18 @@ class Case:
     difficulty: str = ""
     gt_plan: tuple[PlanStep, ...] | None = None
     generator: dict[str, Any] = field(default_factory=dict)
+    #: Set when the case was read from a reference-layout row (see ``CaseOrigin``).
+    origin: CaseOrigin | None = field(default=None, compare=False)
 
     @property
     def total_volume_mm3(self) -> int:
         return sum(b.volume_mm3 for b in self.objects)
 
-    def box_by_id(self, internal_id: int) -> Box:
+    def box_by_id(self, internal_id: InternalId) -> Box:
         for b in self.objects:
             if b.internal_id == internal_id:
                 return b
-        raise KeyError(f"case {self.episode_id!r}: no object with internal_id={internal_id}")
+        raise KeyError(f"case {self.episode_id!r}: no object with internal_id={internal_id!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,7 +154,7 @@ class ShownItem:
     """One object as the policy sees it in the buffer at a step."""
 
     shown_index: int
-    internal_id: int
+    internal_id: InternalId
     size_mm: tuple[int, int, int]
     #: (l, w) in xy cells and h in z cells; sizes are multiples of the grid in valid cases.
     size_cells: tuple[int, int, int]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from packlab.cases import load_cases, save_cases
+from packlab.cases import cases_sha256, load_cases, save_cases
 from packlab.errors import ConfigError, PacklabError
 from packlab.types import Case
 
@@ -171,27 +171,35 @@ def write_suite(spec: SuiteSpec, cases: Sequence[Case], directory: str | os.Path
 
 @dataclass(frozen=True, slots=True)
 class CaseSource:
-    """The cases a run uses and where they came from (a suite name or a file path)."""
+    """The cases a run uses and where they came from (a suite name, a file or a directory)."""
 
-    label: str  # suite name, or the case file's stem
-    origin: str  # "suite:NAME" or the file path as given
-    sha256: str  # digest of the case file (for the run's config)
+    label: str  # suite name, or the case file's (directory's) stem
+    origin: str  # "suite:NAME" or the path as given
+    sha256: str  # the cases' checksum (``packlab.cases.cases_sha256``), for the run's config
     cases: tuple[Case, ...]
 
 
 def resolve_cases(cases: str | None = None) -> CaseSource:
-    """A registered suite by name (default ``packlab-bench-v1``) or any case file by path."""
+    """A registered suite by name (default ``packlab-bench-v1``), or a case source by path: a
+    case file (JSON, JSONL, parquet) or a reference benchmark directory (see ``packlab.cases``).
+
+    The checksum is of the cases, not of the file's bytes (``cases_sha256``): the same cases
+    give the same digest whatever file they came in, so a suite and its export to the
+    reference layout are one identity for runs and comparisons. For a bundled suite it is the
+    recorded file digest (that file is packlab's canonical JSONL).
+    """
     if cases is None or cases in SUITES:
         name = cases or DEFAULT_SUITE
         loaded = load_suite(name)
         return CaseSource(name, f"suite:{name}", suite_digest(name), tuple(loaded))
     path = Path(cases)
     if not path.exists():
-        raise ConfigError(f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing file")
+        raise ConfigError(f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing "
+                          f"file or directory")
     loaded = load_cases(path)
     if not loaded:
         raise ConfigError(f"cases = {cases!r}: the file holds no cases")
-    return CaseSource(path.stem, str(path), file_sha256(path), tuple(loaded))
+    return CaseSource(path.stem or path.resolve().name, str(path), cases_sha256(loaded), tuple(loaded))
 
 
 __all__ = [
