@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from packlab.metrics import box_inside, compactness, score_final_state, success_ratio
+from packlab.metrics import EpisodeMetrics, box_inside, compactness, score_final_state, success_ratio
 from packlab.types import Container
 
 C = Container((100, 100, 100), 25, 2)
@@ -68,3 +68,14 @@ def test_plan_drift_measures_the_largest_axis_deviation():
     assert plan_drift_mm(case, poses) == 3.5
     poses[first] = None
     assert plan_drift_mm(case, poses) == float("inf")
+
+
+def test_episode_metrics_carry_the_settling_counters_into_records():
+    m = EpisodeMetrics(0.5, 0.5, 0.25, 1, 2, 10, 2, 1, 0, unsettled_steps=3, final_settle_steps=5000,
+                       at_rest=False, residual_linear_mps=0.02, residual_angular_radps=0.1)
+    d = m.to_dict()
+    assert d["unsettled_steps"] == 3 and d["final_settle_steps"] == 5000
+    assert d["at_rest"] is False and d["residual_linear_mps"] == 0.02 and d["residual_angular_radps"] == 0.1
+    # A backend without physics (geometric) leaves the defaults: at rest, nothing moving.
+    calm = EpisodeMetrics(1.0, 1.0, 1.0, 1, 1, 10, 1, 1, 0).to_dict()
+    assert calm["at_rest"] is True and calm["unsettled_steps"] == 0 and calm["residual_linear_mps"] == 0.0

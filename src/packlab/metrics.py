@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from packlab.types import Container
+from packlab.types import Container, InternalId
 
 #: A settled centre may stray this far outside the interior and still count as inside (mm).
 INSIDE_TOLERANCE_MM = 1.0
@@ -59,7 +59,15 @@ class EpisodeMetrics:
     n_set_aside: int
     invalid_by_reason: dict[str, int] = field(default_factory=dict)
     settle_steps: int = 0
-    capped_placements: int = 0
+    #: Placements whose settle hit the per-placement step cap (``settled: false`` steps).
+    unsettled_steps: int = 0
+    #: Steps of the final settle after the last object (its own, larger cap).
+    final_settle_steps: int = 0
+    #: Every box was at rest when the episode was scored; False when the final settle hit its cap.
+    at_rest: bool = True
+    #: Largest linear (m/s) and angular (rad/s) speed of any box when the episode was scored.
+    residual_linear_mps: float = 0.0
+    residual_angular_radps: float = 0.0
     wall_time_s: float = 0.0
 
     def to_dict(self) -> dict:
@@ -85,7 +93,7 @@ def score_final_state(
     return sr, comp, sr * comp, inside_volume, sum(inside), max_height
 
 
-def planned_centres_mm(case) -> dict[int, tuple[float, float, float]]:
+def planned_centres_mm(case) -> dict[InternalId, tuple[float, float, float]]:
     """Centre (mm) of every object in the case's perfect layout, by internal id."""
     if case.gt_plan is None:
         raise ValueError(f"case {case.episode_id!r} has no gt_plan")

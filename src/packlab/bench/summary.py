@@ -8,6 +8,10 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
   difficulty scores (equal weight per difficulty; with equal case counts, the mean over cases).
 * Each cell reports the mean over seeds of those per-seed scores and their spread: the sample
   standard deviation across seeds (0 with a single seed).
+* Settling (physics backends): ``counts`` has per method the placements whose settle hit the
+  per-placement cap (``unsettled_steps``), the episodes scored while boxes still moved because
+  the final settle hit its cap (``not_at_rest``; such episodes stay in the means), and the
+  largest residual speeds at scoring.
 * Failed episodes (``status: "error"``) are left out of the means and counted in ``counts`` and
   ``errors``; the table flags a method with failures, since its mean covers fewer episodes.
 
@@ -55,6 +59,12 @@ def _nan_to_none(obj: Any) -> Any:
     if isinstance(obj, list):
         return [_nan_to_none(v) for v in obj]
     return obj
+
+
+def _unsettled_steps(metrics: dict[str, Any]) -> int:
+    """Placements whose settle hit its cap; records written before ``unsettled_steps`` named
+    the same count ``capped_placements``."""
+    return int(metrics.get("unsettled_steps", metrics.get("capped_placements", 0)))
 
 
 def summarize(records: Iterable[dict[str, Any]], policies: Sequence[str] | None = None,
@@ -126,7 +136,12 @@ def summarize(records: Iterable[dict[str, Any]], policies: Sequence[str] | None 
             "steps": len(steps),
             "invalid_steps": sum(1 for s in steps if not s.get("valid", True)),
             "set_aside": sum(int(r["metrics"].get("n_set_aside", 0)) for r in mine),
-            "capped_placements": sum(int(r["metrics"].get("capped_placements", 0)) for r in mine),
+            "unsettled_steps": sum(_unsettled_steps(r["metrics"]) for r in mine),
+            "not_at_rest": sum(1 for r in mine if r["metrics"].get("at_rest") is False),
+            "max_residual_linear_mps": max((float(r["metrics"].get("residual_linear_mps", 0.0)) for r in mine),
+                                           default=0.0),
+            "max_residual_angular_radps": max((float(r["metrics"].get("residual_angular_radps", 0.0))
+                                               for r in mine), default=0.0),
             "decision_ms": 1000.0 * policy_s / decisions if decisions else float("nan"),
             "step_ms": 1000.0 * env_s / decisions if decisions else float("nan"),
             "episode_s": _mean([r.get("timing", {}).get("episode_s", 0.0) for r in mine]),

@@ -47,9 +47,14 @@ def results_table(summary: dict[str, Any], digits: int = 3) -> str:
 
 
 def details_table(summary: dict[str, Any]) -> str:
-    """Per method: episodes, failures, invalid steps, objects set aside, time per decision."""
-    header = ["Method", "episodes", "errors", "invalid steps", "set aside", "capped settles",
-              "ms / decision", "ms / env step", "s / episode"]
+    """Per method: episodes, failures, invalid steps, objects set aside, settling, time per decision.
+
+    ``unsettled steps``: placements whose settle hit the per-placement cap; ``not at rest``:
+    episodes scored while boxes still moved (the final settle hit its cap). Summaries written
+    before these counts existed show their ``capped_placements`` and ``-``.
+    """
+    header = ["Method", "episodes", "errors", "invalid steps", "set aside", "unsettled steps",
+              "not at rest", "ms / decision", "ms / env step", "s / episode"]
     lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
 
     def num(v: Any, fmt: str) -> str:
@@ -58,7 +63,8 @@ def details_table(summary: dict[str, Any]) -> str:
     for p in summary["policies"]:
         c = summary["counts"][p]
         lines.append(_row([display_name(p), str(c["episodes"]), str(c["errors"]), str(c["invalid_steps"]),
-                           str(c["set_aside"]), str(c["capped_placements"]), num(c["decision_ms"], ".2f"),
+                           str(c["set_aside"]), num(c.get("unsettled_steps", c.get("capped_placements")), "d"),
+                           num(c.get("not_at_rest"), "d"), num(c["decision_ms"], ".2f"),
                            num(c["step_ms"], ".2f"), num(c["episode_s"], ".3f")]))
     return "\n".join(lines)
 

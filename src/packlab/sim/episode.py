@@ -16,8 +16,8 @@ import numpy as np
 from packlab.metrics import EpisodeMetrics, score_final_state
 from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
 from packlab.sim.heightmap import footprint_fits, placement_height
-from packlab.sim.physics import TransitionBackend, make_backend
-from packlab.types import Action, Case, HistoryEntry, Observation, Pose, ShownItem, Unparsable
+from packlab.sim.physics import Transition, TransitionBackend, make_backend
+from packlab.types import Action, Case, HistoryEntry, InternalId, Observation, Pose, ShownItem, Unparsable
 
 #: Reasons a step can be invalid.
 INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")
@@ -31,17 +31,24 @@ class StepResult:
     action: Action | Unparsable
     valid: bool
     reason: str  # "" when valid, else one of INVALID_REASONS
-    internal_id: int  # the object processed (placed or set aside)
+    internal_id: InternalId  # the object processed (placed or set aside), as the case file gives it
     shown: tuple[ShownItem, ...]
     drop_mm: tuple[int, int, int] | None  # footprint minimum corner and Eq. 2 height; None if invalid
-    settle_steps: int
-    capped: bool
+    settle_steps: int  # physics steps of this step (the last step adds the final settle's)
+    #: The placement's settle ended with every box at rest; False when it hit the per-placement
+    #: cap (``PhysicsConfig.max_settle_steps``) and the next step starts from a moving pile.
+    #: Invalid steps place nothing and count as settled.
+    settled: bool
     wall_time_s: float
     #: Settled poses of *all* boxes after this step, indexed like ``case.objects``: centres
     #: (n, 3) float mm and quaternions (n, 4) wxyz; NaN rows for boxes not in the container
     #: (not yet placed, or set aside). Kept out of ``to_record`` to keep records compact.
     positions_mm: np.ndarray = field(default=None, repr=False, compare=False)
     quaternions: np.ndarray = field(default=None, repr=False, compare=False)
+    #: Largest linear (m/s) and angular (rad/s) speed of any box when the placement's settle
+    #: stopped: under the rest thresholds when ``settled``, the residual motion when not.
+    max_linear_speed: float = 0.0
+    max_angular_speed: float = 0.0
 
     def to_record(self) -> dict[str, Any]:
         action = (self.action.to_dict() if isinstance(self.action, Action)
@@ -55,7 +62,9 @@ class StepResult:
             "shown": [s.internal_id for s in self.shown],
             "drop_mm": list(self.drop_mm) if self.drop_mm else None,
             "settle_steps": self.settle_steps,
-            "capped": self.capped,
+            "settled": self.settled,
+            "max_linear_speed_mps": round(self.max_linear_speed, 6),
+            "max_angular_speed_radps": round(self.max_angular_speed, 6),
             "wall_time_s": round(self.wall_time_s, 6),
         }
 
@@ -88,6 +97,9 @@ class Episode:
         self._set_aside: set[int] = set()
         self._history: list[HistoryEntry] = []
         self.steps = []
+        # The latest settle (placement, then the final one): what "at rest" is judged on.
+        self._last_settle = Transition(self._heightmap, settle_steps=0, capped=False)
+        self.final_settle_steps = 0
         self._reshuffle()
         return self.observe()
 
@@ -162,23 +174,23 @@ class Episode:
         reason, index = self._check(action)
         heightmap_before = self._heightmap
         drop = None
-        settle_steps, capped = 0, False
+        placed: Transition | None = None
         if not reason:
             rotation, x, y = int(action.rotation), int(action.x), int(action.y)
             fx, fy = self._footprint_cells(index, rotation)
             z = placement_height(self._heightmap, x, y, fx, fy)
             cell = self.case.container.cell_xy_mm
             drop = (x * cell, y * cell, z)
-            transition = self.backend.place(index, rotation, drop)
-            self._heightmap = transition.heightmap
-            settle_steps, capped = transition.settle_steps, transition.capped
+            placed = self._last_settle = self.backend.place(index, rotation, drop)
+            self._heightmap = placed.heightmap
         else:
             self._set_aside.add(index)
+        settle_steps = placed.settle_steps if placed else 0
         if len(self._pending) == 1:  # this step processes the last object
-            final = self.backend.finish()
+            final = self._last_settle = self.backend.finish()
             self._heightmap = final.heightmap
+            self.final_settle_steps = final.settle_steps
             settle_steps += final.settle_steps
-            capped = capped or final.capped
         positions, quaternions = self.backend.poses()
         result = StepResult(
             step_index=len(self.steps),
@@ -189,10 +201,12 @@ class Episode:
             shown=self._shown,
             drop_mm=drop,
             settle_steps=settle_steps,
-            capped=capped,
+            settled=placed.settled if placed else True,
             wall_time_s=time.perf_counter() - started,
             positions_mm=positions,
             quaternions=quaternions,
+            max_linear_speed=placed.max_linear_speed if placed else 0.0,
+            max_angular_speed=placed.max_angular_speed if placed else 0.0,
         )
         self._history.append(HistoryEntry(heightmap_before, self._shown, action, not reason))
         self.steps.append(result)
@@ -204,10 +218,10 @@ class Episode:
         return result
 
     # -- outcome ---------------------------------------------------------------------------
-    def final_poses(self) -> dict[int, Pose | None]:
+    def final_poses(self) -> dict[InternalId, Pose | None]:
         """Settled pose of every object by internal id; None for objects never placed."""
         positions, quats = self.backend.poses()
-        out: dict[int, Pose | None] = {}
+        out: dict[InternalId, Pose | None] = {}
         for i, box in enumerate(self.case.objects):
             if np.isnan(positions[i]).any():
                 out[box.internal_id] = None
@@ -216,7 +230,11 @@ class Episode:
         return out
 
     def metrics(self) -> EpisodeMetrics:
-        """Scores from the current (final, once done) poses and heightmap, plus counters."""
+        """Scores from the current (final, once done) poses and heightmap, plus counters.
+
+        ``at_rest`` and the residual speeds describe the latest settle: once done, the final
+        settle the scores were taken after.
+        """
         positions, _ = self.backend.poses()
         centres = [None if np.isnan(p).any() else p for p in positions]
         volumes = [b.volume_mm3 for b in self.case.objects]
@@ -236,7 +254,11 @@ class Episode:
             n_set_aside=len(self._set_aside),
             invalid_by_reason=dict(sorted(reasons.items())),
             settle_steps=sum(s.settle_steps for s in self.steps),
-            capped_placements=sum(s.capped for s in self.steps),
+            unsettled_steps=sum(not s.settled for s in self.steps),
+            final_settle_steps=self.final_settle_steps,
+            at_rest=self._last_settle.settled,
+            residual_linear_mps=self._last_settle.max_linear_speed,
+            residual_angular_radps=self._last_settle.max_angular_speed,
             wall_time_s=sum(s.wall_time_s for s in self.steps),
         )
 
@@ -251,7 +273,7 @@ class EpisodeResult:
     backend: str
     steps: tuple[StepResult, ...]
     metrics: EpisodeMetrics
-    poses: dict[int, Pose | None] = field(default_factory=dict)
+    poses: dict[InternalId, Pose | None] = field(default_factory=dict)
     policy_time_s: float = 0.0
 
     def to_record(self) -> dict[str, Any]:

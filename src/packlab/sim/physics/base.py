@@ -13,11 +13,20 @@ from packlab.types import Box, Container
 
 @dataclass(frozen=True, slots=True)
 class Transition:
-    """The outcome of one placement."""
+    """The outcome of one placement (or of the final settle before scoring)."""
 
-    heightmap: np.ndarray  # (x_cells, y_cells) int32 mm after everything settled
+    heightmap: np.ndarray  # (x_cells, y_cells) int32 mm after settling stopped
     settle_steps: int  # physics steps taken (0 for the geometric backend)
     capped: bool  # True when the step cap ended settling before the bodies came to rest
+    #: Largest linear (m/s) and angular (rad/s) speed of any box in the container when settling
+    #: stopped: under the rest thresholds unless ``capped``. 0 for the geometric backend.
+    max_linear_speed: float = 0.0
+    max_angular_speed: float = 0.0
+
+    @property
+    def settled(self) -> bool:
+        """Every box came to rest (the opposite of ``capped``)."""
+        return not self.capped
 
 
 class TransitionBackend(Protocol):
@@ -34,7 +43,11 @@ class TransitionBackend(Protocol):
         ...
 
     def finish(self) -> Transition:
-        """Called once after the last object: let everything come to rest before scoring."""
+        """Called once after the last object: let everything come to rest before scoring.
+
+        Runs under its own (larger) cap; a ``capped`` result means the episode is scored with
+        boxes still moving, which the episode records as ``at_rest: false``.
+        """
         ...
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
