@@ -25,6 +25,8 @@ class RefCandidate:
     z: int
     top: int
     fits_in_rim: bool
+    size_mm: tuple[int, int, int]  # the object's (l, w, h), for the tie-break rule
+    internal_id: int | str  # the object's id, the tie-break rule's last key
 
 
 def shown_item(index: int, fx: int, fy: int, h_mm: int, cell: int = 25) -> ShownItem:
@@ -45,7 +47,8 @@ def candidates(hm: np.ndarray, shown: list[ShownItem], rim: int) -> list[RefCand
                     if x + fx > nx or y + fy > ny:
                         continue
                     z = max(int(hm[i, j]) for i in range(x, x + fx) for j in range(y, y + fy))
-                    out.append(RefCandidate(k, rot, x, y, fx, fy, z, z + h, z + h <= rim))
+                    out.append(RefCandidate(k, rot, x, y, fx, fy, z, z + h, z + h <= rim,
+                                            item.size_mm, item.internal_id))
     return out
 
 
@@ -58,12 +61,22 @@ def pool(cands: list[RefCandidate]) -> list[int]:
     return [i for i, c in enumerate(cands) if c.top == low]
 
 
-def choose(cands: list[RefCandidate], key) -> int | None:
-    """min over the pool by (key(c), scan index)."""
+def larger_first(c: RefCandidate) -> tuple:
+    """The ``larger_volume`` order of c's object: volume, area, l, w (larger first), then id."""
+    l, w, h = c.size_mm
+    return (-l * w * h, -l * w, -l, -w, isinstance(c.internal_id, str), c.internal_id)
+
+
+def choose(cands: list[RefCandidate], key, tie_break: str = "larger_volume") -> int | None:
+    """min over the pool by (key(c), tie order): the tie order is the scan index for
+    ``shown_order``; for ``larger_volume`` the object's size order, then rotation, x, y."""
     p = pool(cands)
     if not p:
         return None
-    return min(p, key=lambda i: (key(cands[i]), i))
+    if tie_break == "shown_order":
+        return min(p, key=lambda i: (key(cands[i]), i))
+    return min(p, key=lambda i: (key(cands[i]), larger_first(cands[i]), cands[i].rotation,
+                                 cands[i].x, cands[i].y))
 
 
 def hm_increase_mm3(hm: np.ndarray, c: RefCandidate, cell: int = 25) -> int:

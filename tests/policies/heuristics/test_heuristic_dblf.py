@@ -8,7 +8,7 @@ import numpy as np
 from packlab.policies.heuristics import dblf
 from packlab.policies.heuristics.candidates import search_candidates
 from packlab.policies.heuristics.select import choose, to_action
-from packlab.types import Action
+from packlab.types import Action, ShownItem
 
 
 def pick(hm, shown, rim=200) -> Action:
@@ -33,8 +33,11 @@ def test_depth_before_left() -> None:
     assert pick(hm, [ref.shown_item(0, 1, 1, 10)]) == Action(0, 0, 0, 1)
 
 
-def test_tie_between_objects_and_rotations_goes_to_scan_order() -> None:
+def test_tie_between_identical_objects_and_rotations() -> None:
     # Two equal square boxes on an empty floor: both objects and both rotations tie at
-    # (z, x, y) = (0, 0, 0); the first shown object at rotation 0 wins.
-    shown = [ref.shown_item(0, 1, 1, 30), ref.shown_item(1, 1, 1, 30)]
-    assert pick(np.zeros((2, 2)), shown) == Action(0, 0, 0, 0)
+    # (z, x, y) = (0, 0, 0). Rotation 0 wins; of the identical boxes the default takes the
+    # smaller id (shown second here), shown_order the first shown.
+    shown = [ShownItem(0, 9, (25, 25, 30), (1, 1, 15)), ShownItem(1, 4, (25, 25, 30), (1, 1, 15))]
+    c = search_candidates(np.zeros((2, 2), dtype=np.int32), shown, 200)
+    assert to_action(c, choose(c, dblf.score(c))) == Action(1, 0, 0, 0)
+    assert to_action(c, choose(c, dblf.score(c), "shown_order")) == Action(0, 0, 0, 0)

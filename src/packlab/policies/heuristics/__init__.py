@@ -4,7 +4,8 @@ Importing this package registers the policies "dblf", "hm", "mta", "ffp" and "sd
 
 - :mod:`.candidates`: the candidate search (object x rotation x cell, Eq. 2 heights), the dense
   action mask, for heuristics, ``random`` and RL alike.
-- :mod:`.select`: the rim rule and lexicographic tie-breaking shared by every heuristic.
+- :mod:`.select`: the rim rule, lexicographic key filtering and the tie-break rule shared by
+  every heuristic (``tie_break``: ``"larger_volume"``, the default, or ``"shown_order"``).
 - :mod:`.dblf`, :mod:`.hm`, :mod:`.mta`, :mod:`.ffp`, :mod:`.sdf`: one scorer each.
 - :mod:`.policy`: HeuristicPolicy and the registrations.
 """
@@ -23,15 +24,27 @@ from packlab.policies.heuristics.policy import (
     decide,
     make_heuristic,
 )
-from packlab.policies.heuristics.select import Keys, Scorer, choose, rim_pool, to_action
+from packlab.policies.heuristics.select import (
+    DEFAULT_TIE_BREAK,
+    TIE_BREAKS,
+    Keys,
+    Scorer,
+    TieBreak,
+    choose,
+    rim_pool,
+    to_action,
+)
 
 __all__ = [
+    "DEFAULT_TIE_BREAK",
     "SCORERS",
+    "TIE_BREAKS",
     "CandidateSet",
     "HeuristicPolicy",
     "Keys",
     "Orientation",
     "Scorer",
+    "TieBreak",
     "action_mask",
     "choose",
     "decide",

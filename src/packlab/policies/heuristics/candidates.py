@@ -56,6 +56,9 @@ class CandidateSet:
     container_height_mm: int  # the rim: a candidate "fits in rim" when top <= this
     cell_mm: int  # horizontal cell size (mm), for areas and the SDF voxel size
     shown_sizes_mm: np.ndarray  # (k, 3) int64 mm: (l, w, h) of each shown object
+    #: (k,) int64: each shown object's place among the shown ``internal_id``s sorted (integers
+    #: before strings). Only the tie-break rule reads it, and only between identical boxes.
+    shown_id_order: np.ndarray
     groups: tuple[Orientation, ...]  # in scan order; empty when nothing fits
     obj: np.ndarray  # (n,) int64 shown index
     rotation: np.ndarray  # (n,) int64 0/1
@@ -84,6 +87,19 @@ def footprint_cells(item: ShownItem, rotation: int) -> tuple[int, int]:
     """(fx, fy) in cells of a shown item at a rotation; rotation 1 swaps l and w."""
     l_cells, w_cells, _ = item.size_cells
     return (w_cells, l_cells) if rotation == 1 else (l_cells, w_cells)
+
+
+def id_order(shown: Sequence[ShownItem]) -> np.ndarray:
+    """(k,) int64: the place of each item's ``internal_id`` when the shown ids are sorted.
+
+    Ids are ints or strings (the reference's ``"obj_00000"``); ints sort before strings so a
+    mix never compares across types. Equal ids (not valid in a case) keep the shown order.
+    """
+    ids = [item.internal_id for item in shown]
+    by_id = sorted(range(len(ids)), key=lambda i: (isinstance(ids[i], str), ids[i]))
+    order = np.empty(len(ids), dtype=np.int64)
+    order[by_id] = np.arange(len(ids))
+    return order
 
 
 def search_candidates(
@@ -159,6 +175,7 @@ def _flatten(
         container_height_mm=int(container_height_mm),
         cell_mm=int(cell_mm),
         shown_sizes_mm=sizes,
+        shown_id_order=id_order(shown),
         groups=groups,
         top=top,
         fits_in_rim=fits_in_rim,

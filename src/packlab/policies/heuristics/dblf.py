@@ -9,8 +9,10 @@ Rule (lower is better, compared in this order):
 3. y, the minimum cell along the second axis ("leftmost").
 
 The object is chosen jointly with the placement: every shown object in both rotations competes
-on the same keys. Remaining ties (equal z, x, y for several objects or both rotations) go to
-scan order: the first shown object, rotation 0 before 1. There are no weights. The rim rule of
+on the same keys. Remaining ties (equal z, x, y for several objects or both rotations) go to the
+heuristic's tie-break rule (:mod:`packlab.policies.heuristics.select`): by default the larger
+object, as in the literature's DBLF, then rotation 0 before 1; with ``tie_break="shown_order"``
+the first shown object. There are no weights. The rim rule of
 :mod:`packlab.policies.heuristics.select` applies first (in-rim candidates only, else the
 lowest-top ones).
 """

@@ -10,7 +10,8 @@ Rule (lower is better, compared in this order):
 2. Ties "bottom-left": the DBLF order, lower z, then smaller x, then smaller y. Equal increases
    are common (a box fits flush in several places); preferring the lowest, deepest one keeps
    HM's packing order as predictable as DBLF's.
-3. Scan order (first shown object, rotation 0 before 1).
+3. The tie-break rule of :mod:`packlab.policies.heuristics.select` (default: the larger
+   object, then rotation 0 before 1; ``tie_break="shown_order"``: the first shown object).
 
 The object is chosen jointly with the placement, so on an even surface HM favours the smallest
 shown object (its own volume is part of the increase): that is the rule as stated, not tuned.

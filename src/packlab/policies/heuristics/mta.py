@@ -22,7 +22,8 @@ Rule (lower is better, compared in this order):
    :func:`contact_area_cm2` gives the same in cm^2.
 2. Ties: the DBLF order, lower z, then smaller x, then smaller y (equal contact often happens
    in mirror-image corners; the lowest, deepest one keeps the order predictable).
-3. Scan order (first shown object, rotation 0 before 1).
+3. The tie-break rule of :mod:`packlab.policies.heuristics.select` (default: the larger
+   object, then rotation 0 before 1; ``tie_break="shown_order"``: the first shown object).
 
 The object is chosen jointly with the placement; larger boxes have larger faces, so MTA tends
 to take big objects first. No weights: floor, wall and box contact count alike, per mm^2. The

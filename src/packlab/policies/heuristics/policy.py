@@ -3,15 +3,31 @@
 Each decision is: candidate search on the observation (one Eq. 2 window max per footprint),
 the heuristic's keys, the shared rim rule and tie-break (:mod:`.select`). Heuristics are
 deterministic; the run seed is accepted and ignored.
+
+Options (factory keywords, so ``packlab bench --policy-arg dblf:tie_break=shown_order`` works):
+
+- ``tie_break``: how placements that tie on every key are settled, one of
+  :data:`~packlab.policies.heuristics.select.TIE_BREAKS`; default ``"larger_volume"``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
 
+from packlab.errors import ConfigError
 from packlab.policies.heuristics import dblf, ffp, hm, mta, sdf
 from packlab.policies.heuristics.candidates import observation_candidates
-from packlab.policies.heuristics.select import Scorer, choose, to_action
+from packlab.policies.heuristics.select import (
+    DEFAULT_TIE_BREAK,
+    Scorer,
+    TieBreak,
+    check_tie_break,
+    choose,
+    first_object,
+    to_action,
+)
 from packlab.policies.registry import register_policy
 from packlab.types import Action, Case, Observation
 
@@ -25,15 +41,25 @@ SCORERS: dict[str, Scorer] = {
 }
 
 #: The action returned when no shown object fits the floor in any rotation. The episode records
-#: it as an invalid (out_of_bounds) step and sets an object aside, which is all that can happen.
+#: it as an invalid (out_of_bounds) step and sets that object aside, which is all that can
+#: happen. Its object is the first of the tie-break order (:func:`.select.first_object`; shown
+#: object 0 under ``shown_order``), so the default rule does not read the shown order here either.
 NO_CANDIDATE_ACTION = Action(object_id=0, rotation=0, x=0, y=0)
 
 
-def decide(observation: Observation, scorer: Scorer) -> Action:
+#: Factory keywords every heuristic accepts.
+OPTIONS = ("tie_break",)
+
+
+def decide(
+    observation: Observation, scorer: Scorer, tie_break: TieBreak = DEFAULT_TIE_BREAK
+) -> Action:
     """The action a scorer chooses for an observation (pure)."""
     cands = observation_candidates(observation)
-    index = choose(cands, scorer(cands))
-    return NO_CANDIDATE_ACTION if index is None else to_action(cands, index)
+    index = choose(cands, scorer(cands), tie_break)
+    if index is None:
+        return replace(NO_CANDIDATE_ACTION, object_id=first_object(cands, tie_break))
+    return to_action(cands, index)
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,39 +68,43 @@ class HeuristicPolicy:
 
     name: str
     scorer: Scorer
+    tie_break: TieBreak = DEFAULT_TIE_BREAK
+
+    def __post_init__(self) -> None:
+        check_tie_break(self.tie_break, self.name)
 
     def reset(self, case: Case, seed: int) -> None:
         """Nothing to prepare: the heuristics keep no state across steps."""
 
     def act(self, observation: Observation) -> Action:
-        return decide(observation, self.scorer)
+        return decide(observation, self.scorer, self.tie_break)
 
 
-def make_heuristic(name: str) -> HeuristicPolicy:
-    """A HeuristicPolicy by name (one of SCORERS)."""
-    return HeuristicPolicy(name=name, scorer=SCORERS[name])
+def make_heuristic(name: str, **options: Any) -> HeuristicPolicy:
+    """A HeuristicPolicy by name (one of SCORERS) with options (see the module docstring)."""
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ConfigError(
+            f"policy-arg {name}:{unknown[0]}: unknown option of heuristic {name!r}; "
+            f"known: {', '.join(OPTIONS)}"
+        )
+    tie_break = check_tie_break(options.get("tie_break", DEFAULT_TIE_BREAK), name)
+    return HeuristicPolicy(name=name, scorer=SCORERS[name], tie_break=tie_break)
 
 
-@register_policy(dblf.NAME)
-def make_dblf() -> HeuristicPolicy:
-    return make_heuristic(dblf.NAME)
+def _factory(name: str) -> Callable[..., HeuristicPolicy]:
+    """The registered factory of one heuristic: ``factory(**options)``."""
+
+    def make(**options: Any) -> HeuristicPolicy:
+        return make_heuristic(name, **options)
+
+    make.__name__ = make.__qualname__ = f"make_{name}"
+    return make
 
 
-@register_policy(hm.NAME)
-def make_hm() -> HeuristicPolicy:
-    return make_heuristic(hm.NAME)
+def _register_all() -> None:
+    for name in SCORERS:
+        register_policy(name)(_factory(name))
 
 
-@register_policy(mta.NAME)
-def make_mta() -> HeuristicPolicy:
-    return make_heuristic(mta.NAME)
-
-
-@register_policy(ffp.NAME)
-def make_ffp() -> HeuristicPolicy:
-    return make_heuristic(ffp.NAME)
-
-
-@register_policy(sdf.NAME)
-def make_sdf() -> HeuristicPolicy:
-    return make_heuristic(sdf.NAME)
+_register_all()

@@ -31,7 +31,8 @@ another box, so it is no longer "a gap". The size penalty (10 mm) is a fraction 
 decides between near-equal placements only. These were set from those arguments, not tuned.
 
 Ties (exact after rounding scores to 1e-6 mm): the DBLF order, lower z, then smaller x, then
-smaller y; then scan order. The shared rim rule of :mod:`packlab.policies.heuristics.select`
+smaller y; then the tie-break rule (default: the larger object; ``tie_break="shown_order"``:
+the first shown). The shared rim rule of :mod:`packlab.policies.heuristics.select`
 applies first.
 """
 

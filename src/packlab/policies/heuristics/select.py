@@ -8,7 +8,24 @@ them at +inf rather than compute them). Selection is then:
    none does, the pool is the candidates with the lowest top: the box that sticks out least.
 2. Keys filter the pool in turn, keeping only the candidates at each key's minimum (exact
    equality, so scorers return integers or values rounded to a fixed quantum).
-3. Whatever still ties goes to scan order (shown object, rotation 0 before 1, x, y): the first.
+3. Whatever still ties is settled by the *tie-break rule*, an option of every heuristic
+   (:data:`TieBreak`):
+
+   - ``"larger_volume"`` (the default, the literature's rule: DBLF and its relatives pack the
+     larger item first when placements are equally good). Shown objects are ranked by volume,
+     larger first; equal volumes by footprint area (l * w), larger first; then by (l, w),
+     larger first, which leaves only boxes of identical size tied; those go by ``internal_id``,
+     smaller first. The candidate of the best-ranked object wins, and within that object
+     rotation 0 before 1, then smaller x, then smaller y. Nothing here reads the shown order,
+     which is shuffled every step, so an episode does not depend on the run seed. Ids decide
+     only between identical boxes, which are interchangeable (same placements, same buffer
+     left behind), so they cannot hint at a layout (in the reference's files ids number the
+     objects in the perfect plan's order, which is why they are not used any earlier); they
+     only fix which of the identical bodies the physics engine moves, since its contact
+     solver is not indifferent to that.
+   - ``"shown_order"``: plain scan order (shown object, rotation 0 before 1, x, y), the first.
+     The shown order is shuffled every step, so ties go to a random object; kept to reproduce
+     earlier runs and as the ablation of the rule.
 
 Filtering in turn costs one pass per key over the pool, cheaper than a full lexicographic sort,
 and step 3 makes every choice deterministic.
@@ -17,14 +34,23 @@ and step 3 makes every choice deterministic.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Literal, get_args
 
 import numpy as np
 
+from packlab.errors import ConfigError
 from packlab.policies.heuristics.candidates import CandidateSet
 from packlab.types import Action
 
 Keys = tuple[np.ndarray, ...]
 Scorer = Callable[[CandidateSet], Keys]
+
+#: How ties left after a heuristic's keys are settled (step 3 of the module docstring).
+TieBreak = Literal["larger_volume", "shown_order"]
+#: The choices of :data:`TieBreak`, in the order error messages list them.
+TIE_BREAKS: tuple[TieBreak, ...] = get_args(TieBreak)
+#: The literature's rule: equally good placements go to the larger object.
+DEFAULT_TIE_BREAK: TieBreak = "larger_volume"
 
 #: Float scores are rounded to this many decimals before comparison, so near-equal placements
 #: computed along different float paths still tie exactly and fall to the documented tie-break.
@@ -44,7 +70,49 @@ def rim_pool(cands: CandidateSet) -> np.ndarray:
     return pool
 
 
-def choose(cands: CandidateSet, keys: Keys) -> int | None:
+def check_tie_break(value: object, policy: str = "heuristic") -> TieBreak:
+    """``value`` as a :data:`TieBreak`, or a ConfigError naming it and the choices."""
+    if isinstance(value, str) and value in TIE_BREAKS:
+        return value  # type: ignore[return-value]  (checked against the Literal's choices)
+    raise ConfigError(
+        f"policy-arg {policy}:tie_break = {value!r}: unknown tie-break rule; "
+        f"choose one of {', '.join(TIE_BREAKS)}"
+    )
+
+
+def object_rank(shown_sizes_mm: np.ndarray, id_order: np.ndarray) -> np.ndarray:
+    """(k,) int64 rank of each shown object under ``larger_volume``, 0 = taken first.
+
+    Order: volume, then footprint area (l * w), then l, then w, each larger first; identical
+    sizes by ``id_order`` (:attr:`CandidateSet.shown_id_order`), smaller first.
+    """
+    sizes = np.asarray(shown_sizes_mm, dtype=np.int64).reshape(-1, 3)
+    l, w, h = sizes[:, 0], sizes[:, 1], sizes[:, 2]
+    # np.lexsort sorts by its last key first.
+    order = np.lexsort((np.asarray(id_order), -w, -l, -(l * w), -(l * w * h)))
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    return rank
+
+
+def first_object(cands: CandidateSet, tie_break: TieBreak) -> int:
+    """Shown index of the object the tie-break rule takes first (0 when nothing is shown)."""
+    if tie_break == "shown_order" or cands.buffer_size == 0:
+        return 0
+    return int(np.argmin(object_rank(cands.shown_sizes_mm, cands.shown_id_order)))
+
+
+def _settle_ties(cands: CandidateSet, pool: np.ndarray, tie_break: TieBreak) -> int:
+    """The one candidate of a non-empty ``pool`` (scan order) that the tie-break rule picks."""
+    if tie_break == "larger_volume" and pool.size > 1:
+        # Within one object the pool is already in (rotation, x, y) order, so keeping the
+        # best-ranked object's candidates and taking the first is the whole rule.
+        ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order)[cands.obj[pool]]
+        pool = pool[ranks == ranks.min()]
+    return int(pool[0])
+
+
+def choose(cands: CandidateSet, keys: Keys, tie_break: TieBreak = DEFAULT_TIE_BREAK) -> int | None:
     """Index of the chosen candidate, or None when there is no candidate at all."""
     pool = rim_pool(cands)
     if pool.size == 0:
@@ -54,7 +122,7 @@ def choose(cands: CandidateSet, keys: Keys) -> int | None:
             break
         values = np.asarray(key)[pool]
         pool = pool[values == values.min()]
-    return int(pool[0])
+    return _settle_ties(cands, pool, tie_break)
 
 
 def to_action(cands: CandidateSet, index: int) -> Action:
