@@ -11,6 +11,7 @@ between a killed run and its resumption.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,9 +23,28 @@ from packlab.errors import ConfigError
 from packlab.types import Case
 
 #: Version of the run-directory layout (config.json, episodes.jsonl records).
-RUN_FORMAT = "packlab-bench-run-1"
+#: 2 (issue 10): error records carry ``error_kind``, episode records say whether the boxes were at
+#: rest when scored, and heuristics break ties by the larger object unless told otherwise. A
+#: run-1 directory therefore cannot be resumed (its heuristic episodes were played under the old
+#: tie rule); the identity check refuses it by this field. Reports still read run-1 records.
+RUN_FORMAT = "packlab-bench-run-2"
 EXEC_BACKENDS = ("process", "ray")
 TRANSITION_BACKENDS = ("geometric", "mujoco")
+#: Limits of a run's size, checked while the flags are parsed (before anything is allocated):
+#: ``--seeds 0-100000000`` must be an error, not a process that eats memory until it dies.
+MAX_SEEDS = 1000  # run seeds per run (each seed reruns every case x policy)
+#: Largest run seed: the buffer shuffle folds run seeds to 32 bits (sim/buffer.py), so two
+#: seeds that differ only above bit 31 would be the same episode under two names.
+MAX_SEED_VALUE = 2**32 - 1
+MAX_WORKERS = 512  # local worker processes (each holds an engine, maybe a model)
+#: Per-episode wall-clock limit by default. The slowest measured episodes are about 20 s (a
+#: small VLM on CPU, 24 decisions); 30 minutes leaves two orders of magnitude for large models
+#: and slow servers, yet a stuck episode costs one worker half an hour, not the whole run.
+DEFAULT_EPISODE_TIMEOUT_S = 1800.0
+#: Consecutive transport-error episodes (EndpointUnavailable) after which a run stops.
+DEFAULT_MAX_TRANSPORT_FAILURES = 3
+#: Longest --episode-timeout / --deadline accepted (30 days): longer is a typo; 0 means none.
+MAX_TIME_LIMIT_S = 30 * 24 * 3600.0
 #: config.json keys that must agree for a run directory to be resumed.
 IDENTITY_KEYS = ("format", "suite", "cases_sha256", "policies", "policy_args", "seeds", "backend", "difficulties",
                  "physics")
@@ -55,19 +75,66 @@ def _split(text: str | None) -> tuple[str, ...]:
     return () if not text else tuple(t.strip() for t in text.split(",") if t.strip())
 
 
+def parse_names(text: str | None, flag: str) -> tuple[str, ...]:
+    """A comma-separated list flag: absent (None) -> () meaning "the default set"; given but
+    empty (``--policies ,`` or ``""``) is an error rather than a silent "run everything"."""
+    if text is None:
+        return ()
+    names = _split(text)
+    if not names:
+        raise ConfigError(f"{flag} = {text!r}: empty list; name at least one (or leave out --{flag} for the default)")
+    return names
+
+
+def _seed_value(text: str, whole: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise ConfigError(f"seeds = {whole!r}: expected integers like 0,1,2 or 0-2") from None
+    if not 0 <= value <= MAX_SEED_VALUE:
+        raise ConfigError(f"seeds = {whole!r}: {value} is out of range; run seeds are 0..{MAX_SEED_VALUE}")
+    return value
+
+
+def _seed_part(part: str, whole: str) -> range:
+    """One comma-separated item: ``"3"`` or an inclusive range ``"0-4"``, as a lazy range."""
+    lo_text, dash, hi_text = part.partition("-")
+    if not dash:
+        value = _seed_value(part, whole)
+        return range(value, value + 1)
+    if not lo_text.strip():  # "-3": a negative number, not a range
+        raise ConfigError(f"seeds = {whole!r}: {part!r} is negative; run seeds are 0..{MAX_SEED_VALUE}")
+    lo, hi = _seed_value(lo_text, whole), _seed_value(hi_text, whole)
+    if hi < lo:
+        raise ConfigError(f"seeds = {whole!r}: range {part!r} runs backwards; write {hi}-{lo}")
+    return range(lo, hi + 1)
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """``"0,1,2"`` or a range ``"0-4"`` -> seeds."""
-    seeds: list[int] = []
-    for part in _split(text):
-        try:
-            if "-" in part[1:]:
-                lo, hi = part.split("-", 1)
-                seeds += range(int(lo), int(hi) + 1)
-            else:
-                seeds.append(int(part))
-        except ValueError:
-            raise ConfigError(f"seeds = {text!r}: expected integers like 0,1,2 or 0-2") from None
-    return tuple(seeds)
+    """``"0,1,2"`` or a range ``"0-4"`` (inclusive) -> seeds; at most MAX_SEEDS of them.
+
+    Ranges stay lazy until the total is known to be within the limit, so a huge range is an
+    error in microseconds instead of a list that exhausts memory.
+    """
+    parts = [_seed_part(part, text) for part in _split(text)]
+    total = sum(len(r) for r in parts)
+    if total > MAX_SEEDS:
+        raise ConfigError(f"seeds = {text!r}: {total} seeds; at most {MAX_SEEDS} per run")
+    return tuple(seed for r in parts for seed in r)
+
+
+def _check_time_limit(flag: str, value: float | None) -> None:
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not 0 < value <= MAX_TIME_LIMIT_S:
+        raise ConfigError(f"{flag} = {value!r}: must be a number of seconds in (0, {MAX_TIME_LIMIT_S:.0f}] "
+                          f"(0 on the command line means no limit)")
+
+
+def time_limit_arg(value: float) -> float | None:
+    """A --episode-timeout / --deadline flag value: 0 means no limit (None)."""
+    return None if value == 0 else value
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,13 +157,22 @@ class RunConfig:
     #: Keyword arguments of policy factories, (policy, key, value), e.g.
     #: (("vlm", "model", "runs/sft/final"),). Part of the run's identity.
     policy_args: tuple[tuple[str, str, Any], ...] = ()
+    #: Wall-clock limit of one episode (None: no limit); an episode past it is recorded as an
+    #: error of kind "timeout" and the run goes on. Not part of the identity.
+    episode_timeout_s: float | None = DEFAULT_EPISODE_TIMEOUT_S
+    #: Stop the run after this many consecutive transport-error episodes (0: never).
+    max_transport_failures: int = DEFAULT_MAX_TRANSPORT_FAILURES
+    #: Wall-clock limit of this invocation (None: none): no new work after it, workers stopped.
+    deadline_s: float | None = None
 
     def __post_init__(self) -> None:
         if not self.seeds:
             raise ConfigError("seeds: give at least one run seed")
+        if len(self.seeds) > MAX_SEEDS:
+            raise ConfigError(f"seeds: {len(self.seeds)} seeds; at most {MAX_SEEDS} per run")
         for s in self.seeds:
-            if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-                raise ConfigError(f"seeds: {s!r} is not a non-negative integer")
+            if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED_VALUE:
+                raise ConfigError(f"seeds: {s!r} is not a non-negative integer <= {MAX_SEED_VALUE}")
         if len(set(self.seeds)) != len(self.seeds):
             raise ConfigError(f"seeds = {list(self.seeds)}: a seed is repeated")
         if self.backend not in TRANSITION_BACKENDS:
@@ -105,6 +181,13 @@ class RunConfig:
             raise ConfigError(f"backend-exec = {self.exec_backend!r}: unknown; choose one of {', '.join(EXEC_BACKENDS)}")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
             raise ConfigError(f"workers = {self.workers!r}: must be a whole number >= 0 (0 = all cores)")
+        if self.workers > MAX_WORKERS:
+            raise ConfigError(f"workers = {self.workers}: at most {MAX_WORKERS}")
+        _check_time_limit("episode-timeout", self.episode_timeout_s)
+        _check_time_limit("deadline", self.deadline_s)
+        n = self.max_transport_failures
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ConfigError(f"max-transport-failures = {n!r}: must be a whole number >= 0 (0 = never stop)")
         if len(set(self.policies)) != len(self.policies):
             raise ConfigError(f"policies = {','.join(self.policies)}: a policy is repeated")
         if self.policies:
@@ -150,7 +233,10 @@ class ResolvedRun:
             "backend": self.config.backend,
             "difficulties": list(self.difficulties),
             "physics": self.physics,
-            "execution": {"workers": self.workers, "exec_backend": self.config.exec_backend},
+            "execution": {"workers": self.workers, "exec_backend": self.config.exec_backend,
+                          "episode_timeout_s": self.config.episode_timeout_s,
+                          "max_transport_failures": self.config.max_transport_failures,
+                          "deadline_s": self.config.deadline_s},
         }
 
     def policy_kwargs(self) -> dict[str, dict[str, Any]]:
@@ -248,9 +334,25 @@ def resolve(config: RunConfig) -> ResolvedRun:
             raise ConfigError(f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run "
                               f"({', '.join(policies)})")
     out = Path(config.out) if config.out else Path("runs") / f"bench-{source.label}"
+    check_out_dir(out)
     workers = config.workers or local_cores()
     return ResolvedRun(config, source, cases, tuple(policies), difficulties, out, workers,
                        _physics_fields(config.backend, config.physics_overrides))
+
+
+def check_out_dir(out: Path) -> None:
+    """ConfigError unless ``out`` is a directory or can be created as one (checked before
+    anything is written, so a bad --out leaves no half-made run behind)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"out = {str(out)!r}: exists and is not a directory; give a directory "
+                          f"(an existing run directory is resumed)")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ConfigError(f"out = {str(out)!r}: {str(parent)!r} is a file, not a directory")
+            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
+                raise ConfigError(f"out = {str(out)!r}: cannot create it, {str(parent)!r} is not writable")
+            return
 
 
 def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) -> None:
@@ -273,17 +375,26 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
 
 
 __all__ = [
+    "DEFAULT_EPISODE_TIMEOUT_S",
+    "DEFAULT_MAX_TRANSPORT_FAILURES",
     "EXEC_BACKENDS",
     "IDENTITY_KEYS",
+    "MAX_SEEDS",
+    "MAX_SEED_VALUE",
+    "MAX_TIME_LIMIT_S",
+    "MAX_WORKERS",
     "RUN_FORMAT",
     "ResolvedRun",
     "RunConfig",
+    "check_out_dir",
     "check_resumable",
     "default_policies",
     "local_cores",
+    "parse_names",
     "parse_physics",
     "parse_policy_args",
     "parse_seeds",
     "physics_from_json",
     "resolve",
+    "time_limit_arg",
 ]

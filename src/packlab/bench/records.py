@@ -7,7 +7,10 @@ unreadable line anywhere *but* the end is real damage and an error naming the li
 
 Record kinds (``status``):
   * ``"ok"``: ``EpisodeResult.to_record()`` plus ``difficulty``, ``n_objects`` and ``timing``.
-  * ``"error"``: the policy or engine raised; ``error`` (one line) and ``traceback`` say why.
+  * ``"error"``: the episode failed; ``error_kind`` says how (``"exception"``: the policy or
+    engine raised, or the worker died; ``"timeout"``: past ``--episode-timeout``;
+    ``"transport"``: a remote policy's server was unreachable), ``error`` (one line) and
+    ``traceback`` say why. Records written before ``error_kind`` existed read as "exception".
 """
 
 from __future__ import annotations
@@ -127,6 +130,13 @@ def iter_ok(records: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
     return (r for r in records if r.get("status", "ok") == "ok")
 
 
+def error_kind(record: dict[str, Any]) -> str | None:
+    """A failed record's kind ("exception", "timeout", "transport"); None for a result."""
+    if record.get("status", "ok") == "ok":
+        return None
+    return str(record.get("error_kind", "exception"))
+
+
 __all__ = [
     "CASES_FILE",
     "CONFIG_FILE",
@@ -136,6 +146,7 @@ __all__ = [
     "RecordWriter",
     "RecordsError",
     "dumps",
+    "error_kind",
     "iter_ok",
     "read_record_file",
     "read_records",

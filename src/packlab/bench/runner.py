@@ -8,7 +8,13 @@ The run directory (DESIGN.md section 6) holds ``config.json`` (resolved, written
 
 Resuming: records already in ``episodes.jsonl`` are the work done. A rerun with the same
 identity (see ``config.IDENTITY_KEYS``) runs only the missing keys; a different identity is an
-error rather than a silent mix of two configurations in one table.
+error rather than a silent mix of two configurations in one table. Records of transport errors
+(the server was unreachable: no result about the policy) are rerun by any rerun; other failed
+records only with ``retry_errors``.
+
+Stopping early (``BenchOutcome.aborted``): after ``max_transport_failures`` consecutive
+transport-error episodes (the circuit breaker) or at the run's ``deadline_s``. The workers are
+stopped, every record written stays, and the summary and table are written for what finished.
 """
 
 from __future__ import annotations
@@ -31,12 +37,13 @@ from packlab.bench.records import (
     EPISODES_FILE,
     RecordKey,
     RecordWriter,
+    error_kind,
     read_records,
     record_key,
 )
-from packlab.bench.task import Task
+from packlab.bench.task import DeadlineReached, Task
 from packlab.cases import save_cases
-from packlab.errors import ConfigError
+from packlab.errors import ConfigError, RunAborted
 
 INVOCATIONS_FILE = "invocations.jsonl"
 
@@ -54,6 +61,9 @@ class BenchOutcome:
     failed: int  # of those, recorded with status "error"
     wall_s: float  # this invocation, start to last record
     outputs: tuple[Path, ...]  # summary, table and figures written
+    recorded: int = 0  # episodes of the configuration with a record (ok or error) now
+    errors: int = 0  # of those, failed (this and earlier invocations)
+    aborted: str = ""  # why the run stopped early (breaker, deadline); "" when it ran to the end
 
 
 def task_keys(run: ResolvedRun) -> dict[RecordKey, Task]:
@@ -119,14 +129,54 @@ def _progress_bar(total: int, initial: int, label: str, enabled: bool) -> Any:
                 dynamic_ncols=True, smoothing=0.05)
 
 
-def _log_invocation(run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int) -> None:
+def _log_invocation(run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int,
+                    aborted: str = "") -> None:
     entry = {
         "started": datetime.fromtimestamp(started, UTC).isoformat(timespec="seconds"),
         "wall_s": round(wall_s, 3), "ran": ran, "failed": failed,
         "workers": run.workers, "exec_backend": run.config.exec_backend,
     }
+    if aborted:
+        entry["aborted"] = aborted
     with open(run.out / INVOCATIONS_FILE, "a", encoding="utf-8") as fh:
         fh.write(json.dumps(entry) + "\n")
+
+
+def needs_rerun(record: dict[str, Any], retry_errors: bool) -> bool:
+    """Whether a record from an earlier invocation is work still to do.
+
+    A transport error is always rerun: it records that a server was unreachable, not what the
+    policy does, so a plain rerun once the server is back completes the run. Other failures are
+    results of the policy (deterministic more often than not) and rerun only when asked.
+    """
+    kind = error_kind(record)
+    return kind is not None and (retry_errors or kind == "transport")
+
+
+class TransportBreaker:
+    """Counts consecutive transport-error records; trips at ``limit`` (0: never).
+
+    Consecutive in completion order: any other record (a result, or a failure of the policy
+    itself) proves the path to the server worked and resets the count.
+    """
+
+    def __init__(self, limit: int) -> None:
+        self.limit, self.count = limit, 0
+        self.last: dict[str, Any] | None = None
+
+    def observe(self, record: dict[str, Any]) -> bool:
+        """Count one record; True when the breaker trips."""
+        if error_kind(record) == "transport":
+            self.count += 1
+            self.last = record
+        else:
+            self.count = 0
+        return self.limit > 0 and self.count >= self.limit
+
+    def reason(self) -> str:
+        last = self.last or {}
+        return (f"stopped after {self.count} consecutive transport errors (--max-transport-failures {self.limit}); "
+                f"last: {last.get('policy')} on {last.get('case_id')} seed {last.get('seed')}: {last.get('error')}")
 
 
 class RunLock:
@@ -166,57 +216,73 @@ def run_bench(config: RunConfig, *, on_record: Callable[[dict[str, Any]], None] 
     """Run (or resume) a bench configuration and write its records, summary, table and figures.
 
     ``on_record`` is called after each new record is safely written (tests use it to interrupt
-    a run part-way, exactly where a kill would land).
+    a run part-way, exactly where a kill would land). A run stopped early by the circuit
+    breaker or the deadline returns normally with ``aborted`` set.
     """
+    # The deadline counts from the start of the invocation: loading cases is part of the run.
+    deadline = None if config.deadline_s is None else time.monotonic() + config.deadline_s
     run = resolve(config)
     preflight_policies(run.policies, run.policy_kwargs())
     with RunLock(run.out):
-        return _run_locked(run, on_record, figures)
+        return _run_locked(run, on_record, figures, deadline)
 
 
 def _run_locked(run: ResolvedRun, on_record: Callable[[dict[str, Any]], None] | None,
-                figures: bool) -> BenchOutcome:
+                figures: bool, deadline: float | None) -> BenchOutcome:
     from packlab.bench.report import write_outputs
 
     config = run.config
-    done = prepare_run_dir(run)
-    if config.retry_errors:
-        done = [r for r in done if r.get("status", "ok") == "ok"]
-    done_keys = {record_key(r) for r in done}
+    # Every record of this configuration by key, as a report would read the file: a new record
+    # replaces the old one of its key; old failures not rerun (yet) stay in the tables' counts.
+    latest = {record_key(r): r for r in prepare_run_dir(run)}
+    done_keys = {k for k, r in latest.items() if not needs_rerun(r, config.retry_errors)}
     planned = task_keys(run)
     pending = longest_first([t for k, t in planned.items() if k not in done_keys], run)
-    records = list(done)
-    failed = 0
+    ran = failed = 0
+    aborted = ""
     started_wall, started = time.time(), time.perf_counter()
     if pending:
         if run.config.backend == "mujoco":
             # Import the engine before forking so workers inherit it instead of loading it each.
             import packlab.sim.physics.mujoco_backend  # noqa: F401
         results = execute(run.cases, pending, run.config.backend, run.physics_config(), run.workers,
-                          run.config.exec_backend, run.policy_kwargs())
-        bar = _progress_bar(len(planned), len(done), f"bench {run.source.label}", run.config.progress)
+                          run.config.exec_backend, run.policy_kwargs(),
+                          timeout_s=config.episode_timeout_s, deadline=deadline)
+        bar = _progress_bar(len(planned), len(done_keys), f"bench {run.source.label}", run.config.progress)
+        breaker = TransportBreaker(config.max_transport_failures)
         try:
             with RecordWriter(run.out / EPISODES_FILE) as writer:
                 for record in results:
                     writer.write(record)
-                    records.append(record)
+                    latest[record_key(record)] = record
+                    ran += 1
                     if record["status"] != "ok":
                         failed += 1
                         bar.set_postfix_str(f"{failed} failed", refresh=False)
                     bar.update(1)
                     if on_record is not None:
                         on_record(record)
+                    if breaker.observe(record):
+                        aborted = breaker.reason()
+                        break
+        except DeadlineReached:
+            aborted = f"stopped at the run deadline (--deadline {config.deadline_s:g} s)"
+        except RunAborted as exc:
+            aborted = str(exc)
         finally:
             bar.close()
             close = getattr(results, "close", None)
             if close is not None:
-                close()  # stops a pool early when we leave by an exception
+                close()  # stops the workers now when we leave early (breaker, error, interrupt)
             wall_s = time.perf_counter() - started
-            _log_invocation(run, started_wall, wall_s, len(records) - len(done), failed)
+            _log_invocation(run, started_wall, wall_s, ran, failed, aborted)
     wall_s = time.perf_counter() - started
+    records = list(latest.values())
     summary, table_md, outputs = write_outputs(run.out, run.to_json(), records, run.cases, figures=figures)
-    return BenchOutcome(run.out, summary, table_md, len(planned), len(done), len(records) - len(done), failed,
-                        wall_s, tuple(outputs))
+    errors = sum(1 for r in records if r.get("status", "ok") != "ok")
+    return BenchOutcome(run.out, summary, table_md, len(planned), len(done_keys), ran, failed,
+                        wall_s, tuple(outputs), len(records), errors, aborted)
 
 
-__all__ = ["BenchOutcome", "RunLock", "longest_first", "prepare_run_dir", "run_bench", "task_keys"]
+__all__ = ["BenchOutcome", "RunLock", "TransportBreaker", "longest_first", "needs_rerun", "prepare_run_dir",
+           "run_bench", "task_keys"]

@@ -1,21 +1,41 @@
 """One unit of bench work: a (case, policy, run seed) episode turned into a record.
 
 This is what workers execute. It never raises for a policy or engine failure: the failure is
-the record (``status: "error"`` with the traceback), so one crashing policy on one case cannot
-stop a run of thousands of episodes.
+the record (``status: "error"`` with ``error_kind``, a one-line ``error`` and the traceback),
+so one crashing policy on one case cannot stop a run of thousands of episodes.
+
+Error kinds (``error_kind``):
+  * ``"exception"``: the policy or the engine raised (or the worker process died);
+  * ``"timeout"``: the episode ran past ``--episode-timeout``;
+  * ``"transport"``: a remote policy could not reach its server (``EndpointUnavailable``);
+    says nothing about the policy, and the runner's circuit breaker counts these.
+
+Time limits use ``SIGALRM`` (``signal.setitimer``) in the thread that runs the episode, which
+must be the process's main thread: the handler raises inside whatever the policy is doing,
+including a blocking ``time.sleep`` or socket read. Code that never returns to the
+interpreter (a C loop) cannot be interrupted this way; the process pool backs the alarm up by
+killing a worker that stays silent past the limit (see ``executors``).
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import time
 import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
+from packlab.errors import EndpointUnavailable, RunAborted
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
 from packlab.types import Case
+
+#: Values of a failed record's ``error_kind``.
+ERROR_KINDS = ("exception", "timeout", "transport")
 
 
 @dataclass(frozen=True, slots=True)
@@ -25,6 +45,63 @@ class Task:
     case_index: int
     policy: str
     seed: int
+
+
+class EpisodeTimeout(BaseException):
+    """Raised by the alarm inside a running episode.
+
+    A BaseException so that a policy's own ``except Exception: retry`` cannot swallow it and
+    carry on past the limit.
+    """
+
+
+class DeadlineReached(RunAborted):
+    """The run's overall deadline (``--deadline``) passed; the episode in progress is dropped."""
+
+
+class _DeadlineAlarm(BaseException):
+    """The alarm fired for the run deadline (internal; becomes DeadlineReached)."""
+
+
+def _alarm_usable() -> bool:
+    return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def time_limit(seconds: float | None, deadline: float | None = None) -> Iterator[None]:
+    """Raise EpisodeTimeout after ``seconds``, or _DeadlineAlarm at ``deadline`` (a
+    ``time.monotonic()`` value), whichever comes first; no limit where neither is set or where
+    alarms cannot be used (not the main thread, no SIGALRM)."""
+    until_deadline = None if deadline is None else deadline - time.monotonic()
+    limits = [x for x in (seconds, until_deadline) if x is not None]
+    if not limits or not _alarm_usable():
+        yield
+        return
+    fire_in = max(min(limits), 1e-3)
+    deadline_first = until_deadline is not None and (seconds is None or until_deadline < seconds)
+
+    def on_alarm(signum: int, frame: Any) -> None:
+        if deadline_first:
+            raise _DeadlineAlarm()
+        raise EpisodeTimeout(f"episode ran past the {seconds:g} s limit (--episode-timeout)")
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, fire_in)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def is_transport_error(exc: BaseException) -> bool:
+    """EndpointUnavailable itself, or raised from one (``raise X from EndpointUnavailable``)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, EndpointUnavailable):
+            return True
+        seen = seen.__cause__
+    return False
 
 
 def _header(case: Case, policy: str, seed: int, backend: str) -> dict[str, Any]:
@@ -39,17 +116,36 @@ def _header(case: Case, policy: str, seed: int, backend: str) -> dict[str, Any]:
     }
 
 
+def one_line(exc: BaseException) -> str:
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text[:500]
+
+
+def error_record(case: Case, policy: str, seed: int, backend: str, kind: str, message: str,
+                 trace: str = "", timing: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A failed episode's record (also built by executors, e.g. for a worker that died)."""
+    assert kind in ERROR_KINDS, kind
+    return {"status": "error", **_header(case, policy, seed, backend), "error_kind": kind,
+            "error": message[:500], "traceback": trace, "timing": timing or {}}
+
+
 def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = None,
-             policy_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+             policy_kwargs: dict[str, Any] | None = None, *, timeout_s: float | None = None,
+             deadline: float | None = None) -> dict[str, Any]:
     """The record of one episode (``status`` "ok"), or of its failure (``status`` "error").
 
     A fresh policy per episode (``make_policy(policy, **policy_kwargs)``), so no state leaks
     between episodes; policies that hold heavy models cache them per process themselves.
+    ``timeout_s`` limits this episode; ``deadline`` (``time.monotonic()``) is the run's end:
+    reaching it raises DeadlineReached instead of producing a record.
     """
     started, started_cpu = time.perf_counter(), time.process_time()
     head = _header(case, policy, seed, backend)
+    timing: dict[str, Any] = {}
     try:
-        result = run_episode(case, make_policy(policy, **(policy_kwargs or {})), seed, backend=backend, physics=physics)
+        with time_limit(timeout_s, deadline):
+            result = run_episode(case, make_policy(policy, **(policy_kwargs or {})), seed, backend=backend,
+                                 physics=physics)
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).
         body["policy"] = policy
@@ -57,10 +153,14 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
         step_s = sum(s.wall_time_s for s in result.steps)
         timing = {"policy_s": round(result.policy_time_s, 6), "env_s": round(step_s, 6),
                   "decisions": len(result.steps)}
+    except _DeadlineAlarm:
+        raise DeadlineReached("the run deadline (--deadline) was reached") from None
+    except EpisodeTimeout as exc:
+        record = error_record(case, policy, seed, backend, "timeout", one_line(exc), traceback.format_exc())
+        timing = {"timeout_s": timeout_s}
     except Exception as exc:  # noqa: BLE001 - any failure of a policy or engine is data here
-        message = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line
-        record = {"status": "error", **head, "error": message[:500], "traceback": traceback.format_exc()}
-        timing = {}
+        kind = "transport" if is_transport_error(exc) else "exception"
+        record = error_record(case, policy, seed, backend, kind, one_line(exc), traceback.format_exc())
     # cpu_s beside the wall time: on a shared machine the wall time also counts time spent
     # waiting for a core, the CPU time only the episode's own work.
     record["timing"] = {"episode_s": round(time.perf_counter() - started, 6),
@@ -68,4 +168,5 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
     return record
 
 
-__all__ = ["Task", "run_task"]
+__all__ = ["ERROR_KINDS", "DeadlineReached", "EpisodeTimeout", "Task", "error_record", "is_transport_error",
+           "one_line", "run_task", "time_limit"]

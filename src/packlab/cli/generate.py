@@ -85,6 +85,8 @@ def config_from_args(args: argparse.Namespace) -> DatasetConfig:
 
 def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
+    if not args.out.strip():
+        raise ConfigError("out = '': give a dataset directory")
     options = RunOptions(out=args.out, workers=args.workers, backend=args.backend, progress=not args.no_progress)
     info = generate_dataset(cfg, options)
     counts = info["counts"]

@@ -12,10 +12,10 @@ import importlib
 import sys
 
 #: Subcommand modules, in help order.
-COMMANDS = ("bench", "generate", "inspect_data", "train", "serve", "viz")
+COMMANDS = ("bench", "cases", "generate", "inspect_data", "train", "serve", "viz")
 
 
-from packlab.errors import PacklabError
+from packlab.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,16 +34,35 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand; returns its exit code (packlab.errors.EXIT_*), never a traceback for
+    bad input: a PacklabError or an OSError about a path (missing, a directory, not writable)
+    is one line ``packlab <cmd>: error: ...`` and exit code 2; a stopped run (RunAborted) 3."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv)  # argparse's own errors: usage + one line, exit code 2
     try:
         return int(args.func(args) or 0)
-    except (PacklabError, FileNotFoundError, NotADirectoryError, PermissionError) as exc:
+    except RunAborted as exc:
         print(f"packlab {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_ABORTED
+    except PacklabError as exc:
+        print(f"packlab {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:
+        if exc.filename is None:  # not about a path the user gave (e.g. a full disk): a real failure
+            raise
+        print(f"packlab {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"packlab {args.command}: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+
+
+def _os_error_line(exc: OSError) -> str:
+    """``'runs/x': Is a directory`` rather than ``[Errno 21] Is a directory: 'runs/x'``."""
+    where = repr(str(exc.filename))
+    if exc.filename2 is not None:
+        where += f" -> {str(exc.filename2)!r}"
+    return f"{where}: {exc.strerror or exc}"
 
 
 if __name__ == "__main__":

@@ -210,6 +210,10 @@ RECIPES: dict[str, Recipe] = {
 
 #: SFT export: one chat example per step (its whole history as context) or per episode.
 SFT_MODES = ("per_step", "per_episode", "none")
+#: Size limits checked on creation: a typo such as --episodes 100000000000 must be an error,
+#: not a plan that exhausts memory. The user seed is stored as an int64 Parquet column.
+MAX_EPISODES_PER_DIFFICULTY = 1_000_000
+MAX_USER_SEED = 2**63 - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,10 +247,11 @@ class DatasetConfig:
                 f"({len(self.difficulties)})"
             )
         for name, n in zip(self.difficulties, self.episodes):
-            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-                raise ConfigError(f"episodes for {name} = {n!r}: must be a whole number >= 0")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"seed = {self.seed!r}: must be a whole number >= 0")
+            if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_EPISODES_PER_DIFFICULTY:
+                raise ConfigError(f"episodes for {name} = {n!r}: must be a whole number >= 0 "
+                                  f"and <= {MAX_EPISODES_PER_DIFFICULTY}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_USER_SEED:
+            raise ConfigError(f"seed = {self.seed!r}: must be a whole number >= 0 and <= {MAX_USER_SEED}")
         if self.shard_size < 1:
             raise ConfigError(f"shard_size = {self.shard_size}: must be at least 1")
         if not 16 <= self.image_size <= 4096:

@@ -157,6 +157,9 @@ def _config_json(cfg: DatasetConfig) -> dict[str, Any]:
 def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
     """Create or reopen the dataset directory; fail with one line before any work starts."""
     root = Path(out)
+    if root.exists() and not root.is_dir():
+        raise ConfigError(f"out = {str(root)!r}: exists and is not a directory; give a directory "
+                          "(an existing dataset directory is resumed)")
     try:
         root.mkdir(parents=True, exist_ok=True)
         probe = root / ".packlab-write-probe.tmp"

@@ -35,6 +35,7 @@ import pyarrow.parquet as pq
 
 from packlab.cases import case_to_dict
 from packlab.datagen.validate import Trajectory
+from packlab.fileio import current_umask
 from packlab.types import Action, Container, ShownItem
 from packlab.viz.raster import heightmap_to_image
 
@@ -109,10 +110,16 @@ def shard_name(difficulty: str, index: int) -> str:
 # -- atomic files -----------------------------------------------------------------------------
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename."""
+    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename.
+
+    The file gets the mode a plain ``open(path, "w")`` would give (0666 less the umask):
+    ``mkstemp`` creates its file 0600, and a dataset that only its writer can read is of no
+    use to the group it is shared with.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)

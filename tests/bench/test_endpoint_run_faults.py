@@ -1,0 +1,109 @@
+"""Whole bench runs of the ``endpoint`` policy against fake model servers that fail in the ways
+real ones do: dead (nothing listening), hung (accepts, never answers), garbage (200 with a body
+that is not an answer), 500 (always) and 404 (a wrong model name or URL). Each run must end within a bound this test asserts,
+with the exit code and records docs/robustness.md promises; before issue 10 a dead or hung
+server cost 5 steps x 3 tries x 60 s per episode, about 45 hours for the default suite."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import pytest
+
+from packlab.bench.records import read_record_file
+from packlab.cli.main import main
+from packlab.errors import EXIT_ABORTED, EXIT_OK
+from packlab.sim.env import demo_cases_path
+
+DEADLINE_S = 0.5  # per request
+BOUND_S = 30.0  # a whole faulty run; 3 failed episodes x 2 tries x 0.5 s plus start-up
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Handler(BaseHTTPRequestHandler):
+    mode = "garbage"
+
+    def log_message(self, *args: object) -> None:  # keep the test output clean
+        pass
+
+    def do_POST(self) -> None:  # noqa: N802 - http.server's naming
+        self.rfile.read(int(self.headers.get("Content-Length", 0)))
+        if self.mode == "hung":
+            time.sleep(30)  # longer than any deadline in this file
+            return
+        status, body = {
+            "500": (500, b'{"error": {"message": "boom"}}'),
+            "404": (404, b'{"error": {"message": "model not found"}}'),
+        }.get(self.mode, (200, b"<html>not json</html>"))
+        self.send_response(status)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+
+@pytest.fixture
+def server(request) -> Iterator[str]:
+    """Base URL of a fake server in the mode given by the test's parameter."""
+    mode = request.param
+    if mode == "dead":
+        yield f"http://127.0.0.1:{_free_port()}/v1"  # nothing listens there
+        return
+    handler = type("Handler", (_Handler,), {"mode": mode})
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    httpd.daemon_threads = True
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{httpd.server_address[1]}/v1"
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+
+
+def _bench(tmp_path, capsys, base_url: str) -> tuple[int, float, list[str], list[dict]]:
+    run_dir = tmp_path / "run"
+    argv = ["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--policies", "endpoint",
+            "--seeds", "0-3", "--workers", "1", "--out", str(run_dir), "--no-progress", "--no-figures",
+            "--policy-arg", f"endpoint:base_url={base_url}",
+            "--policy-arg", f"endpoint:deadline_s={DEADLINE_S}",
+            "--policy-arg", "endpoint:retries=1", "--policy-arg", "endpoint:backoff_s=0.05"]
+    started = time.monotonic()
+    code = main(argv)
+    wall = time.monotonic() - started
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, wall, err, list(read_record_file(run_dir / "episodes.jsonl").records)
+
+
+@pytest.mark.parametrize("server", ["dead", "hung", "500", "404"], indirect=True)
+def test_an_unusable_server_stops_the_run_in_bounded_time(tmp_path, capsys, server):
+    code, wall, err, records = _bench(tmp_path, capsys, server)
+    assert code == EXIT_ABORTED, err
+    assert wall < BOUND_S
+    # The breaker (default 3 consecutive transport errors) stopped the run; those records stay.
+    assert len(records) == 3
+    assert all(r["status"] == "error" and r["error_kind"] == "transport" for r in records)
+    assert records[-1]["error"].startswith(("EndpointUnavailable", "EndpointError"))
+    assert err[-1].startswith("packlab bench: error: stopped after 3 consecutive transport errors")
+    assert (tmp_path / "run" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("server", ["garbage"], indirect=True)
+def test_garbage_answers_are_invalid_steps_and_the_run_completes(tmp_path, capsys, server):
+    code, wall, err, records = _bench(tmp_path, capsys, server)
+    assert code == EXIT_OK, err
+    assert wall < BOUND_S
+    assert len(records) == 3 * 4 and all(r["status"] == "ok" for r in records)
+    # Every step is an invalid, unparsable one: the objects are set aside, nothing is packed.
+    steps = [s for r in records for s in r["steps"]]
+    assert steps and all(not s["valid"] and s["reason"] == "unparsable" for s in steps)
+    assert all(r["metrics"]["overall"] == 0.0 for r in records)
