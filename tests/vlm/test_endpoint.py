@@ -1,6 +1,7 @@
 """The ``endpoint`` policy against a local OpenAI-compatible test server on 127.0.0.1 that plays
 a scripted answer list: request format, retries on timeouts and 5xx, garbage answers recorded as
-unparsable steps while the episode goes on. No torch needed.
+unparsable steps while the episode goes on. No torch needed. Dead, hung and trickling servers,
+and the time bounds, are in test_endpoint_faults.py.
 """
 
 from __future__ import annotations
@@ -8,7 +9,6 @@ from __future__ import annotations
 import base64
 import io
 import pickle
-import socket
 
 import numpy as np
 import pytest
@@ -30,7 +30,7 @@ from packlab.vlm.prompt import IMAGE_LINE, action_text, render_messages
 from packlab.vlm.serve import Reply, scripted, serve
 
 A0 = action_text(Action(0, 0, 0, 0))
-FAST = {"timeout_s": 0.4, "retries": 1, "backoff_s": 0.01}
+FAST = {"deadline_s": 0.4, "retries": 1, "backoff_s": 0.01}
 
 
 def _decode(url: str) -> np.ndarray:
@@ -78,14 +78,13 @@ def test_endpoint_episode_with_timeouts_errors_and_garbage(server_factory):
     assert n == 6
     script = [
         A0,  # step 0: fine
-        Reply(content=A0, delay_s=2.0),  # step 1: times out ...
+        Reply(content=A0, delay_s=2.0),  # step 1: past the deadline ...
         A0,  #          ... the retry answers
         Reply(status=500),  # step 2: server error ...
         "```json\n" + A0 + "\n```",  #          ... retried: a fenced answer
         "I think the box goes left.",  # step 3: garbage -> unparsable
-        Reply(content=A0, delay_s=2.0),  # step 4: every attempt times out -> unparsable
-        Reply(content=A0, delay_s=2.0),
-        Reply(raw="<html>oops</html>"),  # step 5: a 200 that is not JSON -> unparsable
+        Reply(raw="<html>oops</html>"),  # step 4: a 200 that is not JSON -> unparsable
+        Reply(raw='{"id": "chatcmpl-1", "choices": []}'),  # step 5: no choices -> unparsable
     ]
     server = server_factory(script)
     policy = make_policy("endpoint", base_url=server.base_url, model="packlab-test", **FAST)
@@ -94,14 +93,15 @@ def test_endpoint_episode_with_timeouts_errors_and_garbage(server_factory):
     assert len(steps) == n
     assert [s.valid or s.reason for s in steps[:3]] == [True, True, True]
     assert [s.reason for s in steps[3:]] == ["unparsable"] * 3
-    garbage, timeout, not_json = (s.action for s in steps[3:])
+    garbage, not_json, no_choices = (s.action for s in steps[3:])
     assert isinstance(garbage, Unparsable) and garbage.text == "I think the box goes left."
     assert garbage.error == "no JSON object found"
-    assert timeout.text == "" and "timed out" in timeout.error and "2 attempt" in timeout.error
-    assert "not JSON" in not_json.error
+    assert not_json.text == "" and "not JSON" in not_json.error and "oops" in not_json.error
+    assert no_choices.text == "" and "no choices[0].message" in no_choices.error
     assert result.metrics.invalid_by_reason == {"unparsable": 3}
     log = policy.step_log
-    assert [s["attempts"] for s in log] == [1, 2, 2, 1, 2, 1]
+    assert [s["attempts"] for s in log] == [1, 2, 2, 1, 1, 1]
+    assert "deadline" in log[1]["errors"][0]
     assert "HTTP 500" in log[2]["errors"][0]
 
     # Requests: greedy, the model name, images as PNG data URLs, the history growing.
@@ -116,7 +116,7 @@ def test_endpoint_episode_with_timeouts_errors_and_garbage(server_factory):
     assert np.array_equal(_decode(img["image_url"]["url"]), expected)
     last = reqs[-1]["messages"]
     assert len(last) == 1 + 2 * (n - 1) + 1
-    # The garbage answer is in the history as the model said it; a failed request as "".
+    # The garbage answer is in the history as the model said it; a garbage response as "".
     assert last[8] == {"role": "assistant", "content": "I think the box goes left."}
     assert last[10] == {"role": "assistant", "content": ""}
 
@@ -196,25 +196,6 @@ def test_wrong_url_or_model_fails_fast(server_factory):
     case = small_case()
     with pytest.raises(EndpointError, match="does not exist"):
         run_episode(case, policy, seed=0, backend="geometric")
-
-
-def test_unreachable_server_gives_up_after_consecutive_failures():
-    with socket.socket() as s:  # a port with nothing listening: connection refused
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    policy = make_policy(
-        "endpoint",
-        base_url=f"http://127.0.0.1:{port}/v1",
-        retries=1,
-        backoff_s=0.0,
-        timeout_s=0.5,
-        max_consecutive_failures=3,
-    )
-    case = small_case()
-    with pytest.raises(EndpointError, match="3 steps in a row"):
-        run_episode(case, policy, seed=0, backend="geometric")
-    assert [s["attempts"] for s in policy.step_log] == [2, 2, 2]
-    assert "connection failed" in policy.step_log[0]["errors"][0]
 
 
 def test_api_key_comes_from_the_named_environment_variable(server_factory, monkeypatch):

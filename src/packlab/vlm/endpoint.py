@@ -1,23 +1,36 @@
 """The ``endpoint`` policy: the packing VLM behind any OpenAI-compatible chat-completions server
-(vLLM, SGLang, a hosted API). Standard library only (urllib + json); no torch.
+(vLLM, SGLang, a hosted API). Standard library only (http.client + json); no torch.
 
 The context is rendered exactly as for the local policy (:mod:`packlab.vlm.context`), then turned
 into the OpenAI chat format: text parts as ``{"type": "text", "text": ...}``, images as PNG data
 URLs (``{"type": "image_url", "image_url": {"url": "data:image/png;base64,..."}}``), messages
 without images as plain strings. Requests are greedy (``temperature`` 0) by default.
 
-Failures, following DESIGN.md section 4 (a step that cannot get an action is data):
+Time: every request has a deadline (``deadline_s``, default 30 s) on its whole exchange:
+connecting, sending, waiting and reading the last byte of the answer. A watchdog shuts the socket
+at the deadline, so a server that accepts and never answers, or trickles bytes, cannot hold a
+step longer (host-name lookup is the one part outside it). A request is tried ``1 + retries``
+times (default 3) with exponential backoff between tries (``backoff_s`` doubling, at most
+``max_backoff_s``: 0.5 s then 1 s by default). The worst case of one request is therefore
+``tries * deadline_s + backoffs`` (:attr:`EndpointPolicy.worst_case_request_s`: 91.5 s by default)
+and, since the first request that fails ends its episode, it is also the most time an episode can
+lose to a dead or hung server; a refused connection fails in milliseconds (1.5 s of backoff).
 
-- timeouts, connection errors, HTTP 5xx, 408 and 429 are retried ``retries`` times with
-  exponential backoff; if every attempt fails the step returns :class:`Unparsable` with the error
-  (``text`` empty), which the episode records as an invalid ``unparsable`` step;
-- HTTP 400 and 413 (e.g. a context longer than the served model accepts) are not retried and
-  return :class:`Unparsable` with the server's message;
-- an answer that does not parse (or a response that is not the expected JSON) is
-  :class:`Unparsable` with the parser's reason;
-- HTTP 401, 403 and 404 mean the configuration is wrong (key, URL, model name): they raise
-  :class:`EndpointError` at once rather than quietly filling a bench run with invalid steps, and
-  so do ``max_consecutive_failures`` steps in a row whose every attempt failed in transport.
+Outcomes, following DESIGN.md section 4 (a step that cannot get an action is data, a server that
+cannot be used is not):
+
+- connection refused or reset, deadline passed, answer cut short, HTTP 5xx: retried; when every
+  try failed, :class:`~packlab.errors.EndpointUnavailable` is raised with one line naming the URL,
+  what failed and the tries (the bench records the episode as a ``transport`` error and its
+  circuit breaker counts them);
+- HTTP 4xx is never retried: 408 and 429 (the server is busy or slow, which says nothing about
+  the policy) raise EndpointUnavailable at once; 401, 403 and 404 (key, URL or model wrong) and
+  redirects raise :class:`EndpointError`; any other 4xx (400, 413, 422: this request was refused,
+  e.g. a context longer than the served model takes) makes the step :class:`Unparsable` with
+  the status and the server's reason;
+- a 2xx answer that is not JSON, has no ``choices[0].message`` text, or is larger than
+  :data:`MAX_RESPONSE_BYTES`, and an answer text that does not parse, make the step
+  :class:`Unparsable` (recorded as an invalid ``unparsable`` step; the episode goes on).
 
 The API key is read at request time from the environment variable named by ``api_key_env``; it is
 never stored on the policy (which stays picklable and carries only its configuration).
@@ -31,33 +44,67 @@ import http.client
 import io
 import json
 import os
+import socket
+import ssl
+import threading
 import time
-import urllib.error
-import urllib.request
+import urllib.parse
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from packlab.errors import ConfigError, PacklabError
+from packlab.errors import ConfigError, EndpointUnavailable, PacklabError
 from packlab.types import Action, Case, Observation, Unparsable
 from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.parse import parse_or_unparsable
 from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, keep_last_steps
 
-RETRY_STATUS = frozenset({408, 429, 500, 502, 503, 504})
+#: Defaults of :class:`EndpointPolicy` (seconds; tries = 1 + retries).
+DEFAULT_DEADLINE_S = 30.0
+DEFAULT_RETRIES = 2
+DEFAULT_BACKOFF_S = 0.5
+DEFAULT_MAX_BACKOFF_S = 4.0
+#: Largest response body read (an answer is a few hundred bytes; images never come back).
+MAX_RESPONSE_BYTES = 16 << 20
+#: 4xx that say the server is busy or slow, not that the request is wrong: not retried (4xx never
+#: is), but reported as EndpointUnavailable rather than charged to the policy.
+BUSY_STATUS = frozenset({408, 429})
+#: 4xx that mean the configuration is wrong (key, URL, model name).
 FATAL_STATUS = frozenset({401, 403, 404})
 
 
-class EndpointError(PacklabError):
-    """The endpoint cannot be used at all (wrong URL, model or key; unreachable)."""
+class EndpointError(EndpointUnavailable):
+    """The endpoint cannot be used as configured (wrong URL, model or key; a redirect).
+
+    A kind of ``EndpointUnavailable``: every episode would fail the same way, so the bench's
+    circuit breaker counts it and stops the run instead of recording the same error per episode.
+    """
 
 
 class TransportError(Exception):
-    """One request failed in transport (retryable) or with a status (``status`` set)."""
+    """One try failed before a complete HTTP answer arrived (retryable)."""
 
-    def __init__(self, message: str, status: int | None = None, retryable: bool = True):
-        super().__init__(message)
-        self.status = status
-        self.retryable = retryable
+
+@dataclass(frozen=True, slots=True)
+class HTTPReply:
+    """A complete HTTP answer."""
+
+    status: int
+    reason: str  # the status line's reason phrase
+    body: bytes  # at most max_bytes
+    oversized: bool = False  # the body was longer than max_bytes (and was cut)
+
+    def server_reason(self) -> str:
+        """The server's own message, one line: ``error.message`` of an OpenAI-style error body,
+        else the start of the body, else the status line's reason phrase."""
+        text = self.body[:4000].decode("utf-8", "replace")
+        try:
+            err = json.loads(text).get("error")
+            message = err.get("message") if isinstance(err, dict) else err
+        except (ValueError, AttributeError, RecursionError):
+            message = None
+        message = message if isinstance(message, str) and message.strip() else text or self.reason
+        return " ".join(message.split())[:300]
 
 
 def chat_completions_url(base_url: str) -> str:
@@ -115,43 +162,104 @@ def to_openai_messages(
     return out
 
 
-def post_json(
-    url: str, payload: dict[str, Any], timeout_s: float, headers: dict[str, str] | None = None
-) -> dict[str, Any]:
-    """POST ``payload`` and return the decoded JSON reply; raises :class:`TransportError`."""
-    data = json.dumps(payload).encode("utf-8")
-    req = urllib.request.Request(
-        url,
-        data=data,
-        method="POST",
-        headers={"Content-Type": "application/json", **(headers or {})},
+def _describe(exc: BaseException) -> str:
+    """One line for a failed try."""
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused"
+    if isinstance(exc, socket.gaierror):
+        return f"cannot resolve the host name ({exc.strerror or exc})"
+    if isinstance(exc, http.client.RemoteDisconnected):
+        return "the server closed the connection without answering"
+    if isinstance(exc, http.client.IncompleteRead):
+        return "the answer was cut short"
+    if isinstance(exc, ConnectionResetError):
+        return "connection reset by the server"
+    if isinstance(exc, ssl.SSLError):
+        return f"TLS error: {exc.reason or exc}"
+    text = (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)) or ""
+    return "connection failed: " + (" ".join(text.split()) or type(exc).__name__)
+
+
+def _read_capped(resp: http.client.HTTPResponse, max_bytes: int) -> tuple[bytes, bool]:
+    """(up to ``max_bytes`` of the body, whether there was more)."""
+    chunks, size = [], 0
+    while size <= max_bytes:
+        chunk = resp.read(min(65536, max_bytes + 1 - size))
+        if not chunk:
+            if resp.length:  # http.client returns a short body quietly: less than Content-Length
+                raise http.client.IncompleteRead(b"".join(chunks), resp.length)
+            break
+        chunks.append(chunk)
+        size += len(chunk)
+    body = b"".join(chunks)
+    return body[:max_bytes], len(body) > max_bytes
+
+
+def http_post(
+    url: str,
+    body: bytes,
+    deadline_s: float,
+    headers: dict[str, str] | None = None,
+    max_bytes: int = MAX_RESPONSE_BYTES,
+) -> HTTPReply:
+    """POST ``body`` and return the complete answer, whatever its status, within ``deadline_s``.
+
+    The deadline covers connecting, sending, waiting and reading the whole body: a watchdog
+    timer shuts the socket down when it passes, which wakes any blocked read or write (the
+    socket's own timeout would only bound each read, so a trickling server could hold it for
+    ever). Raises :class:`TransportError` when no complete answer arrived in time.
+    """
+    parts = urllib.parse.urlsplit(url)
+    path = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
+    conn_cls = (
+        http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
     )
+    conn = conn_cls(parts.hostname or "", parts.port, timeout=deadline_s)
+    expired = threading.Event()
+
+    def expire() -> None:
+        expired.set()
+        sock = conn.sock
+        if sock is not None:
+            try:  # the plain socket's shutdown, also under TLS: wakes the blocked call
+                socket.socket.shutdown(sock, socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    watchdog = threading.Timer(deadline_s, expire)
+    watchdog.daemon = True
+    watchdog.start()
     try:
-        with urllib.request.urlopen(req, timeout=timeout_s) as resp:
-            body = resp.read()
-    except urllib.error.HTTPError as e:
-        try:
-            detail = e.read().decode("utf-8", "replace")[:500]
-        except (OSError, http.client.HTTPException):  # the status is what matters
-            detail = ""
-        raise TransportError(
-            f"HTTP {e.code}: {detail or e.reason}", status=e.code, retryable=e.code in RETRY_STATUS
-        ) from None
-    except urllib.error.URLError as e:
-        reason = e.reason
-        if isinstance(reason, TimeoutError):
-            raise TransportError(f"timed out after {timeout_s:g} s") from None
-        raise TransportError(f"connection failed: {reason}") from None
-    except TimeoutError:
-        raise TransportError(f"timed out after {timeout_s:g} s") from None
-    except (ConnectionError, http.client.HTTPException, OSError) as e:
-        raise TransportError(f"connection failed: {type(e).__name__}: {e}") from None
+        conn.request("POST", path, body=body, headers=headers or {})
+        resp = conn.getresponse()
+        data, oversized = _read_capped(resp, max_bytes)
+        status, reason = resp.status, resp.reason
+    except (OSError, http.client.HTTPException, ValueError) as e:
+        # ValueError: a TLS socket used after the watchdog shut it.
+        if expired.is_set() or isinstance(e, TimeoutError):
+            raise TransportError(
+                f"no complete answer within the {deadline_s:g} s deadline"
+            ) from None
+        raise TransportError(_describe(e)) from None
+    finally:
+        watchdog.cancel()
+        conn.close()
+    if expired.is_set():  # a body read "to the end" may have ended at the shutdown
+        raise TransportError(f"no complete answer within the {deadline_s:g} s deadline")
+    return HTTPReply(status, reason, data, oversized)
+
+
+def decode_reply(reply: HTTPReply) -> dict[str, Any]:
+    """The JSON object of a 2xx answer; ValueError (one line) when it is not one."""
+    if reply.oversized:
+        raise ValueError(f"response larger than {MAX_RESPONSE_BYTES:,} bytes")
     try:
-        return json.loads(body)
-    except ValueError:
-        raise TransportError(
-            f"response is not JSON: {body[:200]!r}", status=200, retryable=False
-        ) from None
+        value = json.loads(reply.body)
+    except (ValueError, RecursionError):  # RecursionError: absurdly nested garbage
+        raise ValueError(f"response is not JSON: {reply.body[:200]!r}") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"response is not a JSON object: {reply.body[:200]!r}")  # noqa: TRY004
+    return value
 
 
 def answer_text(reply: dict[str, Any]) -> str:
@@ -159,29 +267,46 @@ def answer_text(reply: dict[str, Any]) -> str:
     try:
         message = reply["choices"][0]["message"]
     except (KeyError, IndexError, TypeError):
+        # Keys only: dumping a garbage reply whole could be huge (or too deep to dump).
+        keys = ", ".join(sorted(str(k)[:40] for k in reply)[:10]) or "none"
         raise ValueError(
-            f"no choices[0].message in the response: {json.dumps(reply)[:200]}"
+            f"no choices[0].message in the response (its keys: {' '.join(keys.split())})"
         ) from None
     content = message.get("content") if isinstance(message, dict) else None
     if isinstance(content, list):  # some servers return content parts
-        content = "".join(p.get("text", "") for p in content if isinstance(p, dict))
+        content = "".join(
+            p["text"] for p in content if isinstance(p, dict) and isinstance(p.get("text"), str)
+        )
     if not isinstance(content, str):
         raise ValueError("the response message has no text content")  # noqa: TRY004
     return content
 
 
+def _finite(value: object, low: float, high: float) -> bool:
+    return (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and low <= value <= high  # also False for NaN
+    )
+
+
 class EndpointPolicy:
-    """The packing VLM behind an OpenAI-compatible ``/v1/chat/completions`` server."""
+    """The packing VLM behind an OpenAI-compatible ``/v1/chat/completions`` server.
+
+    ``deadline_s`` is the wall-clock limit of one request (``timeout_s`` is its older name);
+    ``retries`` extra tries follow a failed one after ``backoff_s * 2**k`` seconds (at most
+    ``max_backoff_s``). See the module's docstring for what each failure does.
+    """
 
     def __init__(
         self,
         base_url: str = "http://127.0.0.1:8000/v1",
         model: str = "default",
         api_key_env: str | None = "OPENAI_API_KEY",
-        timeout_s: float = 60.0,
-        retries: int = 2,
-        backoff_s: float = 0.5,
-        max_backoff_s: float = 8.0,
+        deadline_s: float | None = None,
+        retries: int = DEFAULT_RETRIES,
+        backoff_s: float = DEFAULT_BACKOFF_S,
+        max_backoff_s: float = DEFAULT_MAX_BACKOFF_S,
         history: str = "full",
         image: str = "heightmap",
         image_size: int = DEFAULT_IMAGE_SIZE,
@@ -189,25 +314,52 @@ class EndpointPolicy:
         max_tokens: int = 64,
         seed: int | None = None,
         extra_body: dict[str, Any] | None = None,
-        max_consecutive_failures: int = 5,
         max_past_steps: int | None = None,
         name: str = "endpoint",
+        timeout_s: float | None = None,
     ) -> None:
         if not isinstance(base_url, str) or not base_url.startswith(("http://", "https://")):
             raise ConfigError(
                 f"base_url = {base_url!r}: expected an http(s) URL such as http://127.0.0.1:8000/v1"
             )
+        if deadline_s is not None and timeout_s is not None:
+            raise ConfigError(
+                f"deadline_s = {deadline_s!r} and timeout_s = {timeout_s!r}: timeout_s is the "
+                "old name of deadline_s; give one"
+            )
+        deadline = next((v for v in (deadline_s, timeout_s) if v is not None), DEFAULT_DEADLINE_S)
+        field = "timeout_s" if timeout_s is not None else "deadline_s"
         checks = [
-            (timeout_s > 0, "timeout_s", timeout_s, "must be > 0"),
-            (isinstance(retries, int) and retries >= 0, "retries", retries, "must be an int >= 0"),
-            (backoff_s >= 0 and max_backoff_s >= 0, "backoff_s", backoff_s, "must be >= 0"),
-            (temperature >= 0, "temperature", temperature, "must be >= 0"),
-            (max_tokens >= 1, "max_tokens", max_tokens, "must be >= 1"),
             (
-                max_consecutive_failures >= 1,
-                "max_consecutive_failures",
-                max_consecutive_failures,
-                "must be >= 1",
+                _finite(deadline, 1e-3, 86400.0),
+                field,
+                deadline,
+                "must be seconds in [0.001, 86400]",
+            ),
+            (
+                isinstance(retries, int) and 0 <= retries <= 10,
+                "retries",
+                retries,
+                "must be an int in [0, 10]",
+            ),
+            (
+                _finite(backoff_s, 0.0, 3600.0),
+                "backoff_s",
+                backoff_s,
+                "must be seconds in [0, 3600]",
+            ),
+            (
+                _finite(max_backoff_s, 0.0, 3600.0),
+                "max_backoff_s",
+                max_backoff_s,
+                "must be seconds in [0, 3600]",
+            ),
+            (_finite(temperature, 0.0, 100.0), "temperature", temperature, "must be >= 0"),
+            (
+                isinstance(max_tokens, int) and max_tokens >= 1,
+                "max_tokens",
+                max_tokens,
+                "must be an int >= 1",
             ),
         ]
         if max_past_steps is not None:
@@ -219,9 +371,9 @@ class EndpointPolicy:
                     "must be an int >= 0 (or unset for the whole history)",
                 )
             )
-        for ok, field, value, rule in checks:
+        for ok, name_, value, rule in checks:
             if not ok:
-                raise ConfigError(f"{field} = {value!r}: {rule}")
+                raise ConfigError(f"{name_} = {value!r}: {rule}")
         try:
             self.options = PromptOptions(history, image)  # type: ignore[arg-type]
         except ValueError as exc:
@@ -230,12 +382,11 @@ class EndpointPolicy:
         self.base_url, self.url = base_url, chat_completions_url(base_url)
         self.model = model
         self.api_key_env = api_key_env
-        self.timeout_s, self.retries = float(timeout_s), retries
+        self.deadline_s, self.retries = float(deadline), retries
         self.backoff_s, self.max_backoff_s = float(backoff_s), float(max_backoff_s)
         self.image_size = image_size
         self.temperature, self.max_tokens, self.seed = temperature, max_tokens, seed
         self.extra_body = dict(extra_body or {})
-        self.max_consecutive_failures = max_consecutive_failures
         # Servers cap the context (vLLM's max_model_len, images per prompt); keep the most recent
         # past steps, by the same rule the trainer uses to fit max_length.
         self.max_past_steps = max_past_steps
@@ -243,7 +394,21 @@ class EndpointPolicy:
         self._renderer: ContextRenderer | None = None
         self._urls: dict[int, tuple[Any, str]] = {}  # id(image) -> (image, data URL)
         self._blank_url: str | None = None
-        self._failures = 0
+
+    @property
+    def tries(self) -> int:
+        return 1 + self.retries
+
+    def backoff(self, retry: int) -> float:
+        """Seconds to wait before retry number ``retry`` (1, 2, ...)."""
+        return min(self.backoff_s * 2 ** (retry - 1), self.max_backoff_s)
+
+    @property
+    def worst_case_request_s(self) -> float:
+        """The longest one request can take before it succeeds or raises (every try hits the
+        deadline); also the most time an episode can lose to a dead or hung server, since the
+        first unavailable request ends it."""
+        return self.tries * self.deadline_s + sum(self.backoff(k) for k in range(1, self.tries))
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
@@ -258,8 +423,11 @@ class EndpointPolicy:
         return {
             "base_url": self.base_url,
             "model": self.model,
-            "timeout_s": self.timeout_s,
+            "deadline_s": self.deadline_s,
             "retries": self.retries,
+            "backoff_s": self.backoff_s,
+            "max_backoff_s": self.max_backoff_s,
+            "worst_case_request_s": self.worst_case_request_s,
             "temperature": self.temperature,
             "max_tokens": self.max_tokens,
             "options": self.options.to_dict(),
@@ -303,69 +471,71 @@ class EndpointPolicy:
 
     def _headers(self) -> dict[str, str]:
         key = os.environ.get(self.api_key_env) if self.api_key_env else None
-        return {"Authorization": f"Bearer {key}"} if key else {}
+        auth = {"Authorization": f"Bearer {key}"} if key else {}
+        return {"Content-Type": "application/json", "Accept": "application/json", **auth}
 
     # -- the Policy protocol -------------------------------------------------------------------
     def reset(self, case: Case, seed: int) -> None:
         self._renderer = ContextRenderer(self.options, self.image_size)
         self._urls = {}
-        self._failures = 0
         self.step_log = []
+
+    def _request(self, body: bytes, log: dict[str, Any]) -> HTTPReply:
+        """The first answer that is not a transport failure or a 5xx, trying ``self.tries``
+        times; raises EndpointUnavailable when every try failed."""
+        t0 = time.monotonic()
+        errors: list[str] = log["errors"]
+        for attempt in range(self.tries):
+            if attempt:
+                time.sleep(self.backoff(attempt))
+            log["attempts"] = attempt + 1
+            try:
+                reply = http_post(self.url, body, self.deadline_s, self._headers())
+            except TransportError as e:
+                errors.append(str(e))
+                continue
+            if 500 <= reply.status <= 599:
+                errors.append(f"HTTP {reply.status}: {reply.server_reason()}")
+                continue
+            return reply
+        log["latency_s"] = round(time.monotonic() - t0, 6)
+        raise EndpointUnavailable(
+            f"endpoint {self.url}: {errors[-1]} ({self.tries} tries in "
+            f"{time.monotonic() - t0:.1f} s, deadline {self.deadline_s:g} s each)"
+        )
+
+    def _refusal(self, reply: HTTPReply) -> Unparsable:
+        """A 3xx or 4xx answer: raise for what the policy cannot be blamed for, else the step's
+        Unparsable (the server refused this request, e.g. a context too long)."""
+        what = f"HTTP {reply.status} from {self.url}: {reply.server_reason()}"
+        if reply.status in BUSY_STATUS:
+            raise EndpointUnavailable(f"endpoint {what} (4xx: not retried)")
+        if reply.status in FATAL_STATUS or reply.status < 400:
+            raise EndpointError(f"endpoint (model {self.model!r}) {what}")
+        return Unparsable(text="", error=f"endpoint: {what}")
 
     def act(self, observation: Observation) -> Action | Unparsable:
         t0 = time.perf_counter()
-        body = self.payload(observation)
-        errors: list[str] = []
-        last: TransportError | None = None
-        reply = None
-        attempts = 0
-        for attempt in range(self.retries + 1):
-            attempts = attempt + 1
-            try:
-                reply = post_json(self.url, body, self.timeout_s, self._headers())
-                break
-            except TransportError as e:
-                errors.append(str(e))
-                last = e
-                if e.status in FATAL_STATUS:
-                    raise EndpointError(
-                        f"endpoint {self.url} (model {self.model!r}): {e}"
-                    ) from None
-                if not e.retryable or attempt == self.retries:
-                    break
-                time.sleep(min(self.backoff_s * 2**attempt, self.max_backoff_s))
-        log: dict[str, Any] = {
-            "step": observation.step_index,
-            "attempts": attempts,
-            "errors": errors,
-        }
-        if reply is None:
-            # Only transport failures (every attempt timed out / 5xx / refused) count towards
-            # giving up; a 400 for one over-long context is that step's problem alone.
-            self._failures = self._failures + 1 if last is not None and last.retryable else 0
-            log.update(latency_s=round(time.perf_counter() - t0, 6), parsed=False)
-            self.step_log.append(log)
-            if self._failures >= self.max_consecutive_failures:
-                raise EndpointError(
-                    f"endpoint {self.url}: {self._failures} steps in a row failed; "
-                    f"last error: {errors[-1]}"
-                )
-            return Unparsable(text="", error=f"endpoint: {errors[-1]} ({attempts} attempt(s))")
-        self._failures = 0
+        body = json.dumps(self.payload(observation)).encode("utf-8")
+        log: dict[str, Any] = {"step": observation.step_index, "attempts": 0, "errors": []}
+        self.step_log.append(log)
+        reply = self._request(body, log)
+        log.update(latency_s=round(time.perf_counter() - t0, 6), status=reply.status, parsed=False)
+        if not 200 <= reply.status <= 299:
+            return self._refusal(reply)
         try:
-            text = answer_text(reply)
+            decoded = decode_reply(reply)
+            text = answer_text(decoded)
         except ValueError as e:
-            log.update(latency_s=round(time.perf_counter() - t0, 6), parsed=False)
-            self.step_log.append(log)
-            return Unparsable(text=json.dumps(reply)[:1000], error=f"endpoint: {e}")
+            # The model said nothing usable: an empty answer in the history, the body in the error.
+            return Unparsable(text="", error=f"endpoint: {e}")
         action = parse_or_unparsable(text)
-        usage = reply.get("usage") if isinstance(reply.get("usage"), dict) else {}
+        usage = decoded.get("usage") if isinstance(decoded.get("usage"), dict) else {}
+        choice = decoded["choices"][0]
         log.update(
-            latency_s=round(time.perf_counter() - t0, 6),
             prompt_tokens=usage.get("prompt_tokens"),
             completion_tokens=usage.get("completion_tokens"),
-            finish_reason=(reply.get("choices") or [{}])[0].get("finish_reason"),
+            finish_reason=choice.get("finish_reason") if isinstance(choice, dict) else None,
             parsed=isinstance(action, Action),
         )
-        self.step_log.append(log)
         return action
