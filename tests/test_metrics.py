@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from packlab.metrics import EpisodeMetrics, box_inside, compactness, score_final_state, success_ratio
+from packlab.metrics import (
+    EpisodeMetrics,
+    box_inside,
+    compactness,
+    score_final_state,
+    success_ratio,
+)
 from packlab.types import Container
 
 C = Container((100, 100, 100), 25, 2)

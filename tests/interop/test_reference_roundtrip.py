@@ -156,7 +156,7 @@ def test_bench_results_are_identical_from_both_layouts(tmp_path):
     policies = "oracle,dblf,random"
     assert _bench(str(native), tmp_path / "run-native", policies) == 0
     assert _bench(str(reference), tmp_path / "run-reference", policies) == 0
-    key = lambda r: (r["case_id"], r["policy"], r["seed"])  # noqa: E731
+    key = lambda r: (r["case_id"], r["policy"], r["seed"])
     a = sorted(map(_without_timings, _records(tmp_path / "run-native")), key=key)
     b = sorted(map(_without_timings, _records(tmp_path / "run-reference")), key=key)
     assert len(a) == len(handful) * 3 and a == b

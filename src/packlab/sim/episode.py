@@ -17,7 +17,16 @@ from packlab.metrics import EpisodeMetrics, score_final_state
 from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
 from packlab.sim.heightmap import footprint_fits, placement_height
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
-from packlab.types import Action, Case, HistoryEntry, InternalId, Observation, Pose, ShownItem, Unparsable
+from packlab.types import (
+    Action,
+    Case,
+    HistoryEntry,
+    InternalId,
+    Observation,
+    Pose,
+    ShownItem,
+    Unparsable,
+)
 
 #: Reasons a step can be invalid.
 INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")

@@ -53,7 +53,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from packlab.errors import ConfigError, EndpointUnavailable, PacklabError
+from packlab.errors import ConfigError, EndpointUnavailable
 from packlab.types import Action, Case, Observation, Unparsable
 from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.parse import parse_or_unparsable
