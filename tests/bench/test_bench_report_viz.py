@@ -69,6 +69,13 @@ def test_bench_report_cli_prints_the_table(geometric_run, capsys):
     assert "| SDF-Pack |" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("seed", ["-1", "99999"])
+def test_bench_report_refuses_a_seed_the_run_did_not_play(geometric_run, capsys, seed):
+    code = main(["bench", "report", str(geometric_run), "--no-figures", "--seed", seed])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and f"seed = {int(seed)}" in err and len(err.splitlines()) == 1
+
+
 @pytest.mark.physics
 def test_mujoco_replay_is_deterministic(tiny_suite, tmp_path):
     cfg = RunConfig(cases=str(tiny_suite), out=str(tmp_path / "run"), policies=("random",), seeds=(3,),

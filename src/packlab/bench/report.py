@@ -135,6 +135,8 @@ def build_report(run_dir: str | os.PathLike[str], figures: bool = True, case_id:
     run = load_run(run_dir)
     if not run.records:
         raise ConfigError(f"{run.run_dir / EPISODES_FILE}: no records; nothing to report")
+    if seed is not None and seed not in run.config.get("seeds", []):
+        raise ConfigError(f"seed = {seed!r}: not a seed of this run (seeds {run.config.get('seeds')})")
     return write_outputs(run.run_dir, run.config, run.records, run.cases, figures, case_id, seed)
 
 
