@@ -35,7 +35,8 @@ def write_atomically(path: Path, write: Callable[[IO[bytes]], None]) -> Path:
     file and a failure leaves the old one. ``mkstemp`` creates 0600; the file gets the mode a
     plain ``open`` would have given it (0666 less the umask) before the rename."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    # The ".tmp" suffix marks a leftover of a killed writer for cleaners (datagen's resume).
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)

@@ -60,7 +60,6 @@ from packlab.cases.load import load_cases
 from packlab.cases.records import case_from_dict
 from packlab.cases.serialize import case_lines, case_to_dict, case_to_reference_row, cases_sha256
 from packlab.cases.write import save_cases, write_reference
-from packlab.fileio import current_umask  # re-exported: packlab.datagen.format imports it here
 
 __all__ = [
     "INT32_BOUND",
@@ -81,7 +80,6 @@ __all__ = [
     "case_to_dict",
     "case_to_reference_row",
     "cases_sha256",
-    "current_umask",
     "load_cases",
     "reference_level_files",
     "save_cases",

@@ -24,7 +24,6 @@ import io
 import json
 import os
 import shutil
-import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -35,7 +34,7 @@ import pyarrow.parquet as pq
 
 from packlab.cases import case_to_dict
 from packlab.datagen.validate import Trajectory
-from packlab.fileio import current_umask
+from packlab.fileio import write_atomically
 from packlab.types import Action, Container, ShownItem
 from packlab.viz.raster import heightmap_to_image
 
@@ -110,22 +109,8 @@ def shard_name(difficulty: str, index: int) -> str:
 # -- atomic files -----------------------------------------------------------------------------
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename.
-
-    The file gets the mode a plain ``open(path, "w")`` would give (0666 less the umask):
-    ``mkstemp`` creates its file 0600, and a dataset that only its writer can read is of no
-    use to the group it is shared with.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~current_umask())
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` atomically, with the mode a plain ``open`` gives (see fileio)."""
+    write_atomically(path, lambda fh: fh.write(data))
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
