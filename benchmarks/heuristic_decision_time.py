@@ -19,7 +19,7 @@ import numpy as np
 
 from packlab.policies.heuristics import SCORERS, make_heuristic, observation_candidates
 from packlab.sim.episode import Episode
-from packlab.types import Box, Case, Container
+from packlab.core.types import Box, Case, Container
 
 CELL_MM = 25
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode
-from packlab.types import Box, Case, Container
+from packlab.core.types import Box, Case, Container
 
 CELL_MM = 25
 

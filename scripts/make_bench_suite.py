@@ -27,7 +27,7 @@ from packlab.bench.suites import (
     suite_spec,
     write_suite,
 )
-from packlab.errors import PacklabError
+from packlab.core.errors import PacklabError
 
 
 def main(argv: list[str] | None = None) -> int:

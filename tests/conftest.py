@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from layered_cases import make_layered_case
 
-from packlab.types import Case
+from packlab.core.types import Case
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.types import Box, Case, Container, PlanStep
+from packlab.core.types import Box, Case, Container, PlanStep
 
 
 def _split(rng: np.random.Generator, dx: int, dy: int, pieces: int, min_side: int) -> list:

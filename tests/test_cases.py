@@ -10,7 +10,7 @@ import pytest
 from layered_cases import make_layered_case
 
 from packlab.cases import case_to_dict, load_cases, save_cases
-from packlab.errors import CaseFormatError
+from packlab.core.errors import CaseFormatError
 
 
 def _record(**overrides):
@@ -128,7 +128,7 @@ def _reference_row(**extra_overrides):
 
 @pytest.mark.parametrize("encoding", ["struct", "json-text"])
 def test_reference_row_gives_every_field(tmp_path, encoding):
-    from packlab.types import CaseOrigin
+    from packlab.core.types import CaseOrigin
 
     row = _reference_row()
     if encoding == "json-text":  # extra_info and interaction_kwargs as JSON strings

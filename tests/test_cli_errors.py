@@ -8,7 +8,7 @@ import os
 import pytest
 
 from packlab.cli.main import main
-from packlab.errors import EXIT_ABORTED, EXIT_USAGE, RunAborted
+from packlab.core.errors import EXIT_ABORTED, EXIT_USAGE, RunAborted
 from packlab.sim.env import demo_cases_path
 
 

@@ -3,16 +3,14 @@
 import numpy as np
 import pytest
 
+from packlab.core.feasibility import footprint_fits, footprint_max, placement_height
+from packlab.core.types import Box
 from packlab.sim.heightmap import (
-    footprint_fits,
-    footprint_max,
     place_box,
-    placement_height,
     quat_to_matrix,
     rasterise_poses,
     yaw_quaternion,
 )
-from packlab.types import Box
 
 
 def test_eq2_drop_height_is_max_under_footprint():

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from packlab.core.types import Container
 from packlab.metrics import (
     EpisodeMetrics,
     box_inside,
@@ -10,7 +11,6 @@ from packlab.metrics import (
     score_final_state,
     success_ratio,
 )
-from packlab.types import Container
 
 C = Container((100, 100, 100), 25, 2)
 
@@ -61,8 +61,8 @@ def test_final_pose_decides_even_if_the_box_was_inside_before():
 def test_plan_drift_measures_the_largest_axis_deviation():
     from layered_cases import make_layered_case
 
+    from packlab.core.types import Pose
     from packlab.metrics import plan_drift_mm, planned_centres_mm
-    from packlab.types import Pose
 
     case = make_layered_case(0)
     centres = planned_centres_mm(case)

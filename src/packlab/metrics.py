@@ -10,7 +10,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from packlab.types import Container, InternalId
+from packlab.core.types import Container, InternalId
+
+#: The three metrics of every summary, in table order.
+METRICS = ("success_ratio", "compactness", "overall")
+#: The summary group holding the mean over difficulty levels (the paper's "Average" column).
+AVERAGE = "average"
 
 #: A settled centre may stray this far outside the interior and still count as inside (mm).
 INSIDE_TOLERANCE_MM = 1.0

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from packlab.cases import save_cases
-from packlab.types import Box, Case, Container, PlanStep
+from packlab.core.types import Box, Case, Container, PlanStep
 
 CELL = 25
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from bench_helpers import write_tiny_suite
 
-from packlab.policies.registry import _FACTORIES, register_policy
-from packlab.types import Action, Case, Observation
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
 
 CRASH_POLICY = "test-crash"
 

@@ -11,9 +11,9 @@ import signal
 import socket
 import time
 
-from packlab.errors import EndpointUnavailable
-from packlab.policies.registry import _FACTORIES, register_policy
-from packlab.types import Action, Case, Observation
+from packlab.core.errors import EndpointUnavailable
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
 
 
 class Unreachable:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from packlab.bench.config import RunConfig, check_resumable, default_policies, parse_seeds, resolve
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 
 
 @pytest.mark.parametrize("kwargs, match", [

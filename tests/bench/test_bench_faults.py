@@ -1,6 +1,6 @@
 """Faults during a bench run: dead server (circuit breaker), hung policy (episode time limit),
 run deadline, a dying worker; each ends in bounded time with records kept and the exit code
-that says what happened (packlab.errors.EXIT_*)."""
+that says what happened (packlab.core.errors.EXIT_*)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from packlab.bench import executors
 from packlab.bench.records import read_record_file
 from packlab.cli.main import main
-from packlab.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK
+from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK
 from packlab.sim.env import demo_cases_path
 
 #: Every faulty run below must end within this many seconds (each case would otherwise hang

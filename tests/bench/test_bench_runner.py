@@ -11,7 +11,7 @@ from packlab.bench.records import read_record_file, record_key
 from packlab.bench.report import build_report
 from packlab.bench.runner import run_bench
 from packlab.bench.table import results_table
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 
 POLICIES = ("dblf", "ffp", "random", "oracle")
 
@@ -122,7 +122,7 @@ def test_two_runs_cannot_write_one_directory_at_once(tiny_suite, tmp_path):
 
 
 def test_a_policy_that_cannot_be_built_fails_before_any_work(tiny_suite, tmp_path):
-    from packlab.policies.registry import _FACTORIES, register_policy
+    from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
 
     def broken():
         raise ImportError("needs an extra")
@@ -145,8 +145,8 @@ def test_ray_executor_gives_the_same_numbers(tiny_suite, tmp_path):
 
 
 def test_policy_arguments_reach_the_factory_in_every_worker(tiny_suite, tmp_path):
-    from packlab.policies.registry import _FACTORIES, register_policy
-    from packlab.types import Action
+    from packlab.core.types import Action
+    from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
 
     class Corner:
         name = "test-param"

@@ -17,8 +17,8 @@ from packlab.bench.suites import (
     resolve_cases,
     suite_files,
 )
+from packlab.core.errors import ConfigError
 from packlab.datagen.seeds import seed_domain
-from packlab.errors import ConfigError
 
 
 def test_bundled_suite_verifies_and_matches_its_spec():

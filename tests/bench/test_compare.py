@@ -8,7 +8,7 @@ import pytest
 
 from packlab.bench.compare import compare_markdown, merge_summaries
 from packlab.cli.main import main
-from packlab.errors import PacklabError
+from packlab.core.errors import PacklabError
 
 
 def _cell(mean: float) -> dict:

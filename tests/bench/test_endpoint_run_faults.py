@@ -16,7 +16,7 @@ import pytest
 
 from packlab.bench.records import read_record_file
 from packlab.cli.main import main
-from packlab.errors import EXIT_ABORTED, EXIT_OK
+from packlab.core.errors import EXIT_ABORTED, EXIT_OK
 from packlab.sim.env import demo_cases_path
 
 DEADLINE_S = 0.5  # per request

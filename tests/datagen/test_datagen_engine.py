@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from datagen_helpers import make_dataset, tiny_config, tree_bytes
 
+from packlab.core.errors import ConfigError
 from packlab.datagen import engine
 from packlab.datagen.config import DatasetConfig
 from packlab.datagen.engine import RunOptions, generate_dataset, plan_shards
-from packlab.errors import ConfigError
 
 
 def test_same_seed_gives_byte_identical_output(tiny_dataset, tmp_path):

@@ -10,9 +10,9 @@ import pytest
 from PIL import Image
 
 from packlab.cases import case_from_dict
+from packlab.core.types import Action
 from packlab.datagen.format import EPISODE_SCHEMA, STEP_SCHEMA, export_sft
-from packlab.types import Action
-from packlab.viz.raster import heightmap_to_rgb
+from packlab.sim.raster import heightmap_to_rgb
 
 
 def _steps(root):
@@ -51,7 +51,7 @@ def test_steps_replay_their_episode(tiny_dataset):
 def test_images_are_the_rasterised_heightmaps(tiny_dataset):
     rows = _steps(tiny_dataset)
     for r in rows[::7]:
-        from packlab.types import Container
+        from packlab.core.types import Container
 
         c = Container(tuple(round(v * 10) for v in r["container_size_cm"]))
         hm = np.array(r["heightmap_mm"], dtype=np.int32)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from packlab.cases import case_from_dict, case_to_dict
+from packlab.core.errors import ConfigError
 from packlab.datagen import generate_cases
 from packlab.datagen.config import DIFFICULTIES, CaseConfig, ContainerLimits
 from packlab.datagen.generator import build_case
 from packlab.datagen.seeds import DOMAINS, case_seed, seed_domain
 from packlab.datagen.stats import collect
 from packlab.datagen.validate import plan_problems
-from packlab.errors import ConfigError
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
 

@@ -7,8 +7,8 @@ import io
 import numpy as np
 import pytest
 
-from packlab.types import Container
-from packlab.viz.raster import (
+from packlab.core.types import Container
+from packlab.sim.raster import (
     BACKGROUND_INDEX,
     FRAME_INDEX,
     LEVELS,

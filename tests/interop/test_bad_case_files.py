@@ -17,7 +17,7 @@ import pytest
 
 from packlab.cases import MAX_BUFFER_SIZE, MAX_HEIGHTMAP_CELLS, MAX_OBJECTS, load_cases
 from packlab.cli.main import main
-from packlab.errors import PacklabError
+from packlab.core.errors import PacklabError
 
 REFERENCE_EASY = Path(__file__).resolve().parents[1] / "data" / "reference_bench" / "easy" / "test.parquet"
 

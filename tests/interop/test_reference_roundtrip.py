@@ -23,8 +23,8 @@ from packlab.cases import (
     write_reference,
 )
 from packlab.cli.main import main
-from packlab.errors import ConfigError
-from packlab.types import CaseOrigin, Container
+from packlab.core.errors import ConfigError
+from packlab.core.types import CaseOrigin, Container
 
 REFERENCE_DIR = Path(__file__).resolve().parents[1] / "data" / "reference_bench"
 LEVELS = {"easy": (610000, 3), "medium": (620000, 5), "hard": (630000, 10)}

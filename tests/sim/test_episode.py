@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from layered_cases import make_layered_case
 
+from packlab.core.types import Action, Box, Case, Container, Unparsable
 from packlab.policies import make_policy
 from packlab.sim.episode import INVALID_REASONS, Episode, run_episode
-from packlab.types import Action, Box, Case, Container, Unparsable
 
 
 def test_buffer_shows_first_k_unprocessed_in_shuffled_order(layered_case):

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from layered_cases import make_layered_case
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Box, Case, Container
 from packlab.metrics import plan_drift_mm
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.sim.heightmap import quat_to_matrix
 from packlab.sim.physics.mujoco_backend import PhysicsConfig
-from packlab.types import Action, Box, Case, Container
 
 pytestmark = pytest.mark.physics
 

@@ -9,9 +9,9 @@ import pytest
 from packlab.bench.summary import summarize
 from packlab.bench.table import render_markdown
 from packlab.bench.task import run_task
+from packlab.core.types import Action, Box, Case, Container, PlanStep
 from packlab.sim.episode import Episode
 from packlab.sim.physics.mujoco_backend import MujocoBackend, PhysicsConfig, _net_squared_speeds
-from packlab.types import Action, Box, Case, Container, PlanStep
 
 pytestmark = pytest.mark.physics
 
@@ -193,7 +193,7 @@ def test_geometric_episodes_are_at_rest_with_zero_residual():
 
 
 def test_final_cap_is_validated():
-    from packlab.errors import ConfigError
+    from packlab.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="final_max_settle_steps"):
         PhysicsConfig(final_max_settle_steps=0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from packlab.types import Action, Container, ShownItem, Unparsable
+from packlab.core.types import Action, Container, ShownItem, Unparsable
 from packlab.vlm.prompt import TurnState
 
 

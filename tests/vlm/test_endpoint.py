@@ -15,11 +15,11 @@ import pytest
 from _cases import small_case
 from PIL import Image
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Unparsable
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
-from packlab.types import Action, Unparsable
-from packlab.viz.raster import heightmap_to_rgb
+from packlab.sim.raster import heightmap_to_rgb
 from packlab.vlm.endpoint import (
     EndpointError,
     EndpointPolicy,

@@ -16,10 +16,10 @@ from collections.abc import Callable, Iterator
 import pytest
 from _cases import small_case
 
-from packlab.errors import ConfigError, EndpointUnavailable
+from packlab.core.errors import ConfigError, EndpointUnavailable
+from packlab.core.types import Unparsable
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
-from packlab.types import Unparsable
 from packlab.vlm.endpoint import (
     DEFAULT_BACKOFF_S,
     DEFAULT_DEADLINE_S,

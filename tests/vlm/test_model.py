@@ -12,7 +12,7 @@ pytest.importorskip("transformers")
 
 from PIL import Image
 
-from packlab.types import Action
+from packlab.core.types import Action
 from packlab.vlm.model import (
     FAMILIES,
     build_tiny_model,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from packlab.types import Action, Unparsable
+from packlab.core.types import Action, Unparsable
 from packlab.vlm.parse import PARSE_CASES, ActionParseError, parse_action, parse_or_unparsable
 
 A = Action(object_id=1, rotation=0, x=3, y=4)

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from packlab.types import Action, Unparsable
+from packlab.core.types import Action, Unparsable
 from packlab.vlm.parse import (
     MAX_ANSWER_CHARS,
     MAX_BRACKETS,

@@ -15,10 +15,10 @@ import sys
 import pytest
 from _cases import small_case
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Unparsable
 from packlab.policies import available_policies, make_policy
 from packlab.sim.episode import INVALID_REASONS, run_episode
-from packlab.types import Action, Unparsable
 from packlab.vlm.prompt import action_text
 
 FAMILIES = ("qwen3_5", "qwen3_vl", "qwen2_5_vl")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from packlab.types import Action, HistoryEntry, Observation
+from packlab.core.types import Action, HistoryEntry, Observation
 from packlab.vlm.prompt import (
     BLANK_IMAGE,
     PROMPT_VERSION,

@@ -12,8 +12,8 @@ pytest.importorskip("accelerate")
 
 from PIL import Image
 
-from packlab.errors import ConfigError
-from packlab.types import Action
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action
 from packlab.vlm.model import load_model
 from packlab.vlm.prompt import PROMPT_VERSION, render_messages, with_answer
 from packlab.vlm.sft import SFTConfig, train_sft

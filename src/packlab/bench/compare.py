@@ -13,8 +13,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from packlab.bench.table import display_name, render_markdown
-from packlab.errors import PacklabError
+from packlab.bench.table import render_markdown
+from packlab.core.errors import PacklabError
+from packlab.viz.labels import display_name
 
 #: Summary fields that must agree for rows of different runs to share one table.
 MUST_MATCH = ("cases_sha256", "seeds", "backend", "difficulties")

@@ -19,8 +19,8 @@ from typing import Any
 
 from packlab.bench.describe import difficulty_order
 from packlab.bench.suites import DEFAULT_SUITE, CaseSource, resolve_cases
-from packlab.errors import ConfigError
-from packlab.types import Case
+from packlab.core.errors import ConfigError
+from packlab.core.types import Case
 
 #: Version of the run-directory layout (config.json, episodes.jsonl records).
 #: 2 (issue 10): error records carry ``error_kind``, episode records say whether the boxes were at

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from packlab.types import Case
+from packlab.core.types import Case
 
 
 def _layers(case: Case) -> int | None:

@@ -31,8 +31,8 @@ from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from packlab.bench.task import DeadlineReached, Task, error_record, run_task
-from packlab.errors import ConfigError
-from packlab.types import Case
+from packlab.core.errors import ConfigError
+from packlab.core.types import Case
 
 #: Seconds past the episode time limit after which the pool kills a silent worker. The alarm in
 #: the worker normally ends the episode at the limit itself (with a traceback of where it was

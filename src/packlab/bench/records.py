@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self, TextIO
 
-from packlab.errors import PacklabError
+from packlab.core.errors import PacklabError
 
 EPISODES_FILE = "episodes.jsonl"
 CONFIG_FILE = "config.json"

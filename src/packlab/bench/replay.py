@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Unparsable
 from packlab.sim.episode import Episode
-from packlab.types import Action, Case, Unparsable
 
 
 def action_from_record(step: dict[str, Any]) -> Action | Unparsable:

@@ -18,8 +18,8 @@ from packlab.bench.records import CASES_FILE, CONFIG_FILE, EPISODES_FILE, read_r
 from packlab.bench.summary import summarize
 from packlab.bench.table import render_markdown
 from packlab.cases import load_cases
-from packlab.errors import ConfigError
-from packlab.types import Case
+from packlab.core.errors import ConfigError
+from packlab.core.types import Case
 
 SUMMARY_FILE = "summary.json"
 TABLE_FILE = "table.md"

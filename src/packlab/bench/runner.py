@@ -43,7 +43,7 @@ from packlab.bench.records import (
 )
 from packlab.bench.task import DeadlineReached, Task
 from packlab.cases import save_cases
-from packlab.errors import ConfigError, RunAborted
+from packlab.core.errors import ConfigError, RunAborted
 
 INVOCATIONS_FILE = "invocations.jsonl"
 

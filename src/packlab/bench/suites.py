@@ -22,8 +22,8 @@ from importlib import resources
 from pathlib import Path
 
 from packlab.cases import cases_sha256, load_cases, save_cases
-from packlab.errors import ConfigError, PacklabError
-from packlab.types import Case
+from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.types import Case
 
 #: Where the bundled suites live inside the installed package.
 SUITE_PACKAGE_DIR = ("data", "suites")

@@ -28,9 +28,7 @@ from typing import Any
 
 from packlab.bench.describe import difficulty_order
 from packlab.bench.records import record_key
-
-METRICS = ("success_ratio", "compactness", "overall")
-AVERAGE = "average"
+from packlab.metrics import AVERAGE, METRICS
 
 
 def _mean(values: Sequence[float]) -> float:

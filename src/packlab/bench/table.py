@@ -4,22 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from packlab.bench.summary import AVERAGE, METRICS
-
-#: How methods are called in tables and figures (the paper's names); others print as registered.
-DISPLAY_NAMES = {
-    "dblf": "DBLF", "hm": "HM", "mta": "MTA", "ffp": "FFP", "sdf": "SDF-Pack",
-    "random": "Random", "oracle": "Oracle (gt plan)",
-}
-METRIC_SHORT = {"success_ratio": "SR", "compactness": "Compact.", "overall": "Overall"}
-
-
-def display_name(policy: str) -> str:
-    return DISPLAY_NAMES.get(policy, policy)
-
-
-def group_title(group: str) -> str:
-    return "Average" if group == AVERAGE else (group.capitalize() if group else "Unlabelled")
+from packlab.metrics import AVERAGE, METRICS
+from packlab.viz.labels import METRIC_SHORT, display_name, group_title
 
 
 def format_cell(cell: dict[str, Any] | None, digits: int = 3) -> str:
@@ -88,5 +74,4 @@ def render_markdown(summary: dict[str, Any]) -> str:
     return "\n".join(parts)
 
 
-__all__ = ["DISPLAY_NAMES", "details_table", "display_name", "format_cell", "group_title", "headline",
-           "render_markdown", "results_table"]
+__all__ = ["details_table", "format_cell", "headline", "render_markdown", "results_table"]

@@ -29,10 +29,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from packlab.errors import EndpointUnavailable, RunAborted
+from packlab.core.errors import EndpointUnavailable, RunAborted
+from packlab.core.types import Case
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
-from packlab.types import Case
 
 #: Values of a failed record's ``error_kind``.
 ERROR_KINDS = ("exception", "timeout", "transport")

@@ -12,7 +12,7 @@ from typing import Any
 
 from packlab.cases.limits import INT32_BOUND, MAX_CONTAINER_SIDE_CM, MAX_ID_CHARS, MAX_OBJECTS
 from packlab.cases.reader import Cut, Reader, cm
-from packlab.types import Box, Container, InternalId, PlanStep
+from packlab.core.types import Box, Container, InternalId, PlanStep
 
 _CELL_KEYS = ("x", "y", "z", "dx", "dy", "dz")
 

@@ -16,8 +16,8 @@ from typing import Any
 from packlab.cases.layout import REFERENCE_FILE, reference_level_files
 from packlab.cases.reader import shorten
 from packlab.cases.records import case_from_dict
-from packlab.errors import CaseFormatError, ConfigError
-from packlab.types import Case
+from packlab.core.errors import CaseFormatError, ConfigError
+from packlab.core.types import Case
 
 _BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark
 

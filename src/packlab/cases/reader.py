@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from packlab.cases.limits import INT64_BOUND
-from packlab.errors import CaseFormatError
+from packlab.core.errors import CaseFormatError
 
 
 class Reader:

@@ -21,8 +21,8 @@ from packlab.cases.limits import (
     MAX_ID_CHARS,
 )
 from packlab.cases.reader import Reader, shorten
-from packlab.errors import CaseFormatError
-from packlab.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM, Case, CaseOrigin, Container
+from packlab.core.errors import CaseFormatError
+from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM, Case, CaseOrigin, Container
 
 #: Fields of a reference row that sit in ``extra_info`` beside ``interaction_kwargs``.
 _EXTRA_CASE_FIELDS = ("difficulty", "generator", "gt_plan")

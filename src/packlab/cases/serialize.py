@@ -13,8 +13,8 @@ from typing import Any
 
 from packlab.cases.layout import REFERENCE_ROW_HEAD, REFERENCE_SPLIT
 from packlab.cases.reader import cm
-from packlab.errors import ConfigError
-from packlab.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM, Case, PlanStep
+from packlab.core.errors import ConfigError
+from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM, Case, PlanStep
 
 #: The keys of a plan step's ``target_box_cells``: its lowest cell, then its size in cells.
 _CELL_KEYS = ("x", "y", "z", "dx", "dy", "dz")

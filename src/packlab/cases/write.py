@@ -1,7 +1,7 @@
 """Write cases to disk: packlab's JSONL suite, or the reference's layout (a parquet file,
 JSON lines, or a whole benchmark directory with its manifest).
 
-Every file is written atomically with the user's umask (``packlab.fileio``), and a benchmark
+Every file is written atomically with the user's umask (``packlab.core.fileio``), and a benchmark
 directory appears whole or not at all; an existing reference output is refused, never
 overwritten.
 """
@@ -22,9 +22,9 @@ from packlab.cases.layout import (
     ordered_levels,
 )
 from packlab.cases.serialize import case_lines, case_to_reference_row
-from packlab.errors import ConfigError
-from packlab.fileio import create_directory_atomically, write_atomically
-from packlab.types import Case
+from packlab.core.errors import ConfigError
+from packlab.core.fileio import create_directory_atomically, write_atomically
+from packlab.core.types import Case
 
 
 def save_cases(cases: Iterable[Case], path: str | os.PathLike[str]) -> Path:

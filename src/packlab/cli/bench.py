@@ -1,6 +1,6 @@
 """``packlab bench``: run the benchmark (resumable), describe a suite, or rebuild a run's report.
 
-Exit codes (packlab.errors): 0 every planned episode has an ok record; 1 the run finished but
+Exit codes (packlab.core.errors): 0 every planned episode has an ok record; 1 the run finished but
 some episodes of this configuration ended in error (the count is on the last line of stderr);
 2 bad input, nothing run; 3 the run stopped early (circuit breaker, --deadline), records kept
 and the table written for what finished; 130 interrupted.
@@ -27,7 +27,7 @@ from packlab.bench.config import (
     time_limit_arg,
 )
 from packlab.bench.suites import DEFAULT_SUITE
-from packlab.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
+from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
 
 if TYPE_CHECKING:  # the runner imports the engine; load it only when a run starts
     from packlab.bench.runner import BenchOutcome

@@ -54,7 +54,7 @@ def run_validate(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     from packlab.bench.suites import resolve_cases
     from packlab.cases import save_cases, write_reference
-    from packlab.errors import ConfigError
+    from packlab.core.errors import ConfigError
 
     out = Path(args.out)
     if out.exists() or out.is_symlink():  # checked before loading: no work wasted on a refused target

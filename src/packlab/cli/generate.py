@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from packlab.core.errors import ConfigError
 from packlab.datagen.config import (
     LAYOUT_FAMILIES,
     RECIPES,
@@ -16,7 +17,6 @@ from packlab.datagen.config import (
     ValidationConfig,
 )
 from packlab.datagen.engine import EXEC_BACKENDS, RunOptions, generate_dataset
-from packlab.errors import ConfigError
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:

@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from packlab.core.errors import ConfigError
 from packlab.datagen.stats import collect, dataset_cases, format_report, save_histograms
-from packlab.errors import ConfigError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

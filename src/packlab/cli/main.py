@@ -15,7 +15,7 @@ import sys
 COMMANDS = ("bench", "cases", "generate", "inspect_data", "train", "serve", "viz")
 
 
-from packlab.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
+from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one subcommand; returns its exit code (packlab.errors.EXIT_*), never a traceback for
+    """Run one subcommand; returns its exit code (packlab.core.errors.EXIT_*), never a traceback for
     bad input: a PacklabError or an OSError about a path (missing, a directory, not writable)
     is one line ``packlab <cmd>: error: ...`` and exit code 2; a stopped run (RunAborted) 3."""
     parser = build_parser()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from packlab.errors import PacklabError
+from packlab.core.errors import PacklabError
 
 VLM_EXTRA_HINT = (
     "the vlm extra is not installed: pip install torch==2.13.0 (CPU wheel, first), "

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from packlab.errors import ConfigError
-from packlab.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
+from packlab.core.errors import ConfigError
+from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
 
 #: Bumped whenever the same seed would produce a different case (sampler or layout change).
 GENERATOR_VERSION = "packlab-datagen-1"

@@ -25,10 +25,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from packlab.core.errors import ConfigError
 from packlab.datagen import format as fmt
 from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig
 from packlab.datagen.generator import SlotOutcome, fill_slot
-from packlab.errors import ConfigError
 
 #: The seed domain of training data (see packlab.datagen.seeds): disjoint from the bench's.
 TRAIN_DOMAIN = "train"

@@ -33,10 +33,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from packlab.cases import case_to_dict
+from packlab.core.fileio import write_atomically
+from packlab.core.types import Action, Container, ShownItem
 from packlab.datagen.validate import Trajectory
-from packlab.fileio import write_atomically
-from packlab.types import Action, Container, ShownItem
-from packlab.viz.raster import heightmap_to_image
+from packlab.sim.raster import heightmap_to_image
 
 #: Bump when a file's layout or a column's meaning changes.
 FORMAT_VERSION = "packdata-1"
@@ -184,7 +184,7 @@ def image_path(difficulty: str, shard: str, episode_id: str, step_index: int) ->
 
 
 def encode_png(heightmap: Any, container: Container, size: int) -> bytes:
-    """The heightmap image (packlab.viz.raster, palette mode) as PNG bytes."""
+    """The heightmap image (packlab.sim.raster, palette mode) as PNG bytes."""
     buf = io.BytesIO()
     heightmap_to_image(heightmap, container, size, mode="P").save(buf, format="PNG")
     return buf.getvalue()

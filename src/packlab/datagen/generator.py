@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.types import Box, Case, PlanStep
 from packlab.datagen.config import (
     GENERATOR_NAME,
     GENERATOR_VERSION,
@@ -21,8 +23,6 @@ from packlab.datagen.layout import Layout, build_layout
 from packlab.datagen.removal import PlacementOrder, reverse_removal
 from packlab.datagen.scenario import Scenario, sample_scenario
 from packlab.datagen.seeds import case_seed, case_streams, domain_tag
-from packlab.errors import ConfigError, PacklabError
-from packlab.types import Box, Case, PlanStep
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from packlab.core.types import Container
 from packlab.datagen.config import CaseConfig, DifficultySpec
-from packlab.types import Container
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 
 #: Domain tags of the seed space (see the module docstring).
 DOMAINS: dict[str, int] = {"manual": 0, "bench": 1, "train": 2}

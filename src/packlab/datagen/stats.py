@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from packlab.types import Case
+from packlab.core.types import Case
 
 
 @dataclass(slots=True)

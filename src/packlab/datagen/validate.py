@@ -22,12 +22,13 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.feasibility import footprint_fits, placement_height
+from packlab.core.types import Action, Case, Observation, ShownItem, Unparsable
 from packlab.datagen.config import ValidationConfig
 from packlab.metrics import EpisodeMetrics
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
-from packlab.sim.heightmap import footprint_fits, place_box, placement_height
-from packlab.types import Action, Case, Observation, ShownItem, Unparsable
+from packlab.sim.heightmap import place_box
 
 
 def plan_problems(case: Case) -> list[str]:

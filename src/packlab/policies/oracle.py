@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from packlab.errors import ConfigError
-from packlab.policies.registry import register_policy
-from packlab.types import Action, Case, Observation, PlanStep
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Observation, PlanStep
 
 
 class OraclePolicy:
@@ -33,6 +32,5 @@ class OraclePolicy:
         return Action(object_id=item.shown_index, rotation=step.rotation, x=step.x, y=step.y)
 
 
-@register_policy("oracle")
 def make_oracle() -> OraclePolicy:
     return OraclePolicy()

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.policies.heuristics.candidates import observation_candidates
+from packlab.core.feasibility import observation_candidates
+from packlab.core.types import Action, Case, Observation
 from packlab.policies.heuristics.select import rim_pool, to_action
-from packlab.policies.registry import register_policy
 from packlab.sim.buffer import episode_rng
-from packlab.types import Action, Case, Observation
 
 
 class RandomPolicy:
@@ -35,6 +34,5 @@ class RandomPolicy:
         return to_action(cands, int(pool[self._rng.integers(pool.size)]))
 
 
-@register_policy("random")
 def make_random() -> RandomPolicy:
     return RandomPolicy()

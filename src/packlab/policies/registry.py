@@ -1,53 +1,67 @@
-"""Policies by name. Factories import heavy stacks lazily so the registry itself stays light."""
+"""Policies by name, found through the ``packlab.policies`` entry-point group.
+
+The registry imports no policy family: each one (the built-in heuristics, ``random``,
+``oracle``, the VLM policies, a user's own package) declares ``name = "module:factory"`` under
+``[project.entry-points."packlab.policies"]`` and is imported only when that name is made, so
+heavy stacks (torch, transformers) load only for the policies that need them.
+``register_policy`` adds a factory at run time (tests, notebooks); it wins over an entry point
+of the same name.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
-from packlab.errors import ConfigError
-from packlab.policies.base import Policy
+from packlab.core.errors import ConfigError
+from packlab.core.protocols import Policy
 
-_FACTORIES: dict[str, Callable[..., Policy]] = {}
+#: The entry-point group policy packages declare their factories under.
+ENTRY_POINT_GROUP = "packlab.policies"
+
+PolicyFactory = Callable[..., Policy]
+
+_RUNTIME: dict[str, PolicyFactory] = {}
 
 
-def register_policy(name: str) -> Callable[[Callable[..., Policy]], Callable[..., Policy]]:
-    """Decorator: register ``factory(**kwargs) -> Policy`` under ``name``."""
+def register_policy(name: str) -> Callable[[PolicyFactory], PolicyFactory]:
+    """Decorator: register ``factory(**kwargs) -> Policy`` under ``name`` for this process."""
 
-    def decorate(factory: Callable[..., Policy]) -> Callable[..., Policy]:
-        if name in _FACTORIES and _FACTORIES[name] is not factory:
+    def decorate(factory: PolicyFactory) -> PolicyFactory:
+        if name in _RUNTIME and _RUNTIME[name] is not factory:
             raise ValueError(f"policy {name!r} is already registered")
-        _FACTORIES[name] = factory
+        _RUNTIME[name] = factory
         return factory
 
     return decorate
 
 
-def _load_builtins() -> None:
-    # Importing the modules runs their @register_policy decorators.
-    import packlab.policies.oracle
-    import packlab.policies.random_policy
+def unregister_policy(name: str) -> None:
+    """Forget a factory added by :func:`register_policy` (no error when absent)."""
+    _RUNTIME.pop(name, None)
 
-    try:
-        import packlab.policies.heuristics
-    except ModuleNotFoundError as exc:  # heuristics not built in this checkout
-        if exc.name != "packlab.policies.heuristics":
-            raise
-    try:
-        import packlab.vlm.policies  # noqa: F401  (registers vlm/endpoint; imports torch lazily)
-    except ModuleNotFoundError as exc:
-        if exc.name != "packlab.vlm.policies":
-            raise
+
+def _declared() -> dict[str, EntryPoint]:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
 def available_policies() -> list[str]:
-    _load_builtins()
-    return sorted(_FACTORIES)
+    """Every policy name that can be made: declared entry points and run-time registrations."""
+    return sorted(set(_declared()) | set(_RUNTIME))
+
+
+def policy_factory(name: str) -> PolicyFactory:
+    """The factory registered under ``name`` (imports its package), or a ConfigError."""
+    if name in _RUNTIME:
+        return _RUNTIME[name]
+    declared = _declared()
+    if name not in declared:
+        known = ", ".join(available_policies()) or "none (is packlab installed? pip install -e .)"
+        raise ConfigError(f"policy = {name!r}: unknown; available: {known}")
+    return declared[name].load()
 
 
 def make_policy(name: str, **kwargs: Any) -> Policy:
     """A new policy instance by registered name."""
-    _load_builtins()
-    if name not in _FACTORIES:
-        raise ConfigError(f"policy = {name!r}: unknown; available: {', '.join(sorted(_FACTORIES))}")
-    return _FACTORIES[name](**kwargs)
+    return policy_factory(name)(**kwargs)

@@ -28,9 +28,9 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
-from packlab.policies.heuristics.candidates import action_mask, observation_candidates
+from packlab.core.feasibility import action_mask, observation_candidates
+from packlab.core.types import Action, Case
 from packlab.sim.episode import Episode
-from packlab.types import Action, Case
 
 ENV_ID = "packlab/Pack-v0"
 
@@ -133,7 +133,7 @@ class PackEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array" or self._case is None:
             return None
-        from packlab.viz.raster import heightmap_to_rgb
+        from packlab.sim.raster import heightmap_to_rgb
 
         return heightmap_to_rgb(self._episode.heightmap, self._case.container)
 

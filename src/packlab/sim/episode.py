@@ -13,11 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from packlab.metrics import EpisodeMetrics, score_final_state
-from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
-from packlab.sim.heightmap import footprint_fits, placement_height
-from packlab.sim.physics import Transition, TransitionBackend, make_backend
-from packlab.types import (
+from packlab.core.feasibility import footprint_fits, placement_height
+from packlab.core.types import (
     Action,
     Case,
     HistoryEntry,
@@ -27,6 +24,9 @@ from packlab.types import (
     ShownItem,
     Unparsable,
 )
+from packlab.metrics import EpisodeMetrics, score_final_state
+from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
+from packlab.sim.physics import Transition, TransitionBackend, make_backend
 
 #: Reasons a step can be invalid.
 INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")

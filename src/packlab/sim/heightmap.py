@@ -1,4 +1,4 @@
-"""Pure heightmap operations: placement height (paper Eq. 2), placing, rasterising poses.
+"""Pure heightmap operations: placing boxes and rasterising settled poses (Eq. 2 lives in core.feasibility).
 
 A heightmap is an int32 array of shape (x_cells, y_cells) holding, for each grid cell, the top
 surface height in millimetres over that cell.
@@ -9,33 +9,6 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
-
-
-def footprint_max(heightmap: np.ndarray, fx: int, fy: int) -> np.ndarray:
-    """Max of ``heightmap`` over every (fx, fy)-cell window; shape (X - fx + 1, Y - fy + 1).
-
-    Entry [x, y] is paper Eq. 2's drop height z for a footprint whose minimum cell is (x, y).
-    Two separable 1-D sliding maxima keep it O(cells * (fx + fy)). Empty when the footprint is
-    larger than the map.
-    """
-    nx, ny = heightmap.shape
-    if fx < 1 or fy < 1:
-        raise ValueError(f"footprint must be at least one cell, got ({fx}, {fy})")
-    if fx > nx or fy > ny:
-        return np.zeros((max(nx - fx + 1, 0), max(ny - fy + 1, 0)), dtype=heightmap.dtype)
-    along_x = sliding_window_view(heightmap, fx, axis=0).max(axis=-1)
-    return sliding_window_view(along_x, fy, axis=1).max(axis=-1)
-
-
-def placement_height(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int) -> int:
-    """Eq. 2 for one footprint: max of the heightmap over cells [x, x+fx) x [y, y+fy)."""
-    return int(heightmap[x : x + fx, y : y + fy].max())
-
-
-def footprint_fits(shape: tuple[int, int], x: int, y: int, fx: int, fy: int) -> bool:
-    """True when the footprint lies entirely on the container floor grid."""
-    return 0 <= x and 0 <= y and x + fx <= shape[0] and y + fy <= shape[1]
 
 
 def place_box(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, top_mm: int) -> np.ndarray:

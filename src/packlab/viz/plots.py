@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from packlab.bench.summary import AVERAGE
-from packlab.bench.table import display_name, group_title
+from packlab.metrics import AVERAGE
+from packlab.viz.labels import display_name, group_title
 
 #: Fixed colours, so a method looks the same in every figure of every run.
 _METHOD_COLOURS = {

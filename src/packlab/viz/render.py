@@ -14,9 +14,9 @@ import numpy as np
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+from packlab.core.types import Case, Container
 from packlab.metrics import box_inside
 from packlab.sim.heightmap import quat_to_matrix
-from packlab.types import Case, Container
 
 #: Type colours (type_id modulo the list): soft, distinguishable, legible with black edges.
 TYPE_COLOURS = ["#8DB3E2", "#F4A582", "#A6D96A", "#C2A5CF", "#FFD966", "#80CDC1", "#F1B6DA",
@@ -143,7 +143,7 @@ def scores_text(metrics: Mapping[str, Any]) -> str:
 def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, Mapping[str, Any]]],
                               seed: int | None = None, columns: int = 4) -> Figure:
     """Side by side: each method's final packing of one case, titled with its three scores."""
-    from packlab.bench.table import display_name
+    from packlab.viz.labels import display_name
 
     n = max(1, len(entries))
     cols = min(columns, n)
@@ -182,7 +182,7 @@ def _crop_background(rgb: np.ndarray) -> np.ndarray:
 
 def _height_scale(ax: Any, container: Container) -> None:
     """A horizontal colour bar of the raster's fixed height scale, floor to rim, then above."""
-    from packlab.viz.raster import height_colour
+    from packlab.sim.raster import height_colour
 
     rim = container.height_mm
     heights = np.linspace(0, rim * 1.08, 256)
@@ -199,11 +199,11 @@ def episode_figure(case: Case, record: Mapping[str, Any], heightmaps: Sequence[n
                    max_steps: int = 40) -> Figure:
     """One episode: the final packing (left) and the heightmap after each step (right grid).
 
-    Heightmaps use ``packlab.viz.raster``'s fixed colour scale (the picture the VLM reads), so
+    Heightmaps use ``packlab.sim.raster``'s fixed colour scale (the picture the VLM reads), so
     colours compare across steps; each tile is titled with the step's action.
     """
-    from packlab.bench.table import display_name
-    from packlab.viz.raster import heightmap_to_rgb
+    from packlab.sim.raster import heightmap_to_rgb
+    from packlab.viz.labels import display_name
 
     steps = list(record["steps"])[:max_steps]
     n = len(steps)

@@ -2,7 +2,7 @@
 
 Both the local ``vlm`` policy and the ``endpoint`` policy render the context X_t with
 :func:`packlab.vlm.prompt.render_messages` from :func:`packlab.vlm.prompt.turns_from_observation`,
-with heightmap images drawn by :func:`packlab.viz.raster.heightmap_to_image` at the size the data
+with heightmap images drawn by :func:`packlab.sim.raster.heightmap_to_image` at the size the data
 engine writes (224 px by default). A past heightmap never changes, so each distinct heightmap is
 drawn once per episode (a memo keyed by the array's bytes, cleared on :meth:`reset`).
 """
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from packlab.types import Container, Observation
+from packlab.core.types import Container, Observation
 from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, render_messages, turns_from_observation
 
 #: Side of the heightmap images, as the data engine writes them (DatagenConfig.image_size).
@@ -49,7 +49,7 @@ class ContextRenderer:
         key = (container, hm.shape, str(hm.dtype), hm.tobytes())
         im = self._memo.get(key)
         if im is None:
-            from packlab.viz.raster import heightmap_to_image
+            from packlab.sim.raster import heightmap_to_image
 
             im = heightmap_to_image(hm, container, self.image_size)
             self._memo[key] = im

@@ -20,7 +20,7 @@ Outcomes, following DESIGN.md section 4 (a step that cannot get an action is dat
 cannot be used is not):
 
 - connection refused or reset, deadline passed, answer cut short, HTTP 5xx: retried; when every
-  try failed, :class:`~packlab.errors.EndpointUnavailable` is raised with one line naming the URL,
+  try failed, :class:`~packlab.core.errors.EndpointUnavailable` is raised with one line naming the URL,
   what failed and the tries (the bench records the episode as a ``transport`` error and its
   circuit breaker counts them);
 - HTTP 4xx is never retried: 408 and 429 (the server is busy or slow, which says nothing about
@@ -53,8 +53,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from packlab.errors import ConfigError, EndpointUnavailable
-from packlab.types import Action, Case, Observation, Unparsable
+from packlab.core.errors import ConfigError, EndpointUnavailable
+from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.parse import parse_or_unparsable
 from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, keep_last_steps

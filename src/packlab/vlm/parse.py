@@ -1,4 +1,4 @@
-"""Model text -> :class:`~packlab.types.Action`, tolerant of the usual wrapping, strict on content.
+"""Model text -> :class:`~packlab.core.types.Action`, tolerant of the usual wrapping, strict on content.
 
 Tolerated wrapping (the reported ``case``):
 
@@ -38,7 +38,7 @@ import json
 import re
 from dataclasses import dataclass
 
-from packlab.types import Action, Unparsable
+from packlab.core.types import Action, Unparsable
 
 ACTION_KEYS: tuple[str, ...] = ("object_id", "x", "y", "rotation")
 BASE_CASES: tuple[str, ...] = ("plain", "fenced", "embedded")

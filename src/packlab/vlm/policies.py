@@ -4,7 +4,7 @@ shipped in the package) and ``endpoint`` (any OpenAI-compatible chat-completions
 Each step renders the context X_t from the observation with :mod:`packlab.vlm.prompt` (the same
 code the SFT export used, so training and inference read the same text), asks the model, and
 parses the answer with :func:`packlab.vlm.parse.parse_or_unparsable`. An answer that does not
-parse is returned as :class:`~packlab.types.Unparsable`; the episode records it as an invalid step
+parse is returned as :class:`~packlab.core.types.Unparsable`; the episode records it as an invalid step
 with reason ``unparsable`` and goes on (DESIGN.md section 4). Run untrained (a base checkpoint),
 the same policy is the paper's zero-shot baseline.
 
@@ -24,9 +24,8 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from packlab.errors import ConfigError
-from packlab.policies.registry import register_policy
-from packlab.types import Action, Case, Observation, Unparsable
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.endpoint import EndpointPolicy
 from packlab.vlm.parse import parse_or_unparsable
@@ -293,13 +292,11 @@ class VLMPolicy:
         return action
 
 
-@register_policy("vlm")
 def make_vlm(**kwargs: Any) -> VLMPolicy:
     """``vlm``: a local checkpoint (``model=DIR``) or a random tiny model (``model=tiny:F:S``)."""
     return VLMPolicy(**kwargs)
 
 
-@register_policy("vlm-small")
 def make_vlm_small(**kwargs: Any) -> VLMPolicy:
     """``vlm-small``: the checkpoint shipped in the package (``packlab/data/models/vlm-small``)."""
     if "model" in kwargs:
@@ -318,7 +315,6 @@ def make_vlm_small(**kwargs: Any) -> VLMPolicy:
     return VLMPolicy(model=str(SHIPPED_MODEL_DIR), **kwargs)
 
 
-@register_policy("endpoint")
 def make_endpoint(**kwargs: Any) -> EndpointPolicy:
     """``endpoint``: an OpenAI-compatible ``/v1/chat/completions`` server (vLLM, SGLang, ...)."""
     return EndpointPolicy(**kwargs)

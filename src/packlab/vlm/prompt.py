@@ -21,7 +21,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from packlab.types import Action, Container, Observation, ShownItem, Unparsable
+from packlab.core.types import Action, Container, Observation, ShownItem, Unparsable
 
 #: Bump on any change to the rendered text or message layout (golden tests pin version 1).
 PROMPT_VERSION = "packlab-prompt-v1"
@@ -105,7 +105,7 @@ def buffer_json(shown: Sequence[ShownItem]) -> str:
 
 
 #: The system-prompt line about images (absent under ``image="none"``). It describes the picture
-#: that packlab.viz.raster.heightmap_to_image draws; keep the two in step.
+#: that packlab.sim.raster.heightmap_to_image draws; keep the two in step.
 IMAGE_LINE = (
     "Each user turn shows the container's current heightmap as a top-down image: x runs left to "
     "right along the columns, y top to bottom along the rows, cell (0, 0) is the top-left cell, "
@@ -304,7 +304,7 @@ def turns_from_observation(
     """(past, current) for :func:`render_messages` from a policy observation.
 
     ``render_image(heightmap)`` turns an (x_cells, y_cells) int32 mm heightmap into the image the
-    caller wants in the messages (e.g. ``packlab.viz.raster.heightmap_to_image``). Remaining
+    caller wants in the messages (e.g. ``packlab.sim.raster.heightmap_to_image``). Remaining
     counts and step indices of past turns are reconstructed: every step processes exactly one
     object and the history holds every past step.
     """

@@ -709,7 +709,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_server(args: argparse.Namespace) -> int:
     """Serve ``args.model`` until interrupted (the ``packlab serve`` command)."""
-    from packlab.errors import ConfigError
+    from packlab.core.errors import ConfigError
 
     model = args.model
     if not model.startswith("tiny:") and not (Path(model) / "config.json").is_file():

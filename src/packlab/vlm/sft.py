@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 from packlab.vlm.model import VLM, build_tiny_model, load_model, save_model
 from packlab.vlm.processing import ProcessingConfig, collate, encode_fitting
 from packlab.vlm.prompt import PROMPT_VERSION, PromptOptions, ablate

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 from packlab.vlm.prompt import HISTORY_MODES, IMAGE_MODES
 from packlab.vlm.sft_data import RECIPES
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
 from packlab.vlm.prompt import PROMPT_VERSION, split_target
 
 #: --recipe choices (paper's data ablation) -> difficulties kept.

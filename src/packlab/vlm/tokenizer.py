@@ -20,7 +20,7 @@ import numpy as np
 from tokenizers import Regex, Tokenizer, decoders, models, normalizers, pre_tokenizers, trainers
 from transformers import PreTrainedTokenizerFast
 
-from packlab.types import Action, Container, ShownItem
+from packlab.core.types import Action, Container, ShownItem
 from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages
 
 PAD_TOKEN = "<|endoftext|>"

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from packlab.types import ShownItem
+from packlab.core.types import ShownItem
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import numpy as np
 from heuristics_strategies import packing_states
 from hypothesis import given, settings
 
-from packlab.policies.heuristics.candidates import action_mask, scatter, search_candidates
+from packlab.core.feasibility import action_mask, scatter, search_candidates
 
 
 def test_hand_made_state_in_scan_order() -> None:

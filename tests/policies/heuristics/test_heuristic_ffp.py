@@ -5,10 +5,10 @@ from __future__ import annotations
 import heuristics_reference as ref
 import numpy as np
 
+from packlab.core.feasibility import search_candidates
+from packlab.core.types import Action
 from packlab.policies.heuristics import ffp
-from packlab.policies.heuristics.candidates import search_candidates
 from packlab.policies.heuristics.select import choose, to_action
-from packlab.types import Action
 
 
 def pick(hm, shown, rim=100) -> Action:

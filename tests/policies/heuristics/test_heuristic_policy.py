@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from packlab.core.types import Action, Container, Observation, ShownItem
 from packlab.policies import Policy, available_policies, make_policy
 from packlab.policies.heuristics import SCORERS, HeuristicPolicy
 from packlab.policies.heuristics.policy import NO_CANDIDATE_ACTION
 from packlab.sim.episode import run_episode
-from packlab.types import Action, Container, Observation, ShownItem
 
 NAMES = ("dblf", "hm", "mta", "ffp", "sdf")
 

@@ -8,8 +8,8 @@ from heuristics_strategies import EQUAL_VOLUME_SHAPES, LEVEL_HEIGHTS_MM, packing
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from packlab.core.feasibility import search_candidates
 from packlab.policies.heuristics import dblf, ffp, hm, mta, sdf
-from packlab.policies.heuristics.candidates import search_candidates
 from packlab.policies.heuristics.select import FLOAT_DECIMALS, TIE_BREAKS, choose
 
 EXAMPLES = settings(max_examples=100, deadline=None)

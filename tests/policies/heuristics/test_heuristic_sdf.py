@@ -8,10 +8,10 @@ from heuristics_strategies import packing_states
 from hypothesis import given, settings
 from scipy.ndimage import distance_transform_edt
 
+from packlab.core.feasibility import search_candidates
+from packlab.core.types import Action
 from packlab.policies.heuristics import dblf, sdf
-from packlab.policies.heuristics.candidates import search_candidates
 from packlab.policies.heuristics.select import choose, to_action
-from packlab.types import Action
 
 
 def cands(heights, shown, rim=100):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import heuristics_reference as ref
 import numpy as np
 
-from packlab.policies.heuristics.candidates import search_candidates
+from packlab.core.feasibility import search_candidates
+from packlab.core.types import Action
 from packlab.policies.heuristics.select import choose, quantise, rim_pool, to_action
-from packlab.types import Action
 
 
 def test_in_rim_candidates_win_even_with_worse_keys() -> None:

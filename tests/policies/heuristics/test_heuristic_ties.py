@@ -9,13 +9,13 @@ from heuristics_strategies import EQUAL_VOLUME_SHAPES, LEVEL_HEIGHTS_MM, packing
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.feasibility import id_order, search_candidates
+from packlab.core.types import Action, Box, Case, Container, Observation, ShownItem
 from packlab.policies import make_policy
 from packlab.policies.heuristics import DEFAULT_TIE_BREAK, SCORERS, TIE_BREAKS, HeuristicPolicy
-from packlab.policies.heuristics.candidates import id_order, search_candidates
 from packlab.policies.heuristics.select import choose, object_rank
 from packlab.sim.episode import run_episode
-from packlab.types import Action, Box, Case, Container, Observation, ShownItem
 
 NAMES = tuple(SCORERS)
 

@@ -10,7 +10,7 @@ Importing this package registers the policies "dblf", "hm", "mta", "ffp" and "sd
 - :mod:`.policy`: HeuristicPolicy and the registrations.
 """
 
-from packlab.policies.heuristics.candidates import (
+from packlab.core.feasibility import (
     CandidateSet,
     Orientation,
     action_mask,

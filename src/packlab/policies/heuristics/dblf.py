@@ -19,7 +19,7 @@ lowest-top ones).
 
 from __future__ import annotations
 
-from packlab.policies.heuristics.candidates import CandidateSet
+from packlab.core.feasibility import CandidateSet
 from packlab.policies.heuristics.select import Keys
 
 NAME = "dblf"

@@ -13,7 +13,7 @@ FFP again takes the first of those in the same order. There are no weights and n
 
 from __future__ import annotations
 
-from packlab.policies.heuristics.candidates import CandidateSet
+from packlab.core.feasibility import CandidateSet
 from packlab.policies.heuristics.select import Keys
 
 NAME = "ffp"

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.policies.heuristics.candidates import CandidateSet, Orientation
+from packlab.core.feasibility import CandidateSet, Orientation
 from packlab.policies.heuristics.select import Keys, per_group
 from packlab.policies.heuristics.windows import window_sum
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.policies.heuristics.candidates import CandidateSet, Orientation
+from packlab.core.feasibility import CandidateSet, Orientation
 from packlab.policies.heuristics.select import Keys, per_group
 from packlab.policies.heuristics.windows import padded, side_neighbours, window_count_of_max
 

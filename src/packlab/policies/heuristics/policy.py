@@ -12,13 +12,13 @@ Options (factory keywords, so ``packlab bench --policy-arg dblf:tie_break=shown_
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.feasibility import observation_candidates
+from packlab.core.types import Action, Case, Observation
 from packlab.policies.heuristics import dblf, ffp, hm, mta, sdf
-from packlab.policies.heuristics.candidates import observation_candidates
 from packlab.policies.heuristics.select import (
     DEFAULT_TIE_BREAK,
     Scorer,
@@ -28,8 +28,6 @@ from packlab.policies.heuristics.select import (
     first_object,
     to_action,
 )
-from packlab.policies.registry import register_policy
-from packlab.types import Action, Case, Observation
 
 #: Heuristic scorers by registered policy name.
 SCORERS: dict[str, Scorer] = {
@@ -92,19 +90,22 @@ def make_heuristic(name: str, **options: Any) -> HeuristicPolicy:
     return HeuristicPolicy(name=name, scorer=SCORERS[name], tie_break=tie_break)
 
 
-def _factory(name: str) -> Callable[..., HeuristicPolicy]:
-    """The registered factory of one heuristic: ``factory(**options)``."""
-
-    def make(**options: Any) -> HeuristicPolicy:
-        return make_heuristic(name, **options)
-
-    make.__name__ = make.__qualname__ = f"make_{name}"
-    return make
+# The entry-point factories (pyproject ``packlab.policies``): one per heuristic.
+def make_dblf(**options: Any) -> HeuristicPolicy:
+    return make_heuristic("dblf", **options)
 
 
-def _register_all() -> None:
-    for name in SCORERS:
-        register_policy(name)(_factory(name))
+def make_hm(**options: Any) -> HeuristicPolicy:
+    return make_heuristic("hm", **options)
 
 
-_register_all()
+def make_mta(**options: Any) -> HeuristicPolicy:
+    return make_heuristic("mta", **options)
+
+
+def make_ffp(**options: Any) -> HeuristicPolicy:
+    return make_heuristic("ffp", **options)
+
+
+def make_sdf(**options: Any) -> HeuristicPolicy:
+    return make_heuristic("sdf", **options)

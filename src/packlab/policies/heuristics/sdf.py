@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.policies.heuristics.candidates import CandidateSet
+from packlab.core.feasibility import CandidateSet
 from packlab.policies.heuristics.select import Keys, quantise, rim_pool
 
 NAME = "sdf"

@@ -34,19 +34,18 @@ and step 3 makes every choice deterministic.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal, get_args
+from typing import get_args
 
 import numpy as np
 
-from packlab.errors import ConfigError
-from packlab.policies.heuristics.candidates import CandidateSet
-from packlab.types import Action
+from packlab.core.choices import TieBreak
+from packlab.core.errors import ConfigError
+from packlab.core.feasibility import CandidateSet
+from packlab.core.types import Action
 
 Keys = tuple[np.ndarray, ...]
 Scorer = Callable[[CandidateSet], Keys]
 
-#: How ties left after a heuristic's keys are settled (step 3 of the module docstring).
-TieBreak = Literal["larger_volume", "shown_order"]
 #: The choices of :data:`TieBreak`, in the order error messages list them.
 TIE_BREAKS: tuple[TieBreak, ...] = get_args(TieBreak)
 #: The literature's rule: equally good placements go to the larger object.

@@ -2,23 +2,29 @@
 
 from __future__ import annotations
 
-from packlab.errors import ConfigError
-from packlab.sim.physics.base import Transition, TransitionBackend
+from packlab.core.choices import PhysicsBackend, choices, require_choice
+from packlab.core.protocols import Transition, TransitionBackend
 from packlab.sim.physics.geometric import GeometricBackend
+from packlab.sim.physics.mujoco_backend import MujocoBackend, PhysicsConfig
 
-BACKENDS = ("geometric", "mujoco")
+#: The backend names, from the :data:`PhysicsBackend` choice type.
+BACKENDS: tuple[str, ...] = choices(PhysicsBackend)
 
 
-def make_backend(name: str, physics=None) -> TransitionBackend:
-    """A fresh backend by name; ``physics`` is a ``PhysicsConfig`` for the mujoco backend."""
+def make_backend(name: PhysicsBackend, physics: PhysicsConfig | None = None) -> TransitionBackend:
+    """A fresh backend by name; ``physics`` configures the mujoco backend."""
+    require_choice(name, PhysicsBackend, "backend")
     if name == "geometric":
         return GeometricBackend()
-    if name == "mujoco":
-        # Imported here so planning code that only needs geometry does not load the engine.
-        from packlab.sim.physics.mujoco_backend import MujocoBackend
-
-        return MujocoBackend(physics)
-    raise ConfigError(f"backend = {name!r}: unknown; choose one of {', '.join(BACKENDS)}")
+    return MujocoBackend(physics)
 
 
-__all__ = ["BACKENDS", "GeometricBackend", "Transition", "TransitionBackend", "make_backend"]
+__all__ = [
+    "BACKENDS",
+    "GeometricBackend",
+    "MujocoBackend",
+    "PhysicsConfig",
+    "Transition",
+    "TransitionBackend",
+    "make_backend",
+]

@@ -6,9 +6,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from packlab.core.protocols import Transition
+from packlab.core.types import Box, Container
 from packlab.sim.heightmap import place_box, yaw_quaternion
-from packlab.sim.physics.base import Transition
-from packlab.types import Box, Container
 
 
 class GeometricBackend:

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from packlab.errors import ConfigError
+from packlab.core.errors import ConfigError
+from packlab.core.protocols import Transition
+from packlab.core.types import Box, Container
 from packlab.sim.heightmap import box_top_region, compose_regions, yaw_quaternion
-from packlab.sim.physics.base import Transition
-from packlab.types import Box, Container
 
 _MM = 1e-3  # metres per millimetre
 _REUSE_MM = 0.02  # see MujocoBackend._rasterise

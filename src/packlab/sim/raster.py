@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from packlab.types import Container
+from packlab.core.types import Container
 
 if TYPE_CHECKING:  # Pillow is only needed to build images, not to compute them
     from PIL import Image

@@ -3,7 +3,7 @@
 A *candidate* is a (shown object, rotation, cell x, cell y) whose footprint lies on the container
 floor grid. Its resting height z is paper Eq. 2, the maximum of the heightmap over the footprint,
 computed for all (x, y) of one orientation by a single sliding-window maximum
-(:func:`packlab.sim.heightmap.footprint_max`). Orientations that share a footprint (two equal
+(:func:`footprint_max`). Orientations that share a footprint (two equal
 boxes, or rotation 1 of a square box) share that maximum, so a decision costs at most one window
 max per distinct (fx, fy).
 
@@ -20,12 +20,38 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
-from packlab.sim.heightmap import footprint_max
-from packlab.types import Observation, ShownItem
+from packlab.core.types import Observation, ShownItem
 
 #: Rotation values of an action; 1 is a 90 degree yaw that swaps l and w.
 ROTATIONS = (0, 1)
+
+
+def footprint_max(heightmap: np.ndarray, fx: int, fy: int) -> np.ndarray:
+    """Max of ``heightmap`` over every (fx, fy)-cell window; shape (X - fx + 1, Y - fy + 1).
+
+    Entry [x, y] is paper Eq. 2's drop height z for a footprint whose minimum cell is (x, y).
+    Two separable 1-D sliding maxima keep it O(cells * (fx + fy)). Empty when the footprint is
+    larger than the map.
+    """
+    nx, ny = heightmap.shape
+    if fx < 1 or fy < 1:
+        raise ValueError(f"footprint must be at least one cell, got ({fx}, {fy})")
+    if fx > nx or fy > ny:
+        return np.zeros((max(nx - fx + 1, 0), max(ny - fy + 1, 0)), dtype=heightmap.dtype)
+    along_x = sliding_window_view(heightmap, fx, axis=0).max(axis=-1)
+    return sliding_window_view(along_x, fy, axis=1).max(axis=-1)
+
+
+def placement_height(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int) -> int:
+    """Eq. 2 for one footprint: max of the heightmap over cells [x, x+fx) x [y, y+fy)."""
+    return int(heightmap[x : x + fx, y : y + fy].max())
+
+
+def footprint_fits(shape: tuple[int, int], x: int, y: int, fx: int, fy: int) -> bool:
+    """True when the footprint lies entirely on the container floor grid."""
+    return 0 <= x and 0 <= y and x + fx <= shape[0] and y + fy <= shape[1]
 
 
 @dataclass(frozen=True, slots=True)

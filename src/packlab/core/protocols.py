@@ -1,14 +1,18 @@
-"""The transition-backend protocol: how a placed box becomes settled poses and a heightmap."""
+"""The protocols every part plugs into: a ``Policy`` chooses actions, a ``TransitionBackend`` executes them.
+
+Both live in the contract layer so that ``sim`` (which runs policies) and ``policies`` (which read
+the simulator's observations) share them without importing each other.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from packlab.types import Box, Container
+from packlab.core.types import Action, Box, Case, Container, Observation, Unparsable
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,4 +56,19 @@ class TransitionBackend(Protocol):
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres (n, 3) float mm and quaternions (n, 4) wxyz of all boxes; NaN rows = not placed."""
+        ...
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """Chooses one action per step from an observation."""
+
+    name: str
+
+    def reset(self, case: Case, seed: int) -> None:
+        """Prepare for a new episode of ``case`` with run seed ``seed``."""
+        ...
+
+    def act(self, observation: Observation) -> Action | Unparsable:
+        """The next action (``Unparsable`` when a model's answer could not be read)."""
         ...

@@ -1,0 +1,39 @@
+"""Every named choice in one place, as ``Literal`` types.
+
+Config dataclasses annotate their fields with these types, validation and the CLI read the
+allowed values from them (:func:`choices`), so a choice list is written exactly once.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+from packlab.core.errors import ConfigError
+
+#: Transition backend: how a placed box settles (``geometric`` is exact Eq. 2, ``mujoco`` physics).
+PhysicsBackend = Literal["mujoco", "geometric"]
+#: Where independent work items (bench episodes, dataset shards) run.
+Executor = Literal["process", "ray"]
+#: What the VLM sees as each state's image.
+ImageMode = Literal["heightmap", "blank", "none"]
+#: How much of the episode's past the VLM context holds.
+HistoryMode = Literal["full", "current_only", "no_actions"]
+#: Bench and dataset difficulty levels (paper Table 1).
+Difficulty = Literal["easy", "medium", "hard"]
+#: Heuristic tie rule between equally scored placements (docs/heuristics.md).
+TieBreak = Literal["larger_volume", "shown_order"]
+
+
+def choices(choice_type: object) -> tuple[str, ...]:
+    """The allowed values of a ``Literal`` choice type, in declaration order."""
+    values = get_args(choice_type)
+    if not values:
+        raise TypeError(f"{choice_type!r} is not a Literal choice type")
+    return values
+
+
+def require_choice(value: object, choice_type: object, field: str) -> None:
+    """Raise ``ConfigError`` naming ``field`` when ``value`` is not one of the type's values."""
+    allowed = choices(choice_type)
+    if value not in allowed:
+        raise ConfigError(f"{field} = {value!r}: unknown; choose one of {', '.join(allowed)}")

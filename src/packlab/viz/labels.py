@@ -1,0 +1,20 @@
+"""How policies, groups and metrics are named in tables and figures (pure strings)."""
+
+from __future__ import annotations
+
+from packlab.metrics import AVERAGE
+
+#: How methods are called in tables and figures (the paper's names); others print as registered.
+DISPLAY_NAMES = {
+    "dblf": "DBLF", "hm": "HM", "mta": "MTA", "ffp": "FFP", "sdf": "SDF-Pack",
+    "random": "Random", "oracle": "Oracle (gt plan)",
+}
+METRIC_SHORT = {"success_ratio": "SR", "compactness": "Compact.", "overall": "Overall"}
+
+
+def display_name(policy: str) -> str:
+    return DISPLAY_NAMES.get(policy, policy)
+
+
+def group_title(group: str) -> str:
+    return "Average" if group == AVERAGE else (group.capitalize() if group else "Unlabelled")
