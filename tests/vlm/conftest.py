@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from packlab.core.types import Action, Container, ShownItem, Unparsable
-from packlab.vlm.prompt import TurnState
+from packlab.vlm.prompt.render import TurnState
 
 
 def _item(i: int, internal_id: int, lc: int, wc: int, hc: int) -> ShownItem:

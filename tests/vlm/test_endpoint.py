@@ -20,14 +20,11 @@ from packlab.core.types import Action, Unparsable
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.sim.raster import heightmap_to_rgb
-from packlab.vlm.endpoint import (
-    EndpointError,
-    EndpointPolicy,
-    chat_completions_url,
-    to_openai_messages,
-)
-from packlab.vlm.prompt import IMAGE_LINE, action_text, render_messages
-from packlab.vlm.serve import Reply, scripted, serve
+from packlab.vlm.prompt.render import IMAGE_LINE, action_text, render_messages
+from packlab.vlm.serve.endpoint import EndpointError, EndpointPolicy, chat_completions_url
+from packlab.vlm.serve.openai_messages import to_openai_messages
+from packlab.vlm.serve.protocol import Reply
+from packlab.vlm.serve.server import scripted, serve
 
 A0 = action_text(Action(0, 0, 0, 0))
 FAST = {"deadline_s": 0.4, "retries": 1, "backoff_s": 0.01}
@@ -228,12 +225,11 @@ def test_policy_is_picklable_and_runs_after_a_round_trip(server_factory):
 
 
 def test_server_side_conversion_inverts_the_client_side():
-    from packlab.vlm.endpoint import png_data_url
-    from packlab.vlm.serve import from_openai_messages
+    from packlab.vlm.serve.openai_messages import from_openai_messages, png_data_url
 
     case = small_case()
     obs = Episode("geometric").reset(case, 0)
-    from packlab.vlm.context import ContextRenderer
+    from packlab.vlm.prompt.context import ContextRenderer
 
     messages = ContextRenderer().messages(obs)
     back = from_openai_messages(to_openai_messages(messages, png_data_url))

@@ -20,7 +20,7 @@ from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Unparsable
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
-from packlab.vlm.endpoint import (
+from packlab.vlm.serve.endpoint import (
     DEFAULT_BACKOFF_S,
     DEFAULT_DEADLINE_S,
     DEFAULT_RETRIES,

@@ -13,23 +13,22 @@ pytest.importorskip("transformers")
 from PIL import Image
 
 from packlab.core.types import Action
-from packlab.vlm.model import (
-    FAMILIES,
-    build_tiny_model,
-    family_of,
-    load_model,
-    mrope_sections,
-    save_model,
-)
-from packlab.vlm.processing import (
+from packlab.vlm.data.encoding import (
     IGNORE_INDEX,
     ProcessingConfig,
     collate,
-    drop_oldest_step,
     encode,
     encode_fitting,
 )
-from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages
+from packlab.vlm.model.checkpoint import FAMILIES, family_of, load_model, save_model
+from packlab.vlm.model.tiny import build_tiny_model, mrope_sections
+from packlab.vlm.prompt.render import (
+    PromptOptions,
+    TurnState,
+    action_text,
+    drop_oldest_step,
+    render_messages,
+)
 
 pytestmark = pytest.mark.torch
 
@@ -186,7 +185,7 @@ def test_drop_oldest_step_per_history_mode(fixed_state):
 
 
 def test_collate_padding_sides():
-    from packlab.vlm.processing import Encoded
+    from packlab.vlm.data.encoding import Encoded
 
     def ex(n):
         ids = torch.arange(1, n + 1)

@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 
 from packlab.core.types import Action, Unparsable
-from packlab.vlm.parse import PARSE_CASES, ActionParseError, parse_action, parse_or_unparsable
+from packlab.vlm.prompt.parse import (
+    PARSE_CASES,
+    ActionParseError,
+    parse_action,
+    parse_or_unparsable,
+)
 
 A = Action(object_id=1, rotation=0, x=3, y=4)
 J = '{"object_id": 1, "x": 3, "y": 4, "rotation": 0}'

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from packlab.core.types import Action, Unparsable
-from packlab.vlm.parse import (
+from packlab.vlm.prompt.parse import (
     MAX_ANSWER_CHARS,
     MAX_BRACKETS,
     MAX_DEPTH,
@@ -25,7 +25,7 @@ from packlab.vlm.parse import (
     parse_action,
     parse_or_unparsable,
 )
-from packlab.vlm.prompt import action_text
+from packlab.vlm.prompt.render import action_text
 
 BOUND_S = 0.050
 J = '{"object_id": 1, "x": 3, "y": 4, "rotation": 0}'

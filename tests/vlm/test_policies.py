@@ -19,7 +19,7 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Unparsable
 from packlab.policies import available_policies, make_policy
 from packlab.sim.episode import INVALID_REASONS, run_episode
-from packlab.vlm.prompt import action_text
+from packlab.vlm.prompt.render import action_text
 
 FAMILIES = ("qwen3_5", "qwen3_vl", "qwen2_5_vl")
 
@@ -75,7 +75,7 @@ def test_bad_configuration_is_a_config_error(tmp_path):
 
 
 def test_vlm_small_without_shipped_checkpoint_says_how_to_reproduce(monkeypatch, tmp_path):
-    import packlab.vlm.policies as vp
+    import packlab.vlm.infer.policy as vp
 
     monkeypatch.setattr(vp, "SHIPPED_MODEL_DIR", tmp_path / "vlm-small")
     with pytest.raises(ConfigError, match="packlab train sft"):
@@ -131,10 +131,10 @@ def test_cached_and_uncached_generations_are_identical(torch, family):
 def test_first_step_matches_model_generate(torch, family):
     """The hand-written greedy loop (explicit M-RoPE positions) is what ``generate`` computes."""
     from packlab.sim.episode import Episode
-    from packlab.vlm.context import ContextRenderer
-    from packlab.vlm.inference import PrefixCachedGenerator
-    from packlab.vlm.model import build_tiny_model
-    from packlab.vlm.processing import collate, encode
+    from packlab.vlm.data.encoding import collate, encode
+    from packlab.vlm.infer.generate import PrefixCachedGenerator
+    from packlab.vlm.model.tiny import build_tiny_model
+    from packlab.vlm.prompt.context import ContextRenderer
 
     vlm = build_tiny_model(family, "tiny")
     case = small_case()
@@ -226,10 +226,10 @@ def test_a_changed_image_is_never_taken_from_the_cache(torch):
     """Image placeholder tokens do not tell images apart: the cache must compare the pixels."""
     from PIL import Image
 
-    from packlab.vlm.inference import PrefixCachedGenerator
-    from packlab.vlm.model import build_tiny_model
-    from packlab.vlm.processing import encode
-    from packlab.vlm.prompt import TurnState, render_messages
+    from packlab.vlm.data.encoding import encode
+    from packlab.vlm.infer.generate import PrefixCachedGenerator
+    from packlab.vlm.model.tiny import build_tiny_model
+    from packlab.vlm.prompt.render import TurnState, render_messages
 
     vlm = build_tiny_model("qwen3_vl", "tiny")
     container = small_case().container
@@ -255,8 +255,8 @@ def test_a_changed_image_is_never_taken_from_the_cache(torch):
 def test_memo_image_processor_matches_batched_processing(torch):
     from PIL import Image
 
-    from packlab.vlm.inference import MemoImageProcessor
-    from packlab.vlm.model import image_processor_for
+    from packlab.vlm.infer.generate import MemoImageProcessor
+    from packlab.vlm.model.checkpoint import image_processor_for
 
     inner = image_processor_for("qwen3_5")
     ims = [Image.new("RGB", (224, 224), c) for c in ((1, 2, 3), (50, 60, 70), (1, 2, 3))]
@@ -322,7 +322,8 @@ def test_policies_of_one_model_share_its_weights_in_a_process(torch):
 
 @pytest.mark.torch
 def test_checkpoint_directory_and_its_training_options(torch, tmp_path):
-    from packlab.vlm.model import build_tiny_model, save_model
+    from packlab.vlm.model.checkpoint import save_model
+    from packlab.vlm.model.tiny import build_tiny_model
 
     vlm = build_tiny_model("qwen3_5", "tiny", seed=2)
     save_model(
@@ -349,7 +350,8 @@ def test_checkpoint_directory_and_its_training_options(torch, tmp_path):
 def test_endpoint_against_the_tiny_model_server_matches_the_local_policy(torch):
     """The endpoint policy, through a local OpenAI-compatible server of the same tiny model,
     takes the same actions as the local policy (images survive the PNG data URL round trip)."""
-    from packlab.vlm.serve import model_answer_fn, serve
+    from packlab.vlm.serve.model_answers import model_answer_fn
+    from packlab.vlm.serve.server import serve
 
     case = small_case()
     local = make_policy("vlm", model="tiny:qwen3_vl:tiny", max_new_tokens=6)
@@ -369,7 +371,7 @@ def test_endpoint_against_the_tiny_model_server_matches_the_local_policy(torch):
 
 @pytest.mark.torch
 def test_shipped_vlm_small_checkpoint_plays_a_bench_case():
-    import packlab.vlm.policies as vp
+    import packlab.vlm.infer.policy as vp
     from packlab.bench.suites import load_suite
 
     if not (vp.SHIPPED_MODEL_DIR / "packlab_model.json").exists():

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from packlab.core.types import Action, HistoryEntry, Observation
-from packlab.vlm.prompt import (
+from packlab.vlm.prompt.render import (
     BLANK_IMAGE,
     PROMPT_VERSION,
     PromptOptions,
@@ -130,7 +130,7 @@ def test_options_validated():
 
 
 def test_action_text_exact_and_round_trips():
-    from packlab.vlm.parse import parse_action
+    from packlab.vlm.prompt.parse import parse_action
 
     a = Action(object_id=2, rotation=1, x=7, y=0)
     assert action_text(a) == '{"object_id":2,"x":7,"y":0,"rotation":1}'
@@ -161,7 +161,8 @@ def test_prompt_module_imports_no_torch():
     import subprocess
 
     code = (
-        "import sys, packlab.vlm.prompt, packlab.vlm.parse; "
+        "import sys, packlab.vlm.prompt.render, packlab.vlm.prompt.parse, "
+        "packlab.vlm.prompt.context; "
         "bad = [m for m in ('torch', 'transformers') if m in sys.modules]; "
         "assert not bad, bad"
     )

@@ -18,16 +18,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from packlab.vlm.endpoint import png_data_url
-from packlab.vlm.serve import (
-    MAX_REQUEST_BYTES,
-    Reply,
-    RequestError,
-    from_openai_messages,
-    scripted,
-    serve,
-    served_name,
-)
+from packlab.vlm.serve.command import served_name
+from packlab.vlm.serve.openai_messages import from_openai_messages, png_data_url
+from packlab.vlm.serve.protocol import MAX_REQUEST_BYTES, Reply, RequestError
+from packlab.vlm.serve.server import scripted, serve
 
 openai = pytest.importorskip("openai")
 
@@ -233,7 +227,7 @@ def test_a_failing_model_is_a_500_that_says_so_without_python_names():
 def test_served_name_option_of_the_command():
     import argparse
 
-    from packlab.vlm.serve import add_arguments
+    from packlab.vlm.serve.command import add_arguments
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
@@ -290,7 +284,7 @@ def model_server():
     torch = pytest.importorskip("torch")
     pytest.importorskip("transformers")
     torch.set_num_threads(1)
-    from packlab.vlm.serve import model_answer_fn
+    from packlab.vlm.serve.model_answers import model_answer_fn
 
     with serve(model_answer_fn(TINY, max_new_tokens=8), model_name=served_name(TINY)) as server:
         yield server

@@ -14,10 +14,12 @@ from PIL import Image
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action
-from packlab.vlm.model import load_model
-from packlab.vlm.prompt import PROMPT_VERSION, render_messages, with_answer
-from packlab.vlm.sft import SFTConfig, train_sft
-from packlab.vlm.sft_data import load_sft_examples, select_examples
+from packlab.viz.plots import plot_loss_curve
+from packlab.vlm.data.sft_examples import load_sft_examples, select_examples
+from packlab.vlm.model.checkpoint import load_model
+from packlab.vlm.prompt.render import PROMPT_VERSION, render_messages, with_answer
+from packlab.vlm.train.config import SFTConfig
+from packlab.vlm.train.sft import train_sft
 
 pytestmark = pytest.mark.torch
 
@@ -74,6 +76,8 @@ def test_few_steps_reduce_loss(fixed_state, tmp_path):
     resolved = json.loads((run / "sft_config.json").read_text())
     assert resolved["prompt_version"] == PROMPT_VERSION and resolved["lr"] == 3e-3
     assert len((run / "loss_log.jsonl").read_text().splitlines()) == 6
+    assert not (run / "loss_curve.png").exists()  # vlm draws nothing; the CLI plots the log
+    plot_loss_curve(res.loss_log, run / "loss_curve.png")
     assert (run / "loss_curve.png").stat().st_size > 1000
     assert (run / "checkpoints" / "epoch-1" / "config.json").is_file()
     loaded = load_model(res.final_checkpoint)
@@ -154,4 +158,5 @@ def test_two_process_cpu_run(fixed_state, tmp_path):
     lrs = [json.loads(line)["lr"] for line in (run / "loss_log.jsonl").read_text().splitlines()]
     # cosine over 2 steps: half-way after the first, zero after the last (not restarted)
     assert lrs == pytest.approx([5e-4, 0.0], abs=1e-9)
+    assert (run / "loss_curve.png").stat().st_size > 1000  # drawn by the command
     assert load_model(run / "final").meta["prompt_version"] == PROMPT_VERSION

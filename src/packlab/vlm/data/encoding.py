@@ -1,4 +1,5 @@
-"""Chat messages (from :mod:`packlab.vlm.prompt`) -> model tensors, for training and inference.
+"""Chat messages (from :mod:`packlab.vlm.prompt.render`) -> model tensors, for training and
+inference.
 
 One example is encoded as the model will see it at inference: the chat template renders the
 context with the generation prompt (``<|im_start|>assistant\\n``), each image placeholder is
@@ -25,7 +26,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from packlab.vlm.prompt import BLANK_IMAGE, drop_oldest_step
+from packlab.vlm.prompt.render import BLANK_IMAGE, drop_oldest_step
 
 IGNORE_INDEX = -100
 IMAGE_PAD = "<|image_pad|>"

@@ -1,27 +1,27 @@
 """The ``endpoint`` policy: the packing VLM behind any OpenAI-compatible chat-completions server
-(vLLM, SGLang, a hosted API). Standard library only (http.client + json); no torch.
+(vLLM, SGLang, a hosted API). Standard library (http.client + json) and PIL; no torch.
 
-The context is rendered exactly as for the local policy (:mod:`packlab.vlm.context`), then turned
-into the OpenAI chat format: text parts as ``{"type": "text", "text": ...}``, images as PNG data
-URLs (``{"type": "image_url", "image_url": {"url": "data:image/png;base64,..."}}``), messages
-without images as plain strings. Requests are greedy (``temperature`` 0) by default.
+The context is rendered exactly as for the local policy (:mod:`packlab.vlm.prompt.context`),
+then turned into the OpenAI chat format (:mod:`packlab.vlm.serve.openai_messages`: images as PNG
+data URLs). Requests are greedy (``temperature`` 0) by default.
 
 Time: every request has a deadline (``deadline_s``, default 30 s) on its whole exchange:
 connecting, sending, waiting and reading the last byte of the answer. A watchdog shuts the socket
-at the deadline, so a server that accepts and never answers, or trickles bytes, cannot hold a
-step longer (host-name lookup is the one part outside it). A request is tried ``1 + retries``
-times (default 3) with exponential backoff between tries (``backoff_s`` doubling, at most
-``max_backoff_s``: 0.5 s then 1 s by default). The worst case of one request is therefore
-``tries * deadline_s + backoffs`` (:attr:`EndpointPolicy.worst_case_request_s`: 91.5 s by default)
-and, since the first request that fails ends its episode, it is also the most time an episode can
-lose to a dead or hung server; a refused connection fails in milliseconds (1.5 s of backoff).
+at the deadline (:mod:`packlab.vlm.serve.transport`), so a server that accepts and never answers,
+or trickles bytes, cannot hold a step longer (host-name lookup is the one part outside it). A
+request is tried ``1 + retries`` times (default 3) with exponential backoff between tries
+(``backoff_s`` doubling, at most ``max_backoff_s``: 0.5 s then 1 s by default). The worst case
+of one request is therefore ``tries * deadline_s + backoffs``
+(:attr:`EndpointPolicy.worst_case_request_s`: 91.5 s by default) and, since the first request
+that fails ends its episode, it is also the most time an episode can lose to a dead or hung
+server; a refused connection fails in milliseconds (1.5 s of backoff).
 
 Outcomes, following DESIGN.md section 4 (a step that cannot get an action is data, a server that
 cannot be used is not):
 
 - connection refused or reset, deadline passed, answer cut short, HTTP 5xx: retried; when every
-  try failed, :class:`~packlab.core.errors.EndpointUnavailable` is raised with one line naming the URL,
-  what failed and the tries (the bench records the episode as a ``transport`` error and its
+  try failed, :class:`~packlab.core.errors.EndpointUnavailable` is raised with one line naming
+  the URL, what failed and the tries (the bench records the episode as a ``transport`` error and its
   circuit breaker counts them);
 - HTTP 4xx is never retried: 408 and 429 (the server is busy or slow, which says nothing about
   the policy) raise EndpointUnavailable at once; 401, 403 and 404 (key, URL or model wrong) and
@@ -39,33 +39,28 @@ Concurrency across cases is the bench runner's job: each worker process builds i
 
 from __future__ import annotations
 
-import base64
-import http.client
-import io
 import json
 import os
-import socket
-import ssl
-import threading
 import time
-import urllib.parse
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Action, Case, Observation, Unparsable
-from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
-from packlab.vlm.parse import parse_or_unparsable
-from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, keep_last_steps
+from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
+from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.render import BLANK_IMAGE, PromptOptions, keep_last_steps
+from packlab.vlm.serve.openai_messages import (
+    blank_png_data_url,
+    png_data_url,
+    to_openai_messages,
+)
+from packlab.vlm.serve.transport import MAX_RESPONSE_BYTES, HTTPReply, TransportError, http_post
 
 #: Defaults of :class:`EndpointPolicy` (seconds; tries = 1 + retries).
 DEFAULT_DEADLINE_S = 30.0
 DEFAULT_RETRIES = 2
 DEFAULT_BACKOFF_S = 0.5
 DEFAULT_MAX_BACKOFF_S = 4.0
-#: Largest response body read (an answer is a few hundred bytes; images never come back).
-MAX_RESPONSE_BYTES = 16 << 20
 #: 4xx that say the server is busy or slow, not that the request is wrong: not retried (4xx never
 #: is), but reported as EndpointUnavailable rather than charged to the policy.
 BUSY_STATUS = frozenset({408, 429})
@@ -81,32 +76,6 @@ class EndpointError(EndpointUnavailable):
     """
 
 
-class TransportError(Exception):
-    """One try failed before a complete HTTP answer arrived (retryable)."""
-
-
-@dataclass(frozen=True, slots=True)
-class HTTPReply:
-    """A complete HTTP answer."""
-
-    status: int
-    reason: str  # the status line's reason phrase
-    body: bytes  # at most max_bytes
-    oversized: bool = False  # the body was longer than max_bytes (and was cut)
-
-    def server_reason(self) -> str:
-        """The server's own message, one line: ``error.message`` of an OpenAI-style error body,
-        else the start of the body, else the status line's reason phrase."""
-        text = self.body[:4000].decode("utf-8", "replace")
-        try:
-            err = json.loads(text).get("error")
-            message = err.get("message") if isinstance(err, dict) else err
-        except (ValueError, AttributeError, RecursionError):
-            message = None
-        message = message if isinstance(message, str) and message.strip() else text or self.reason
-        return " ".join(message.split())[:300]
-
-
 def chat_completions_url(base_url: str) -> str:
     """The chat-completions URL for an OpenAI base URL.
 
@@ -120,133 +89,6 @@ def chat_completions_url(base_url: str) -> str:
     if not url.endswith("/v1"):
         url += "/v1"
     return url + "/chat/completions"
-
-
-def png_data_url(image: Any) -> str:
-    """A ``data:image/png;base64,...`` URL of a PIL image (or an RGB uint8 numpy array)."""
-    from PIL import Image
-
-    if not isinstance(image, Image.Image):
-        image = Image.fromarray(image)
-    buf = io.BytesIO()
-    image.save(buf, format="PNG")
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def to_openai_messages(
-    messages: Sequence[dict[str, Any]], image_url: Callable[[Any], str] = png_data_url
-) -> list[dict[str, Any]]:
-    """Hugging Face chat messages (from :mod:`packlab.vlm.prompt`) -> OpenAI chat messages.
-
-    Images become ``image_url`` parts through ``image_url(image)``; a message whose content is
-    text only becomes a plain string (what every OpenAI-compatible server accepts for every role).
-    """
-    out = []
-    for m in messages:
-        content = m["content"]
-        if isinstance(content, str):
-            out.append({"role": m["role"], "content": content})
-            continue
-        if all(c.get("type") == "text" for c in content):
-            out.append({"role": m["role"], "content": "".join(c["text"] for c in content)})
-            continue
-        parts = []
-        for c in content:
-            if c.get("type") == "text":
-                parts.append({"type": "text", "text": c["text"]})
-            elif c.get("type") == "image":
-                parts.append({"type": "image_url", "image_url": {"url": image_url(c["image"])}})
-            else:
-                raise ValueError(f"unsupported content part type {c.get('type')!r}")
-        out.append({"role": m["role"], "content": parts})
-    return out
-
-
-def _describe(exc: BaseException) -> str:
-    """One line for a failed try."""
-    if isinstance(exc, ConnectionRefusedError):
-        return "connection refused"
-    if isinstance(exc, socket.gaierror):
-        return f"cannot resolve the host name ({exc.strerror or exc})"
-    if isinstance(exc, http.client.RemoteDisconnected):
-        return "the server closed the connection without answering"
-    if isinstance(exc, http.client.IncompleteRead):
-        return "the answer was cut short"
-    if isinstance(exc, ConnectionResetError):
-        return "connection reset by the server"
-    if isinstance(exc, ssl.SSLError):
-        return f"TLS error: {exc.reason or exc}"
-    text = (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)) or ""
-    return "connection failed: " + (" ".join(text.split()) or type(exc).__name__)
-
-
-def _read_capped(resp: http.client.HTTPResponse, max_bytes: int) -> tuple[bytes, bool]:
-    """(up to ``max_bytes`` of the body, whether there was more)."""
-    chunks, size = [], 0
-    while size <= max_bytes:
-        chunk = resp.read(min(65536, max_bytes + 1 - size))
-        if not chunk:
-            if resp.length:  # http.client returns a short body quietly: less than Content-Length
-                raise http.client.IncompleteRead(b"".join(chunks), resp.length)
-            break
-        chunks.append(chunk)
-        size += len(chunk)
-    body = b"".join(chunks)
-    return body[:max_bytes], len(body) > max_bytes
-
-
-def http_post(
-    url: str,
-    body: bytes,
-    deadline_s: float,
-    headers: dict[str, str] | None = None,
-    max_bytes: int = MAX_RESPONSE_BYTES,
-) -> HTTPReply:
-    """POST ``body`` and return the complete answer, whatever its status, within ``deadline_s``.
-
-    The deadline covers connecting, sending, waiting and reading the whole body: a watchdog
-    timer shuts the socket down when it passes, which wakes any blocked read or write (the
-    socket's own timeout would only bound each read, so a trickling server could hold it for
-    ever). Raises :class:`TransportError` when no complete answer arrived in time.
-    """
-    parts = urllib.parse.urlsplit(url)
-    path = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
-    conn_cls = (
-        http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
-    )
-    conn = conn_cls(parts.hostname or "", parts.port, timeout=deadline_s)
-    expired = threading.Event()
-
-    def expire() -> None:
-        expired.set()
-        sock = conn.sock
-        if sock is not None:
-            try:  # the plain socket's shutdown, also under TLS: wakes the blocked call
-                socket.socket.shutdown(sock, socket.SHUT_RDWR)
-            except OSError:
-                pass
-
-    watchdog = threading.Timer(deadline_s, expire)
-    watchdog.daemon = True
-    watchdog.start()
-    try:
-        conn.request("POST", path, body=body, headers=headers or {})
-        resp = conn.getresponse()
-        data, oversized = _read_capped(resp, max_bytes)
-        status, reason = resp.status, resp.reason
-    except (OSError, http.client.HTTPException, ValueError) as e:
-        # ValueError: a TLS socket used after the watchdog shut it.
-        if expired.is_set() or isinstance(e, TimeoutError):
-            raise TransportError(
-                f"no complete answer within the {deadline_s:g} s deadline"
-            ) from None
-        raise TransportError(_describe(e)) from None
-    finally:
-        watchdog.cancel()
-        conn.close()
-    if expired.is_set():  # a body read "to the end" may have ended at the shutdown
-        raise TransportError(f"no complete answer within the {deadline_s:g} s deadline")
-    return HTTPReply(status, reason, data, oversized)
 
 
 def decode_reply(reply: HTTPReply) -> dict[str, Any]:
@@ -290,6 +132,67 @@ def _finite(value: object, low: float, high: float) -> bool:
     )
 
 
+def _deadline(deadline_s: float | None, timeout_s: float | None) -> tuple[float, str]:
+    """(the request deadline, the name it was given under: ``deadline_s`` or its old name
+    ``timeout_s``); ConfigError when both are given."""
+    if deadline_s is not None and timeout_s is not None:
+        raise ConfigError(
+            f"deadline_s = {deadline_s!r} and timeout_s = {timeout_s!r}: timeout_s is the "
+            "old name of deadline_s; give one"
+        )
+    deadline = next((v for v in (deadline_s, timeout_s) if v is not None), DEFAULT_DEADLINE_S)
+    return deadline, ("timeout_s" if timeout_s is not None else "deadline_s")
+
+
+def _check_numbers(
+    deadline: tuple[str, float],
+    retries: int,
+    backoff_s: float,
+    max_backoff_s: float,
+    temperature: float,
+    max_tokens: int,
+    max_past_steps: int | None,
+) -> None:
+    """ConfigError (one line) for the first numeric setting out of its range; ``deadline`` is
+    (the name it was given under, its value)."""
+    field, value = deadline
+    checks = [
+        (_finite(value, 1e-3, 86400.0), field, value, "must be seconds in [0.001, 86400]"),
+        (
+            isinstance(retries, int) and 0 <= retries <= 10,
+            "retries",
+            retries,
+            "must be an int in [0, 10]",
+        ),
+        (_finite(backoff_s, 0.0, 3600.0), "backoff_s", backoff_s, "must be seconds in [0, 3600]"),
+        (
+            _finite(max_backoff_s, 0.0, 3600.0),
+            "max_backoff_s",
+            max_backoff_s,
+            "must be seconds in [0, 3600]",
+        ),
+        (_finite(temperature, 0.0, 100.0), "temperature", temperature, "must be >= 0"),
+        (
+            isinstance(max_tokens, int) and max_tokens >= 1,
+            "max_tokens",
+            max_tokens,
+            "must be an int >= 1",
+        ),
+    ]
+    if max_past_steps is not None:
+        checks.append(
+            (
+                isinstance(max_past_steps, int) and max_past_steps >= 0,
+                "max_past_steps",
+                max_past_steps,
+                "must be an int >= 0 (or unset for the whole history)",
+            )
+        )
+    for ok, name, bad, rule in checks:
+        if not ok:
+            raise ConfigError(f"{name} = {bad!r}: {rule}")
+
+
 class EndpointPolicy:
     """The packing VLM behind an OpenAI-compatible ``/v1/chat/completions`` server.
 
@@ -322,62 +225,17 @@ class EndpointPolicy:
             raise ConfigError(
                 f"base_url = {base_url!r}: expected an http(s) URL such as http://127.0.0.1:8000/v1"
             )
-        if deadline_s is not None and timeout_s is not None:
-            raise ConfigError(
-                f"deadline_s = {deadline_s!r} and timeout_s = {timeout_s!r}: timeout_s is the "
-                "old name of deadline_s; give one"
-            )
-        deadline = next((v for v in (deadline_s, timeout_s) if v is not None), DEFAULT_DEADLINE_S)
-        field = "timeout_s" if timeout_s is not None else "deadline_s"
-        checks = [
-            (
-                _finite(deadline, 1e-3, 86400.0),
-                field,
-                deadline,
-                "must be seconds in [0.001, 86400]",
-            ),
-            (
-                isinstance(retries, int) and 0 <= retries <= 10,
-                "retries",
-                retries,
-                "must be an int in [0, 10]",
-            ),
-            (
-                _finite(backoff_s, 0.0, 3600.0),
-                "backoff_s",
-                backoff_s,
-                "must be seconds in [0, 3600]",
-            ),
-            (
-                _finite(max_backoff_s, 0.0, 3600.0),
-                "max_backoff_s",
-                max_backoff_s,
-                "must be seconds in [0, 3600]",
-            ),
-            (_finite(temperature, 0.0, 100.0), "temperature", temperature, "must be >= 0"),
-            (
-                isinstance(max_tokens, int) and max_tokens >= 1,
-                "max_tokens",
-                max_tokens,
-                "must be an int >= 1",
-            ),
-        ]
-        if max_past_steps is not None:
-            checks.append(
-                (
-                    isinstance(max_past_steps, int) and max_past_steps >= 0,
-                    "max_past_steps",
-                    max_past_steps,
-                    "must be an int >= 0 (or unset for the whole history)",
-                )
-            )
-        for ok, name_, value, rule in checks:
-            if not ok:
-                raise ConfigError(f"{name_} = {value!r}: {rule}")
-        try:
-            self.options = PromptOptions(history, image)  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
+        deadline, deadline_field = _deadline(deadline_s, timeout_s)
+        _check_numbers(
+            (deadline_field, deadline),
+            retries,
+            backoff_s,
+            max_backoff_s,
+            temperature,
+            max_tokens,
+            max_past_steps,
+        )
+        self.options = PromptOptions(history, image)  # type: ignore[arg-type]  (checked there)
         self.name = name
         self.base_url, self.url = base_url, chat_completions_url(base_url)
         self.model = model
@@ -440,9 +298,7 @@ class EndpointPolicy:
     def _image_url(self, image: Any) -> str:
         if isinstance(image, str) and image == BLANK_IMAGE:
             if self._blank_url is None:
-                from PIL import Image
-
-                self._blank_url = png_data_url(Image.new("RGB", (self.image_size,) * 2))
+                self._blank_url = blank_png_data_url(self.image_size)
             return self._blank_url
         # The renderer memoises one PIL image per heightmap, so each past image is encoded once
         # per episode; the entry keeps a reference so that its id cannot be reused meanwhile.
@@ -539,3 +395,8 @@ class EndpointPolicy:
             parsed=isinstance(action, Action),
         )
         return action
+
+
+def make_endpoint(**kwargs: Any) -> EndpointPolicy:
+    """``endpoint``: an OpenAI-compatible ``/v1/chat/completions`` server (vLLM, SGLang, ...)."""
+    return EndpointPolicy(**kwargs)

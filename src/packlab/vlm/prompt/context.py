@@ -1,9 +1,10 @@
 """Observation -> chat messages for the inference policies (no torch).
 
 Both the local ``vlm`` policy and the ``endpoint`` policy render the context X_t with
-:func:`packlab.vlm.prompt.render_messages` from :func:`packlab.vlm.prompt.turns_from_observation`,
-with heightmap images drawn by :func:`packlab.sim.raster.heightmap_to_image` at the size the data
-engine writes (224 px by default). A past heightmap never changes, so each distinct heightmap is
+:func:`packlab.vlm.prompt.render.render_messages` from
+:func:`packlab.vlm.prompt.render.turns_from_observation`, with heightmap images drawn by
+:func:`packlab.sim.raster.heightmap_to_image` at the size the data engine writes (224 px by
+default). A past heightmap never changes, so each distinct heightmap is
 drawn once per episode (a memo keyed by the array's bytes, cleared on :meth:`reset`).
 """
 
@@ -14,7 +15,13 @@ from typing import Any
 import numpy as np
 
 from packlab.core.types import Container, Observation
-from packlab.vlm.prompt import BLANK_IMAGE, PromptOptions, render_messages, turns_from_observation
+from packlab.sim.raster import heightmap_to_image
+from packlab.vlm.prompt.render import (
+    BLANK_IMAGE,
+    PromptOptions,
+    render_messages,
+    turns_from_observation,
+)
 
 #: Side of the heightmap images, as the data engine writes them (DatagenConfig.image_size).
 DEFAULT_IMAGE_SIZE = 224
@@ -49,8 +56,6 @@ class ContextRenderer:
         key = (container, hm.shape, str(hm.dtype), hm.tobytes())
         im = self._memo.get(key)
         if im is None:
-            from packlab.sim.raster import heightmap_to_image
-
             im = heightmap_to_image(hm, container, self.image_size)
             self._memo[key] = im
         return im

@@ -1,112 +1,69 @@
-"""The VLM inference policies: ``vlm`` (a local transformers model), ``vlm-small`` (the checkpoint
-shipped in the package) and ``endpoint`` (any OpenAI-compatible chat-completions server).
+"""The local VLM inference policies: ``vlm`` (a local transformers model) and ``vlm-small`` (the
+checkpoint shipped in the package). The ``endpoint`` policy (an OpenAI-compatible server) is
+:mod:`packlab.vlm.serve.endpoint`.
 
-Each step renders the context X_t from the observation with :mod:`packlab.vlm.prompt` (the same
-code the SFT export used, so training and inference read the same text), asks the model, and
-parses the answer with :func:`packlab.vlm.parse.parse_or_unparsable`. An answer that does not
-parse is returned as :class:`~packlab.core.types.Unparsable`; the episode records it as an invalid step
-with reason ``unparsable`` and goes on (DESIGN.md section 4). Run untrained (a base checkpoint),
-the same policy is the paper's zero-shot baseline.
+Each step renders the context X_t from the observation with :mod:`packlab.vlm.prompt.render`
+(the same code the SFT export used, so training and inference read the same text), asks the
+model, and parses the answer with :func:`packlab.vlm.prompt.parse.parse_or_unparsable`. An answer
+that does not parse is returned as :class:`~packlab.core.types.Unparsable`; the episode records
+it as an invalid step with reason ``unparsable`` and goes on (DESIGN.md section 4). Run untrained
+(a base checkpoint), the same policy is the paper's zero-shot baseline.
 
 Importing this module is cheap: torch and transformers are imported when a ``vlm`` policy loads
-its model (lazily, on the first :meth:`VLMPolicy.reset`), so policies are picklable and cheap to
-build in the parent process and each worker loads its own copy.
+its model (:mod:`packlab.vlm.infer.runtime`, on the first :meth:`VLMPolicy.reset`), so policies
+are picklable and cheap to build in the parent process and each worker loads its own copy.
 
-Per-step diagnostics (token counts, prefix reuse, timings, transport attempts) are kept in the
-policy's ``step_log`` (a list of dicts, one per ``act`` of the current episode).
+Per-step diagnostics (token counts, prefix reuse, timings) are kept in the policy's
+``step_log`` (a list of dicts, one per ``act`` of the current episode).
 """
 
 from __future__ import annotations
 
-import threading
 import time
-from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
-from packlab.vlm.context import DEFAULT_IMAGE_SIZE, ContextRenderer
-from packlab.vlm.endpoint import EndpointPolicy
-from packlab.vlm.parse import parse_or_unparsable
-from packlab.vlm.prompt import PROMPT_VERSION, PromptOptions
+from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
+from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
+from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
 
-__all__ = [
-    "SHIPPED_MODEL_DIR",
-    "EndpointPolicy",
-    "VLMPolicy",
-    "make_endpoint",
-    "make_vlm",
-    "make_vlm_small",
-]
+__all__ = ["SHIPPED_MODEL_DIR", "VLMPolicy", "make_vlm", "make_vlm_small"]
 
 #: Where the package ships its own trained checkpoint (``vlm-small``), when it does.
-SHIPPED_MODEL_DIR = Path(__file__).resolve().parent.parent / "data" / "models" / "vlm-small"
-
-VLM_EXTRA_HINT = (
-    "the vlm extra is not installed: pip install torch==2.13.0 (CPU wheel, first), "
-    "then pip install -e '.[vlm]'"
-)
+SHIPPED_MODEL_DIR = Path(__file__).resolve().parents[2] / "data" / "models" / "vlm-small"
+#: The policy's torch side (vlm extra), imported on the first load.
+RUNTIME_MODULE = "packlab.vlm.infer.runtime"
 
 
-def _resolve_device(device: str) -> str:
-    import torch
-
-    if device != "auto":
-        return device
-    if torch.cuda.is_available():
-        return "cuda"
-    return "cpu"
-
-
-def _resolve_dtype(dtype: str, device: str):
-    import torch
-
-    if dtype == "auto":
-        if device.startswith("cuda") and torch.cuda.is_bf16_supported():
-            return torch.bfloat16
-        return torch.float32
-    table = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
-    if dtype not in table:
-        raise ConfigError(f"dtype = {dtype!r}: expected auto, {', '.join(table)}")
-    return table[dtype]
-
-
-#: Models loaded in this process, most recent last: the bench runner builds a policy per
-#: episode, and each must not reload the weights. Weights are only read at inference; the
-#: per-episode state (cache, images) lives in each policy's generator.
-_LOADED: OrderedDict[tuple, Any] = OrderedDict()
-_LOADED_MAX = 2
-_LOADED_LOCK = threading.Lock()
-
-
-def _load_vlm(spec: str, device: str, dtype: Any, seed: int) -> Any:
-    """Build (``tiny:F:S``) or load (a directory) a VLM, reusing one already loaded here."""
-    from packlab.vlm.model import build_tiny_model, load_model
-
-    stamp = None
-    if not spec.startswith("tiny:"):
-        stamp = (Path(spec) / "config.json").stat().st_mtime_ns  # a retrained dir reloads
-    key = (spec, device, str(dtype), seed if spec.startswith("tiny:") else None, stamp)
-    with _LOADED_LOCK:
-        if key in _LOADED:
-            _LOADED.move_to_end(key)
-            return _LOADED[key]
-        if spec.startswith("tiny:"):
-            parts = spec.split(":")
-            if len(parts) != 3:
-                raise ConfigError(f"model = {spec!r}: expected tiny:<family>:<size>")
-            try:
-                vlm = build_tiny_model(parts[1], parts[2], seed=seed)
-            except ValueError as exc:
-                raise ConfigError(f"model = {spec!r}: {exc}") from None
-            vlm.model.to(device=device, dtype=dtype)
-        else:
-            vlm = load_model(spec, dtype=dtype, device=device)
-        _LOADED[key] = vlm
-        while len(_LOADED) > _LOADED_MAX:
-            _LOADED.popitem(last=False)
-        return vlm
+def _check_settings(
+    model: object,
+    history: str | None,
+    image: str | None,
+    max_new_tokens: int,
+    max_length: int | None,
+    threads: int | None,
+) -> None:
+    """ConfigError (one line) for a setting the policy cannot run with."""
+    if not isinstance(model, str) or not model:
+        raise ConfigError(
+            f"model = {model!r}: expected a checkpoint directory or tiny:<family>:<size>"
+        )
+    if not model.startswith("tiny:") and not (Path(model) / "config.json").is_file():
+        raise ConfigError(f"model = {model!r}: not a checkpoint directory (no config.json)")
+    if max_new_tokens < 1:
+        raise ConfigError(f"max_new_tokens = {max_new_tokens}: must be >= 1")
+    if max_length is not None and max_length < 64:
+        raise ConfigError(f"max_length = {max_length}: must be >= 64 tokens")
+    if threads is not None and threads < 1:
+        raise ConfigError(f"threads = {threads}: must be >= 1")
+    if history is not None:
+        require_choice(history, HistoryMode, "history")
+    if image is not None:
+        require_choice(image, ImageMode, "image")
 
 
 class VLMPolicy:
@@ -135,24 +92,7 @@ class VLMPolicy:
         threads: int | None = None,
         name: str = "vlm",
     ) -> None:
-        if not isinstance(model, str) or not model:
-            raise ConfigError(
-                f"model = {model!r}: expected a checkpoint directory or tiny:<family>:<size>"
-            )
-        if not model.startswith("tiny:") and not (Path(model) / "config.json").is_file():
-            raise ConfigError(f"model = {model!r}: not a checkpoint directory (no config.json)")
-        if max_new_tokens < 1:
-            raise ConfigError(f"max_new_tokens = {max_new_tokens}: must be >= 1")
-        if max_length is not None and max_length < 64:
-            raise ConfigError(f"max_length = {max_length}: must be >= 64 tokens")
-        if threads is not None and threads < 1:
-            raise ConfigError(f"threads = {threads}: must be >= 1")
-        for field, value, allowed in (
-            ("history", history, ("full", "current_only", "no_actions")),
-            ("image", image, ("heightmap", "blank", "none")),
-        ):
-            if value is not None and value not in allowed:
-                raise ConfigError(f"{field} = {value!r}: expected one of {allowed}")
+        _check_settings(model, history, image, max_new_tokens, max_length, threads)
         self.name = name
         self.model_spec = model
         self.history, self.image = history, image
@@ -184,29 +124,17 @@ class VLMPolicy:
         if self._generator is not None:
             return
         try:
-            import torch
-
-            import packlab.vlm.model  # noqa: F401  (transformers)
-            from packlab.vlm.inference import PrefixCachedGenerator
-            from packlab.vlm.processing import ProcessingConfig
+            runtime = import_torch_side(RUNTIME_MODULE)
         except ModuleNotFoundError as exc:
             raise ConfigError(
                 f"policy {self.name!r}: {VLM_EXTRA_HINT} ({exc.name} missing)"
             ) from None
-
         if self.threads is not None:
-            torch.set_num_threads(self.threads)
-        device = _resolve_device(self.device)
-        dtype = _resolve_dtype(self.dtype, device)
-        vlm = _load_vlm(self.model_spec, device, dtype, self.model_seed)
-        meta = vlm.meta or {}
-        trained_with = meta.get("prompt_version")
-        if trained_with is not None and trained_with != PROMPT_VERSION:
-            raise ConfigError(
-                f"model = {self.model_spec!r}: trained with prompt {trained_with!r}, this packlab "
-                f"renders {PROMPT_VERSION!r}; retrain or use the packlab version it was made with"
-            )
-        sft = meta.get("sft_config") or {}
+            runtime.set_threads(self.threads)
+        device = runtime.resolve_device(self.device)
+        dtype = runtime.resolve_dtype(self.dtype, device)
+        vlm = runtime.load_vlm(self.model_spec, device, dtype, self.model_seed)
+        sft = self._training_settings(vlm.meta or {})
         options = PromptOptions(
             history=self.history or sft.get("history", "full"),
             image=self.image or sft.get("image", "heightmap"),
@@ -217,16 +145,15 @@ class VLMPolicy:
             if self.template_kwargs is not None
             else dict(sft.get("template_kwargs") or {})
         )
-        config = ProcessingConfig(
-            image_size=self.image_size, max_length=max_length, template_kwargs=template_kwargs
+        self._generator = runtime.make_generator(
+            vlm, self.max_new_tokens, self.reuse_cache, self.image_size, max_length, template_kwargs
         )
-        self._generator = PrefixCachedGenerator(vlm, config, self.max_new_tokens, self.reuse_cache)
         self._renderer = ContextRenderer(options, self.image_size)
         self.resolved = {
             "model": self.model_spec,
             "family": vlm.family,
             "device": device,
-            "dtype": str(dtype).replace("torch.", ""),
+            "dtype": runtime.dtype_name(dtype),
             "options": options.to_dict(),
             "max_length": max_length,
             "template_kwargs": template_kwargs,
@@ -235,6 +162,16 @@ class VLMPolicy:
             "image_size": self.image_size,
             "greedy": True,
         }
+
+    def _training_settings(self, meta: dict[str, Any]) -> dict[str, Any]:
+        """The checkpoint's SFT config (empty when none), after checking its prompt version."""
+        trained_with = meta.get("prompt_version")
+        if trained_with is not None and trained_with != PROMPT_VERSION:
+            raise ConfigError(
+                f"model = {self.model_spec!r}: trained with prompt {trained_with!r}, this packlab "
+                f"renders {PROMPT_VERSION!r}; retrain or use the packlab version it was made with"
+            )
+        return meta.get("sft_config") or {}
 
     def config(self) -> dict[str, Any]:
         """The requested configuration, plus what loading resolved (device, dtype, options
@@ -256,7 +193,7 @@ class VLMPolicy:
 
     @property
     def generator(self) -> Any:
-        """The :class:`packlab.vlm.inference.PrefixCachedGenerator` (after :meth:`load`)."""
+        """The :class:`packlab.vlm.infer.generate.PrefixCachedGenerator` (after :meth:`load`)."""
         return self._generator
 
     # -- the Policy protocol -----------------------------------------------------------------
@@ -313,8 +250,3 @@ def make_vlm_small(**kwargs: Any) -> VLMPolicy:
         )
     kwargs.setdefault("name", "vlm-small")
     return VLMPolicy(model=str(SHIPPED_MODEL_DIR), **kwargs)
-
-
-def make_endpoint(**kwargs: Any) -> EndpointPolicy:
-    """``endpoint``: an OpenAI-compatible ``/v1/chat/completions`` server (vLLM, SGLang, ...)."""
-    return EndpointPolicy(**kwargs)

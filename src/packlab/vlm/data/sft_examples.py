@@ -8,7 +8,8 @@ The SFT export is JSONL, one step-level example per line::
      "prompt_version": "packlab-prompt-v1"}
 
 rendered with the default options (full history, heightmap images given as paths relative to the
-dataset root); the trainer derives the ablations with :func:`packlab.vlm.prompt.ablate`.
+dataset root); the trainer derives the ablations with
+:func:`packlab.vlm.prompt.render.ablate`.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from packlab.core.errors import ConfigError
-from packlab.vlm.prompt import PROMPT_VERSION, split_target
+from packlab.vlm.prompt.render import PROMPT_VERSION, split_target
 
 #: --recipe choices (paper's data ablation) -> difficulties kept.
 RECIPES: dict[str, frozenset[str]] = {

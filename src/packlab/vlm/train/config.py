@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from packlab.core.choices import HistoryMode, ImageMode, Precision, require_choice
 from packlab.core.errors import ConfigError
-from packlab.vlm.prompt import HISTORY_MODES, IMAGE_MODES
-from packlab.vlm.sft_data import RECIPES
+from packlab.vlm.data.sft_examples import RECIPES
 
 #: Default learning rates: the paper's 1e-5 for pretrained weights; tiny models start from
 #: random weights and need a much larger step.
@@ -27,7 +27,7 @@ class SFTConfig:
 
     data: str
     out: str
-    model: str = "tiny:qwen3_5:tiny"  # a checkpoint directory, or tiny:<family>:<size>
+    model: str = "tiny:qwen3_5:small"  # a checkpoint directory, or tiny:<family>:<size>
     epochs: int = 1
     lr: float | None = None  # None: LR_TINY for tiny models, LR_PRETRAINED otherwise
     micro_batch: int = 1  # examples per forward pass per device
@@ -35,18 +35,16 @@ class SFTConfig:
     weight_decay: float = 0.0
     warmup_ratio: float = 0.03
     max_grad_norm: float = 1.0
-    max_length: int = (
-        4096  # tokens; older past steps are dropped to fit (processing.encode_fitting)
-    )
+    max_length: int = 4096  # tokens; older past steps are dropped to fit (encode_fitting)
     max_steps: int | None = None  # optimizer steps cap (smoke tests)
     gradient_checkpointing: bool = False
-    precision: str = "auto"  # auto (bf16 when a GPU supports it) | bf16 | no
+    precision: Precision = "auto"  # auto (bf16 when a GPU supports it) | bf16 | no
     lora: bool = False
     lora_r: int = 16
     lora_alpha: int = 32
     lora_dropout: float = 0.05
-    history: str = "full"
-    image: str = "heightmap"
+    history: HistoryMode = "full"
+    image: ImageMode = "heightmap"
     recipe: str = "mixed"
     data_fraction: float = 1.0
     seed: int = 0
@@ -55,15 +53,15 @@ class SFTConfig:
     template_kwargs: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        require_choice(self.precision, Precision, "SFTConfig.precision")
+        require_choice(self.history, HistoryMode, "SFTConfig.history")
+        require_choice(self.image, ImageMode, "SFTConfig.image")
         checks = [
             (self.epochs >= 1, "epochs", "must be >= 1"),
             (self.micro_batch >= 1, "micro_batch", "must be >= 1"),
             (self.grad_accum >= 1, "grad_accum", "must be >= 1"),
             (self.lr is None or self.lr > 0, "lr", "must be > 0"),
             (self.max_length >= 64, "max_length", "must be >= 64"),
-            (self.precision in ("auto", "bf16", "no"), "precision", "auto | bf16 | no"),
-            (self.history in HISTORY_MODES, "history", f"one of {HISTORY_MODES}"),
-            (self.image in IMAGE_MODES, "image", f"one of {IMAGE_MODES}"),
             (self.recipe in RECIPES, "recipe", f"one of {tuple(RECIPES)}"),
             (0.0 < self.data_fraction <= 1.0, "data_fraction", "must be in (0, 1]"),
             (0.0 <= self.warmup_ratio < 1.0, "warmup_ratio", "must be in [0, 1)"),

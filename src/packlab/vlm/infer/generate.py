@@ -7,8 +7,8 @@ of the previous step and only feeds the tokens that are new.
 
 How reuse is decided, each step (never by assumption, always by comparison):
 
-1. The context is encoded exactly as :func:`packlab.vlm.processing.encode` does for training (the
-   same function, with an image processor that memoises each distinct image's pixels, so past
+1. The context is encoded exactly as :func:`packlab.vlm.data.encoding.encode` does for training
+   (the same function, with an image processor that memoises each distinct image's pixels, so past
    heightmaps are preprocessed once per episode).
 2. The new token sequence is compared with the one whose state the cache holds: tokens must be
    equal *and* every image whose placeholder tokens lie in the shared prefix must be the same
@@ -41,8 +41,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
+from transformers import DynamicCache
+from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
 
-from packlab.vlm.processing import ProcessingConfig, encode, encode_fitting
+from packlab.vlm.data.encoding import Encoded, ProcessingConfig, encode, encode_fitting
 
 IM_START = "<|im_start|>"
 
@@ -108,7 +110,7 @@ class Generation:
     finished: bool  # True when an end-of-turn / eos token ended the answer
     prompt_tokens: int  # length of the encoded context
     reused_tokens: int  # context tokens whose state came from the cache (0: full encode)
-    dropped_steps: int  # past steps dropped to fit max_length (processing.encode_fitting)
+    dropped_steps: int  # past steps dropped to fit max_length (encoding.encode_fitting)
     encode_s: float  # rendering to tokens and pixels
     prefill_s: float  # feeding the new context tokens
     decode_s: float  # the token-by-token loop
@@ -116,6 +118,18 @@ class Generation:
     @property
     def total_s(self) -> float:
         return self.encode_s + self.prefill_s + self.decode_s
+
+
+@dataclass(frozen=True, slots=True)
+class _Prompt:
+    """One encoded context, with what the cache bookkeeping compares."""
+
+    enc: Encoded
+    ids: list[int]  # the token ids
+    spans: list[tuple[int, int]]  # [start, end) of each image's tokens
+    keys: list[tuple]  # content keys of the images, in order
+    positions: torch.Tensor  # (4, 1, L): plain index, then M-RoPE (t, h, w)
+    dropped_steps: int  # past steps dropped to fit max_length
 
 
 def _image_spans(mm: list[int]) -> list[tuple[int, int]]:
@@ -152,8 +166,6 @@ class _Snapshot:
     """Cache state after the first ``length`` tokens: attention lengths and cloned linear states."""
 
     def __init__(self, cache: Any, length: int) -> None:
-        from transformers.cache_utils import LinearAttentionCacheLayerMixin
-
         self.length = length
         self.linear: dict[int, tuple[dict, dict]] = {}
         for i, layer in enumerate(cache.layers):
@@ -167,8 +179,6 @@ class _Snapshot:
                 )
 
     def restore(self, cache: Any) -> None:
-        from transformers.cache_utils import DynamicLayer
-
         for i, layer in enumerate(cache.layers):
             if isinstance(layer, DynamicLayer):
                 extra = layer.get_seq_length() - self.length
@@ -185,8 +195,6 @@ class _Snapshot:
 def cache_kind(cache: Any) -> str:
     """``"croppable"`` (attention layers only), ``"recurrent"`` (attention + linear-attention
     layers we can snapshot) or ``"opaque"`` (anything else: never rolled back)."""
-    from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
-
     kinds = set()
     for layer in cache.layers:
         if isinstance(layer, LinearAttentionCacheLayerMixin):
@@ -294,34 +302,26 @@ class PrefixCachedGenerator:
         if self._snapshot is not None and self._snapshot.length > p:
             self._snapshot = None
 
-    def _feed(
-        self,
-        ids: torch.Tensor,
-        pos: torch.Tensor,
-        a: int,
-        b: int,
-        mm: torch.Tensor,
-        pixel_values,
-        grid,
-        spans,
-    ) -> torch.Tensor:
-        """Run tokens [a, b) through the model on the cache; logits of the last one."""
+    def _feed(self, prompt: _Prompt, a: int, b: int) -> torch.Tensor:
+        """Run tokens [a, b) of ``prompt`` through the model on the cache; logits of the last."""
+        enc, spans = prompt.enc, prompt.spans
         kwargs: dict[str, Any] = {}
         inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
         if any(s < a < e or s < b < e for s, e in spans):
             raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
         if inside:
+            grid = enc.image_grid_thw
             per_image = [int(g.prod()) for g in grid]
             offsets = [0]
             for n in per_image:
                 offsets.append(offsets[-1] + n)
             lo, hi = inside[0], inside[-1] + 1
-            kwargs["pixel_values"] = pixel_values[offsets[lo] : offsets[hi]].to(self.device)
+            kwargs["pixel_values"] = enc.pixel_values[offsets[lo] : offsets[hi]].to(self.device)
             kwargs["image_grid_thw"] = grid[lo:hi].to(self.device)
         out = self.model(
-            input_ids=ids[a:b].view(1, -1).to(self.device),
-            position_ids=pos[:, :, a:b],
-            mm_token_type_ids=mm[a:b].view(1, -1).to(self.device),
+            input_ids=enc.input_ids[a:b].view(1, -1).to(self.device),
+            position_ids=prompt.positions[:, :, a:b],
+            mm_token_type_ids=enc.mm_token_type_ids[a:b].view(1, -1).to(self.device),
             past_key_values=self._cache,
             use_cache=True,
             logits_to_keep=1,
@@ -330,12 +330,8 @@ class PrefixCachedGenerator:
         return out.logits[0, -1]
 
     # -- the step ----------------------------------------------------------------------------
-    @torch.inference_mode()
-    def generate(self, messages: Sequence[dict[str, Any]]) -> Generation:
-        """The greedy answer to ``messages`` (a context ending with the current user turn)."""
-        from transformers import DynamicCache
-
-        t0 = time.perf_counter()
+    def _encode(self, messages: Sequence[dict[str, Any]]) -> _Prompt:
+        """The context as the model reads it, with its image spans, keys and positions."""
         self.processor.last_keys = []
         if self.config.max_length is not None:
             enc, dropped = encode_fitting(
@@ -343,14 +339,21 @@ class PrefixCachedGenerator:
             )
         else:
             enc, dropped = encode(messages, self.tokenizer, self.processor, config=self.config), 0
-        keys = list(self.processor.last_keys) if enc.image_grid_thw is not None else []
-        ids_list = enc.input_ids.tolist()
-        spans = _image_spans(enc.mm_token_type_ids.tolist())
-        pos = self._positions(enc.input_ids, enc.mm_token_type_ids, enc.image_grid_thw)
-        n = len(ids_list)
-        t1 = time.perf_counter()
+        return _Prompt(
+            enc=enc,
+            ids=enc.input_ids.tolist(),
+            spans=_image_spans(enc.mm_token_type_ids.tolist()),
+            keys=list(self.processor.last_keys) if enc.image_grid_thw is not None else [],
+            positions=self._positions(enc.input_ids, enc.mm_token_type_ids, enc.image_grid_thw),
+            dropped_steps=dropped,
+        )
 
-        p = self._usable_prefix(ids_list, spans, keys)
+    def _prefill(self, prompt: _Prompt) -> tuple[torch.Tensor, int]:
+        """Bring the cache to the longest usable prefix and feed the rest of the prompt.
+
+        Returns (logits of the prompt's last token, prompt tokens reused from the cache)."""
+        ids, n = prompt.ids, len(prompt.ids)
+        p = self._usable_prefix(ids, prompt.spans, prompt.keys)
         if p:
             self._bring_back(p)
         else:
@@ -358,36 +361,29 @@ class PrefixCachedGenerator:
             self._snapshot = None
         kind = cache_kind(self._cache)
         # Where to snapshot a cache that cannot be cropped: the start of the generation header.
-        header = next((i for i in range(n - 1, -1, -1) if ids_list[i] == self.im_start_id), -1)
+        header = next((i for i in range(n - 1, -1, -1) if ids[i] == self.im_start_id), -1)
         chunks = [(p, n)]
         if self.reuse_prefix and kind != "croppable" and p < header < n:
             chunks = [(p, header), (header, n)]
         for a, b in chunks:
-            logits = self._feed(
-                enc.input_ids,
-                pos,
-                a,
-                b,
-                enc.mm_token_type_ids,
-                enc.pixel_values,
-                enc.image_grid_thw,
-                spans,
-            )
+            logits = self._feed(prompt, a, b)
             if b == header and cache_kind(self._cache) == "recurrent":
                 self._snapshot = _Snapshot(self._cache, header)
-        t2 = time.perf_counter()
+        return logits, p
 
+    def _decode(self, prompt: _Prompt, logits: torch.Tensor) -> tuple[list[int], bool]:
+        """Greedy tokens after the prompt: (generated ids, whether an end token ended them)."""
+        n = len(prompt.ids)
         generated: list[int] = []
-        next_mrope = int(pos[1:].max()) + 1  # as generate: text after the context's last position
-        finished = False
+        # As generate does: text after the context's last M-RoPE position.
+        next_mrope = int(prompt.positions[1:].max()) + 1
         while True:
             tok = int(torch.argmax(logits))
             generated.append(tok)
             if tok in self.eos_ids:
-                finished = True
-                break
+                return generated, True
             if len(generated) >= self.max_new_tokens:
-                break
+                return generated, False
             k = len(generated) - 1  # index of tok among the generated tokens
             step_pos = torch.tensor([n + k] + [next_mrope + k] * 3, device=self.device).view(
                 4, 1, 1
@@ -399,11 +395,21 @@ class PrefixCachedGenerator:
                 use_cache=True,
             )
             logits = out.logits[0, -1]
+
+    @torch.inference_mode()
+    def generate(self, messages: Sequence[dict[str, Any]]) -> Generation:
+        """The greedy answer to ``messages`` (a context ending with the current user turn)."""
+        t0 = time.perf_counter()
+        prompt = self._encode(messages)
+        t1 = time.perf_counter()
+        logits, reused = self._prefill(prompt)
+        t2 = time.perf_counter()
+        generated, finished = self._decode(prompt, logits)
         t3 = time.perf_counter()
 
         # The cache now holds the context and every generated token but the last.
-        self._ids = ids_list + generated[:-1]
-        self._spans, self._keys = spans, keys
+        self._ids = prompt.ids + generated[:-1]
+        self._spans, self._keys = prompt.spans, prompt.keys
         if not self.reuse_prefix:
             self._cache, self._snapshot = None, None
         answer = generated[:-1] if finished else generated
@@ -412,9 +418,9 @@ class PrefixCachedGenerator:
             text=text,
             token_ids=tuple(generated),
             finished=finished,
-            prompt_tokens=n,
-            reused_tokens=p,
-            dropped_steps=dropped,
+            prompt_tokens=len(prompt.ids),
+            reused_tokens=reused,
+            dropped_steps=prompt.dropped_steps,
             encode_s=t1 - t0,
             prefill_s=t2 - t1,
             decode_s=t3 - t2,

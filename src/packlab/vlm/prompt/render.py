@@ -19,20 +19,19 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
+import numpy as np
+from PIL import Image
+
+from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.types import Action, Container, Observation, ShownItem, Unparsable
 
 #: Bump on any change to the rendered text or message layout (golden tests pin version 1).
 PROMPT_VERSION = "packlab-prompt-v1"
 
-HistoryMode = Literal["full", "current_only", "no_actions"]
-ImageMode = Literal["heightmap", "blank", "none"]
-HISTORY_MODES: tuple[str, ...] = ("full", "current_only", "no_actions")
-IMAGE_MODES: tuple[str, ...] = ("heightmap", "blank", "none")
-
 #: Stand-in put in image entries under ``image="blank"`` when the caller gives no blank image.
-#: The processor (vlm/processing.py) replaces it by an all-zero image of the configured size,
+#: The processor (vlm/data/encoding.py) replaces it by an all-zero image of the configured size,
 #: so a dataset can carry the ablation without storing blank PNGs.
 BLANK_IMAGE = "packlab:blank"
 
@@ -53,12 +52,9 @@ class PromptOptions:
     )
 
     def __post_init__(self) -> None:
-        if self.history not in HISTORY_MODES:
-            raise ValueError(
-                f"PromptOptions.history = {self.history!r}: expected one of {HISTORY_MODES}"
-            )
-        if self.image not in IMAGE_MODES:
-            raise ValueError(f"PromptOptions.image = {self.image!r}: expected one of {IMAGE_MODES}")
+        # ConfigError is a ValueError: callers that catch ValueError keep working.
+        require_choice(self.history, HistoryMode, "PromptOptions.history")
+        require_choice(self.image, ImageMode, "PromptOptions.image")
 
     def to_dict(self) -> dict[str, str]:
         return {"history": self.history, "image": self.image}
@@ -119,22 +115,32 @@ def system_prompt(container: Container, options: PromptOptions = PromptOptions()
     nx, ny = container.cells
     nz = container.height_mm // container.cell_z_mm
     lines = [
-        "You are the planner of a robot that packs boxes into an open-top container. Boxes arrive "
-        "in a fixed order; at each step you see a buffer of the next few boxes, pick one of them "
-        "and say where to put it. Goal: as many boxes as possible inside the container, packed "
-        "tightly and low.",
-        f"Container: {nx} x {ny} cells on the floor grid (one cell is {container.cell_xy_mm} mm), "
-        f"{nz} height units deep (one height unit is {container.cell_z_mm} mm).",
-        f"Coordinates: x runs along the container's first dimension (0 to {nx - 1}), y along the "
-        f"second (0 to {ny - 1}); cell (0, 0) is the corner at the container origin.",
-        'Buffer items: "object_id" is the item\'s index in the buffer; "l" (along x) and '
-        '"w" (along '
-        'y) are its footprint in cells at rotation 0, "h" its height in height units. Rotation 1 '
-        "turns the box 90 degrees about the vertical axis, which swaps l and w.",
-        "Placement: (x, y) is the footprint's minimum cell, so the box covers cells x to x+l-1 "
-        "and y to y+w-1 (l and w swapped at rotation 1), which must lie inside the container. "
-        "The box is dropped from above: its bottom rests at the maximum height of the heightmap "
-        "under its footprint.",
+        (
+            "You are the planner of a robot that packs boxes into an open-top container. Boxes "
+            "arrive in a fixed order; at each step you see a buffer of the next few boxes, pick "
+            "one of them and say where to put it. Goal: as many boxes as possible inside the "
+            "container, packed tightly and low."
+        ),
+        (
+            f"Container: {nx} x {ny} cells on the floor grid (one cell is "
+            f"{container.cell_xy_mm} mm), {nz} height units deep (one height unit is "
+            f"{container.cell_z_mm} mm)."
+        ),
+        (
+            f"Coordinates: x runs along the container's first dimension (0 to {nx - 1}), y along "
+            f"the second (0 to {ny - 1}); cell (0, 0) is the corner at the container origin."
+        ),
+        (
+            'Buffer items: "object_id" is the item\'s index in the buffer; "l" (along x) and "w" '
+            '(along y) are its footprint in cells at rotation 0, "h" its height in height units. '
+            "Rotation 1 turns the box 90 degrees about the vertical axis, which swaps l and w."
+        ),
+        (
+            "Placement: (x, y) is the footprint's minimum cell, so the box covers cells x to "
+            "x+l-1 and y to y+w-1 (l and w swapped at rotation 1), which must lie inside the "
+            "container. The box is dropped from above: its bottom rests at the maximum height of "
+            "the heightmap under its footprint."
+        ),
     ]
     if options.image != "none":
         lines.append(IMAGE_LINE)
@@ -290,11 +296,7 @@ def blank_like(image: Any) -> Any:
     if isinstance(image, str):
         return BLANK_IMAGE
     if hasattr(image, "shape") and hasattr(image, "dtype"):  # numpy array
-        import numpy as np
-
         return np.zeros_like(image)
-    from PIL import Image  # lazy: only callers holding PIL images get here
-
     return Image.new(image.mode, image.size)
 
 

@@ -2,14 +2,14 @@
 
 Real checkpoints bring their own tokenizer; tiny random-weight models (tests, CPU runs) need one
 that exists without any download. This one is trained with the ``tokenizers`` library on a
-corpus rendered by :mod:`packlab.vlm.prompt` itself, so the prompt's phrases become few tokens
-(short sequences keep CPU training cheap), while the byte-level alphabet still encodes any text.
-Normalisation and pre-tokenisation are the Qwen3.5 tokenizer's (NFC, its split regex, which puts
-every digit in its own token, then byte-level), so coordinates are spelled digit by digit as in
-the real models, and transformers' Qwen3_5Tokenizer, which rebuilds that pipeline around a saved
-vocabulary, tokenizes exactly as this one does. It carries the ChatML special tokens and the
-Qwen vision tokens that the Qwen-VL models
-and :mod:`packlab.vlm.processing` expect, and a ChatML chat template.
+corpus rendered by :mod:`packlab.vlm.prompt.render` itself, so the prompt's phrases become few
+tokens (short sequences keep CPU training cheap), while the byte-level alphabet still encodes any
+text. Normalisation and pre-tokenisation are the Qwen3.5 tokenizer's (NFC, its split regex, which
+puts every digit in its own token, then byte-level), so coordinates are spelled digit by digit as
+in the real models, and transformers' Qwen3_5Tokenizer, which rebuilds that pipeline around a
+saved vocabulary, tokenizes exactly as this one does. It carries the ChatML special tokens and
+the Qwen vision tokens that the Qwen-VL models and :mod:`packlab.vlm.data.encoding` expect, and a
+ChatML chat template.
 
 Imports ``tokenizers``/``transformers``: only the vlm extra may import this module.
 """
@@ -21,7 +21,7 @@ from tokenizers import Regex, Tokenizer, decoders, models, normalizers, pre_toke
 from transformers import PreTrainedTokenizerFast
 
 from packlab.core.types import Action, Container, ShownItem
-from packlab.vlm.prompt import PromptOptions, TurnState, action_text, render_messages
+from packlab.vlm.prompt.render import PromptOptions, TurnState, action_text, render_messages
 
 PAD_TOKEN = "<|endoftext|>"
 IM_START, IM_END = "<|im_start|>", "<|im_end|>"

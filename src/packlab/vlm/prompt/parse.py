@@ -1,4 +1,5 @@
-"""Model text -> :class:`~packlab.core.types.Action`, tolerant of the usual wrapping, strict on content.
+"""Model text -> :class:`~packlab.core.types.Action`: tolerant of the usual wrapping, strict on
+content.
 
 Tolerated wrapping (the reported ``case``):
 
