@@ -1,0 +1,477 @@
+"""Where independent work items run: in this process, in a local process pool, or on Ray.
+
+One interface for the bench (an item is an episode) and the data engine (an item is a shard)::
+
+    with run_items(work, items, executor="process", workers=4) as results:
+        for result in results:  # in completion order
+            ...
+
+``work(item, ctx)`` runs one item and returns its result. ``ctx.report(payload)`` sends a small
+progress message to the caller's ``on_report`` (as it happens on a pool, at the item's end on
+Ray); ``ctx.deadline`` is the run's deadline when the item runs in this process, where nothing
+else could stop it, and None in a worker, which the executor stops itself.
+
+Executors (``packlab.core.choices.Executor``):
+  * ``process`` with ``workers=1``: in this process, one item after another; cheapest and
+    debuggable, but a crash takes the run with it.
+  * ``process``: this module's own pool of forked workers, one pipe each, a few items sent ahead.
+    The parent knows which item each worker holds, so a worker that dies (out of memory, a
+    segfault in an extension) is a ``Lost`` item instead of a result that never arrives, and a
+    worker silent past ``timeout_s + HARD_KILL_GRACE_S`` (stuck where the item's own alarm
+    cannot reach, e.g. a C loop) is killed and its item ``Lost`` too. Fork, so workers start in
+    milliseconds with every imported module and registered policy; the pool forks eagerly in
+    ``run_items``, so create threads (a progress bar's) only after it returns.
+  * ``ray``: one Ray task per item, on the cluster already initialised or a local
+    ``ray.init(num_cpus=workers)`` (shut down at the end).
+
+An exception raised by ``work`` reaches the caller (the pool stops). A lost item becomes
+``on_lost(item, lost)``'s result, or without ``on_lost`` raises ``WorkerLost``. After a result
+for which ``recycle(result)`` is true, its worker is replaced by a fresh process.
+
+Stopping: ``close()`` (or leaving the ``with`` block, or a ``for`` loop by an exception) stops
+every worker at once; items in flight produce nothing. With a ``deadline`` (``time.monotonic()``)
+no item starts after it, and the iterator raises ``DeadlineReached`` once it passes, after
+stopping the workers (Ray tasks are cancelled).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import pickle
+import signal
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from typing import Any, Generic, Literal, Protocol, TypeVar
+
+from tqdm import tqdm
+
+from packlab.core.choices import Executor, require_choice
+from packlab.core.errors import ConfigError, RunAborted
+
+T = TypeVar("T")
+R = TypeVar("R")
+T_contra = TypeVar("T_contra", contravariant=True)
+R_co = TypeVar("R_co", covariant=True)
+
+#: Seconds past an item's time limit after which the pool kills a silent worker. The item's own
+#: alarm normally ends it at the limit itself (with a traceback of where it was stuck); this is
+#: the backstop for code that signals cannot interrupt.
+HARD_KILL_GRACE_S = 10.0
+#: At most this many items sent ahead to each worker while the queue is long (_Pool.fill).
+_PREFETCH = 4
+#: How long a stopping worker gets to exit on SIGTERM before SIGKILL.
+_STOP_WAIT_S = 2.0
+#: Kinds of the messages a worker sends its parent.
+_REPORT, _DONE, _RAISED = "report", "done", "raised"
+
+
+class DeadlineReached(RunAborted):
+    """The run's overall deadline passed; items in flight were dropped."""
+
+
+class WorkerLost(RunAborted):
+    """A worker died (or was killed, silent past its time limit) while running an item."""
+
+
+@dataclass(frozen=True, slots=True)
+class Context:
+    """What a work function gets besides its item."""
+
+    #: The run's deadline (``time.monotonic()``) when the item runs in this process, else None.
+    deadline: float | None
+    #: Send a progress payload (small, picklable) to the caller's ``on_report``.
+    report: Callable[[Any], None]
+
+
+class Work(Protocol[T_contra, R_co]):
+    """A function of one item (picklable for Ray; inherited by fork for the pool)."""
+
+    def __call__(self, item: T_contra, ctx: Context, /) -> R_co: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Lost:
+    """Why an item has no result: its worker ``died``, or stayed silent past the item's time
+    limit and the grace period (``overdue``) and was killed."""
+
+    kind: Literal["died", "overdue"]
+    #: "killed by SIGKILL (out of memory?)", "exit code 1", a Ray error's one-line text, or
+    #: "no result 12 s after the start".
+    detail: str
+    elapsed_s: float | None  # from the item's start to the loss, as far as the parent knows
+    executor: Executor
+
+
+def _ignore(payload: Any) -> None:
+    pass
+
+
+class Results(Generic[R]):
+    """The results of ``run_items`` as they finish; ``close()`` stops the workers (even when
+    iteration never started)."""
+
+    def __init__(self, results: Iterator[R], stop: Callable[[], None] = lambda: None) -> None:
+        self._results, self._stop = results, stop
+
+    def __iter__(self) -> Iterator[R]:
+        return self
+
+    def __next__(self) -> R:
+        return next(self._results)
+
+    def close(self) -> None:
+        close = getattr(self._results, "close", None)
+        if close is not None:
+            close()
+        self._stop()
+
+    def __enter__(self) -> Results[R]:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def run_items(work: Work[T, R], items: Sequence[T], *, executor: Executor = "process",
+              workers: int = 1, timeout_s: float | None = None, deadline: float | None = None,
+              on_report: Callable[[Any], None] | None = None,
+              on_lost: Callable[[T, Lost], R] | None = None,
+              recycle: Callable[[R], bool] | None = None) -> Results[R]:
+    """The results of ``work`` on every item, in completion order (see the module docstring).
+
+    Items are handed out in the given order (put long ones first for a balanced end).
+    ``timeout_s`` is each item's own time limit, enforced by ``work`` (an alarm); the pool adds
+    the hard kill past it. ``workers`` counts processes, or Ray CPUs when it starts Ray.
+    """
+    require_choice(executor, Executor, "executor")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers = {workers!r}: must be a whole number >= 1")
+    report = on_report or _ignore
+    lose = on_lost or _raise_lost
+    if executor == "ray":
+        _import_ray()  # a missing extra is an error now, not at the first result
+        return Results(_run_ray(work, items, workers, deadline, report, lose))
+    if workers == 1 or not items:
+        return Results(_run_here(work, items, deadline, report))
+    pool = _Pool(work, min(workers, len(items)))
+    running = _drive(pool, deque(items), timeout_s, deadline, report, lose, recycle)
+    return Results(running, pool.shutdown)
+
+
+def progress_bar(total: int, initial: int, desc: str, enabled: bool = True,
+                 unit: str = "ep") -> Any:
+    """tqdm on stderr; create it after ``run_items`` returned (the pool forks first)."""
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=sys.stderr,
+                disable=not enabled, dynamic_ncols=True, smoothing=0.05)
+
+
+def _raise_lost(item: Any, lost: Lost) -> Any:
+    raise WorkerLost(f"a worker ({lost.executor}) was lost running {item!r}: "
+                     f"{lost.kind}, {lost.detail}")
+
+
+def _deadline_passed(deadline: float | None) -> None:
+    if deadline is not None and time.monotonic() >= deadline:
+        raise DeadlineReached("the run deadline was reached")
+
+
+def _run_here(work: Work[T, R], items: Sequence[T], deadline: float | None,
+              report: Callable[[Any], None]) -> Iterator[R]:
+    ctx = Context(deadline, report)
+    for item in items:
+        _deadline_passed(deadline)
+        yield work(item, ctx)
+
+
+# -- the local process pool ---------------------------------------------------------------------
+
+def share_cores(workers: int) -> None:
+    """Give each of ``workers`` processes its share of the cores for math libraries (torch, BLAS).
+
+    Without it every worker's torch starts one thread per core, and model policies run several
+    times slower from oversubscription. A user's explicit OMP_NUM_THREADS wins.
+    """
+    threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, threads)
+    torch = sys.modules.get("torch")  # already imported by the parent before the fork
+    if torch is not None:
+        torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+
+
+def _portable(exc: Exception) -> Exception:
+    """``exc`` with the worker's traceback as a note (a RuntimeError if it cannot be pickled)."""
+    note = f"raised in worker process {os.getpid()}:\n{traceback.format_exc()}"
+    try:
+        exc.add_note(note)
+        pickle.dumps(exc)
+        return exc
+    except Exception:  # noqa: BLE001 - anything that does not survive the pipe
+        plain = RuntimeError(f"{type(exc).__name__}: {exc}")
+        plain.add_note(note)
+        return plain
+
+
+def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
+    """A worker: receive an item, send back its reports and result, until orphaned or stopped."""
+    share_cores(workers)
+    # Ctrl-C goes to the whole process group; only the parent should act on it (it stops the
+    # workers and keeps every result so far). Workers dying mid-item would add noise.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = os.getppid()
+    ctx = Context(None, lambda payload: conn.send((_REPORT, payload)))
+    while True:
+        try:
+            # Poll rather than block: a forked worker also holds copies of its siblings' pipe
+            # ends, so a parent killed alone would not always show up as end-of-file here.
+            while not conn.poll(1.0):
+                if os.getppid() != parent:
+                    return
+            item = conn.recv()
+        except (EOFError, OSError):  # the parent is gone
+            return
+        try:
+            message = (_DONE, work(item, ctx))
+        except Exception as exc:  # noqa: BLE001 - the caller decides what an exception means
+            message = (_RAISED, _portable(exc))
+        try:
+            conn.send(message)
+        except OSError:  # the parent is gone
+            return
+        except Exception as exc:  # noqa: BLE001 - the result cannot be pickled
+            conn.send((_RAISED, _portable(exc)))
+
+
+def _context() -> mp.context.BaseContext:
+    # fork: workers start in milliseconds with the engine and every registered policy already
+    # imported (spawn would re-import mujoco and scipy per worker, about a second each, and lose
+    # policies registered at run time, e.g. by tests). run_items forks before threads start.
+    methods = mp.get_all_start_methods()
+    return mp.get_context("fork" if "fork" in methods else "spawn")
+
+
+@dataclass(slots=True)
+class _Worker:
+    proc: Any  # multiprocessing.Process
+    conn: Connection
+    #: Items sent and not yet answered, in order; the first is the one running.
+    items: deque[Any] = field(default_factory=deque)
+    started: float = 0.0  # time.monotonic() when the running item started (as far as we know)
+
+
+def _describe_exit(code: int | None) -> str:
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        hint = " (out of memory?)" if -code == signal.SIGKILL else ""
+        return f"killed by {name}{hint}"
+    return f"exit code {code}"
+
+
+class _Pool:
+    """``n`` worker processes, each with its own pipe and a short list of items sent to it."""
+
+    def __init__(self, work: Work[Any, Any], n: int) -> None:
+        self._ctx, self._work, self._n = _context(), work, n
+        self.workers = [self._spawn() for _ in range(n)]
+
+    def _spawn(self) -> _Worker:
+        parent_end, child_end = self._ctx.Pipe(duplex=True)
+        proc = self._ctx.Process(target=_worker_main, args=(child_end, self._work, self._n),
+                                 daemon=True)
+        proc.start()
+        child_end.close()  # the parent's copy; the worker's end stays open in the worker
+        return _Worker(proc, parent_end)
+
+    def fill(self, queue: deque[Any]) -> None:
+        """Send items ahead to workers while plenty are left, so a worker starts its next item
+        without waiting for the parent to take the last result (on a busy machine the parent
+        may wait milliseconds for a core); fewer near the end, so no short item waits behind a
+        long one while another worker idles."""
+        for i in range(len(self.workers)):
+            w = self.workers[i]
+            depth = max(1, min(_PREFETCH, len(queue) // len(self.workers)))
+            while len(w.items) < depth and queue:
+                item = queue.popleft()
+                try:
+                    w.conn.send(item)
+                except OSError:  # the worker died since we last looked
+                    queue.appendleft(item)
+                    if not w.items:  # died idle: nothing lost, just replace it
+                        self.replace(i, queue)
+                    break  # else _finish reports its running item when it sees the death
+                w.items.append(item)
+                if len(w.items) == 1:
+                    w.started = time.monotonic()
+
+    def messages(self, worker: _Worker) -> Iterator[tuple[str, Any]]:
+        """The messages waiting on the worker's pipe (none once it is closed by a death)."""
+        try:
+            while worker.conn.poll():
+                yield worker.conn.recv()
+        except (EOFError, OSError):
+            return
+
+    def replace(self, index: int, queue: deque[Any]) -> None:
+        """Kill worker ``index`` (stuck, dead, or to be recycled), put the items it had not
+        started back at the front of the queue, and start a fresh worker."""
+        w = self.workers[index]
+        _stop([w])
+        queue.extendleft(reversed(w.items))
+        self.workers[index] = self._spawn()
+
+    def shutdown(self) -> None:
+        _stop(self.workers)
+
+
+def _stop(workers: list[_Worker]) -> None:
+    for w in workers:
+        if w.proc.is_alive():
+            w.proc.terminate()
+    until = time.monotonic() + _STOP_WAIT_S
+    for w in workers:
+        w.proc.join(max(0.0, until - time.monotonic()))
+        if w.proc.is_alive():
+            w.proc.kill()
+            w.proc.join()
+        w.conn.close()
+
+
+def _wake_time(pool: _Pool, timeout_s: float | None, deadline: float | None) -> float | None:
+    """Seconds until the next thing to check: the deadline or a busy worker's kill time."""
+    times = [] if deadline is None else [deadline]
+    if timeout_s is not None:
+        times += [w.started + timeout_s + HARD_KILL_GRACE_S for w in pool.workers if w.items]
+    return None if not times else max(0.0, min(times) - time.monotonic())
+
+
+def _drive(pool: _Pool, queue: deque[T], timeout_s: float | None, deadline: float | None,
+           report: Callable[[Any], None], lose: Callable[[T, Lost], R],
+           recycle: Callable[[R], bool] | None) -> Iterator[R]:
+    try:
+        while True:
+            _deadline_passed(deadline)
+            pool.fill(queue)
+            handles = {}
+            for i, w in enumerate(pool.workers):
+                if w.items:
+                    handles[w.conn] = handles[w.proc.sentinel] = i
+            if not handles:
+                return
+            wake = _wake_time(pool, timeout_s, deadline)
+            ready = {handles[h] for h in wait(list(handles), timeout=wake)}
+            for i in sorted(ready):
+                yield from _finish(pool, i, queue, report, lose, recycle)
+            yield from _kill_overdue(pool, queue, timeout_s, lose)
+    finally:
+        # Reached at the end, on an interrupt, or when the consumer stops early: stop workers now.
+        pool.shutdown()
+
+
+def _finish(pool: _Pool, index: int, queue: deque[T], report: Callable[[Any], None],
+            lose: Callable[[T, Lost], R], recycle: Callable[[R], bool] | None) -> Iterator[R]:
+    """The results of worker ``index`` (ready to read, or dead)."""
+    w = pool.workers[index]
+    for kind, payload in pool.messages(w):
+        if kind == _REPORT:
+            report(payload)
+            continue
+        if kind == _RAISED:
+            raise payload
+        w.items.popleft()
+        w.started = time.monotonic()  # the next one starts now
+        if recycle is not None and recycle(payload):
+            # E.g. an alarm interrupted the item at an arbitrary point; a fresh process leaves
+            # no half-updated state (a cached model, a socket mid-message) to the next item.
+            pool.replace(index, queue)
+            yield payload
+            return
+        yield payload
+    if w.items and not w.proc.is_alive():
+        w.proc.join()
+        elapsed = time.monotonic() - w.started
+        item = w.items.popleft()
+        detail = _describe_exit(w.proc.exitcode)
+        pool.replace(index, queue)
+        yield lose(item, Lost("died", detail, elapsed, "process"))
+
+
+def _kill_overdue(pool: _Pool, queue: deque[T], timeout_s: float | None,
+                  lose: Callable[[T, Lost], R]) -> Iterator[R]:
+    if timeout_s is None:
+        return
+    now = time.monotonic()
+    for i, w in enumerate(pool.workers):
+        if w.items and now - w.started > timeout_s + HARD_KILL_GRACE_S:
+            item, elapsed = w.items.popleft(), now - w.started
+            pool.replace(i, queue)
+            detail = f"no result {elapsed:.0f} s after the start"
+            yield lose(item, Lost("overdue", detail, elapsed, "process"))
+
+
+# -- Ray ----------------------------------------------------------------------------------------
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ModuleNotFoundError:
+        raise ConfigError("executor = 'ray' needs the ray extra: "
+                          "pip install 'packlab[ray]'") from None
+    return ray
+
+
+def _on_ray(work: Work[T, R], item: T) -> tuple[R, list[Any]]:
+    """One item in a Ray worker: its result and its reports (delivered when it ends)."""
+    reports: list[Any] = []
+    return work(item, Context(None, reports.append)), reports
+
+
+def _run_ray(work: Work[T, R], items: Sequence[T], workers: int, deadline: float | None,
+             report: Callable[[Any], None], lose: Callable[[T, Lost], R]) -> Iterator[R]:
+    """Items as Ray tasks. Time limits inside an item work as in a pool (Ray runs a task in its
+    worker's main thread). At the deadline every pending task is cancelled (``force=True``
+    kills the worker processes running them)."""
+    ray = _import_ray()
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    pending: dict[Any, T] = {}
+    try:
+        work_ref = ray.put(work)  # once, not once per item (the bench's cases, a dataset config)
+        remote = ray.remote(num_cpus=1)(_on_ray)
+        pending = {remote.remote(work_ref, item): item for item in items}
+        while pending:
+            wait_s = None if deadline is None else max(0.0, deadline - time.monotonic())
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=wait_s)
+            if not ready:
+                raise DeadlineReached("the run deadline was reached")
+            for ref in ready:
+                item = pending.pop(ref)
+                try:
+                    result, reports = ray.get(ref)
+                except ray.exceptions.RayTaskError:
+                    raise  # the work function raised: also an instance of its exception's class
+                except ray.exceptions.RayError as exc:  # the worker died
+                    detail = " ".join(f"{type(exc).__name__}: {exc}".split())
+                    yield lose(item, Lost("died", detail, None, "ray"))
+                    continue
+                for payload in reports:
+                    report(payload)
+                yield result
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
+
+
+__all__ = ["HARD_KILL_GRACE_S", "Context", "DeadlineReached", "Lost", "Results", "Work",
+           "WorkerLost", "progress_bar", "run_items", "share_cores"]
