@@ -32,13 +32,16 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from msgspec import UNSET, UnsetType
+
 from packlab.bench.config import RunConfig, local_cores, parse_physics
 from packlab.bench.describe import difficulty_order
-from packlab.bench.records import read_records
+from packlab.bench.records import iter_ok, read_records
 from packlab.bench.runner import run_bench
 from packlab.bench.suites import DEFAULT_SUITE, load_suite
 from packlab.bench.table import display_name
 from packlab.cases import save_cases
+from packlab.core.records import EpisodeOk, EpisodeRecord
 
 
 def subset(fraction: float) -> tuple[list, dict[str, int]]:
@@ -54,18 +57,28 @@ def subset(fraction: float) -> tuple[list, dict[str, int]]:
     return chosen, dict(counts)
 
 
-def timing_tables(records: list[dict], suite_counts: dict[str, int] | None, wall_s: float | None,
+def _seconds(value: float | None | UnsetType, default: float = 0.0) -> float:
+    """A timing field (absent in some records: then ``default``)."""
+    return default if value is UNSET or value is None else float(value)
+
+
+def _cpu_s(r: EpisodeOk) -> float:
+    """The episode's CPU time; records without cpu_s count their wall time."""
+    return _seconds(r.timing.cpu_s, _seconds(r.timing.episode_s))
+
+
+def timing_tables(records: list[EpisodeRecord], suite_counts: dict[str, int] | None, wall_s: float | None,
                   workers: int) -> str:
-    ok = [r for r in records if r.get("status") == "ok"]
-    levels = difficulty_order([r["difficulty"] for r in ok])
-    policies = list(dict.fromkeys(r["policy"] for r in ok))
+    ok = list(iter_ok(records))
+    levels = difficulty_order([r.difficulty for r in ok])
+    policies = list(dict.fromkeys(r.policy for r in ok))
     lines = []
     wall_ep, cpu_ep = defaultdict(float), defaultdict(float)
     ran_cases = defaultdict(set)
     for r in ok:
-        wall_ep[r["difficulty"]] += r["timing"]["episode_s"]
-        cpu_ep[r["difficulty"]] += r["timing"].get("cpu_s", r["timing"]["episode_s"])
-        ran_cases[r["difficulty"]].add(r["case_id"])
+        wall_ep[r.difficulty] += _seconds(r.timing.episode_s)
+        cpu_ep[r.difficulty] += _cpu_s(r)
+        ran_cases[r.difficulty].add(r.case_id)
     total_wall, total_cpu = sum(wall_ep.values()), sum(cpu_ep.values())
     scale = {d: (suite_counts[d] / len(ran_cases[d]) if suite_counts else 1.0) for d in levels}
     full_cpu = sum(cpu_ep[d] * scale[d] for d in levels)
@@ -91,14 +104,14 @@ def timing_tables(records: list[dict], suite_counts: dict[str, int] | None, wall
               "-" * len(head)]
     for p in policies:
         row = f"{display_name(p):<18}"
-        mine = [r for r in ok if r["policy"] == p]
+        mine = [r for r in ok if r.policy == p]
         for d in levels:
-            rs = [r for r in mine if r["difficulty"] == d]
-            dec = sum(r["timing"]["decisions"] for r in rs)
-            row += (f"{1000 * sum(r['timing']['policy_s'] for r in rs) / dec:>16.2f}"
-                    f"{1000 * sum(r['timing']['env_s'] for r in rs) / dec:>17.2f}") if dec else f"{'-':>16}{'-':>17}"
-        cpu = sum(r["timing"].get("cpu_s", r["timing"]["episode_s"]) * scale[r["difficulty"]] for r in mine)
-        row += f"{cpu / max(1, len(mine)) / (sum(scale[r['difficulty']] for r in mine) / max(1, len(mine))):>10.3f}"
+            rs = [r for r in mine if r.difficulty == d]
+            dec = sum(int(_seconds(r.timing.decisions)) for r in rs)
+            row += (f"{1000 * sum(_seconds(r.timing.policy_s) for r in rs) / dec:>16.2f}"
+                    f"{1000 * sum(_seconds(r.timing.env_s) for r in rs) / dec:>17.2f}") if dec else f"{'-':>16}{'-':>17}"
+        cpu = sum(_cpu_s(r) * scale[r.difficulty] for r in mine)
+        row += f"{cpu / max(1, len(mine)) / (sum(scale[r.difficulty] for r in mine) / max(1, len(mine))):>10.3f}"
         row += f"{100 * cpu / full_cpu:>10.1f}%"
         lines.append(row)
     return "\n".join(lines)

@@ -34,6 +34,18 @@ def box_inside(position_mm: Sequence[float] | None, container: Container, tol_mm
     return -tol_mm <= x <= sx + tol_mm and -tol_mm <= y <= sy + tol_mm and -tol_mm <= z <= sz + tol_mm
 
 
+def inside_mask(
+    positions_mm: np.ndarray, container: Container, tol_mm: float = INSIDE_TOLERANCE_MM
+) -> np.ndarray:
+    """``box_inside`` over many boxes at once: (n,) bool from centres (n, 3) float mm.
+
+    NaN rows (boxes set aside or not yet placed) are outside, as ``None`` is for ``box_inside``.
+    """
+    centres = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
+    upper = np.asarray(container.size_mm, dtype=np.float64) + tol_mm
+    return np.all((centres >= -tol_mm) & (centres <= upper), axis=1)
+
+
 def success_ratio(inside_volume_mm3: float, total_volume_mm3: float) -> float:
     """Volume of inside boxes over the volume of all boxes in the case."""
     if total_volume_mm3 <= 0:

@@ -13,7 +13,7 @@ from packlab.core.errors import ConfigError
     ({"seeds": (0, 0)}, "repeated"),
     ({"seeds": (-1,)}, "non-negative"),
     ({"backend": "bullet"}, "backend = 'bullet'"),
-    ({"exec_backend": "dask"}, "backend-exec"),
+    ({"executor": "dask"}, "executor = .dask."),
     ({"workers": -1}, "workers"),
     ({"policies": ("dblf", "nope")}, "'nope' is not a registered policy"),
     ({"policies": ("dblf", "dblf")}, "repeated"),

@@ -13,7 +13,7 @@ def test_oracle_reaches_the_ceiling_on_every_bundled_case():
     low = []
     for case in load_suite():
         rec = run_task(case, "oracle", 0, "mujoco")
-        assert rec["status"] == "ok", rec.get("error")
-        if rec["metrics"]["overall"] < 0.99:
-            low.append((case.episode_id, round(rec["metrics"]["overall"], 4)))
+        assert rec.status == "ok", getattr(rec, "error", "")
+        if rec.metrics.overall < 0.99:
+            low.append((case.episode_id, round(rec.metrics.overall, 4)))
     assert not low, f"oracle below 0.99 on {low}"

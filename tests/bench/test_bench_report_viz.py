@@ -46,8 +46,8 @@ def test_replay_reproduces_the_recorded_episode(geometric_run):
     run = load_run(geometric_run)
     cases = {c.episode_id: c for c in run.cases}
     for rec in run.records[:6]:
-        replay = replay_record(cases[rec["case_id"]], rec)
-        assert replay.matches_record and len(replay.heightmaps) == len(rec["steps"])
+        replay = replay_record(cases[rec.case_id], rec)
+        assert replay.matches_record and len(replay.heightmaps) == len(rec.steps)
 
 
 def test_viz_episode_cli(geometric_run, tmp_path, capsys):
@@ -84,4 +84,4 @@ def test_mujoco_replay_is_deterministic(tiny_suite, tmp_path):
     run = load_run(tmp_path / "run")
     cases = {c.episode_id: c for c in run.cases}
     for rec in read_records(tmp_path / "run" / "episodes.jsonl"):
-        assert replay_record(cases[rec["case_id"]], rec).matches_record
+        assert replay_record(cases[rec.case_id], rec).matches_record

@@ -12,6 +12,7 @@ from packlab.bench.report import build_report
 from packlab.bench.runner import run_bench
 from packlab.bench.table import results_table
 from packlab.core.errors import ConfigError
+from packlab.core.records import RUN_FORMAT
 
 POLICIES = ("dblf", "ffp", "random", "oracle")
 
@@ -36,12 +37,13 @@ def test_full_run_writes_every_record_and_outputs(tiny_suite, tmp_path):
     keys = _keys(tmp_path / "run")
     assert len(keys) == len(set(keys)) == out.planned
     assert json.loads((tmp_path / "run" / "config.json").read_text())["policies"] == list(POLICIES)
-    rec = read_record_file(tmp_path / "run" / "episodes.jsonl").records[0]
+    line = json.loads((tmp_path / "run" / "episodes.jsonl").read_text().splitlines()[0])
+    assert list(line)[:2] == ["status", "format"] and line["format"] == RUN_FORMAT
     assert {"status", "case_id", "seed", "policy", "backend", "difficulty", "metrics", "steps", "final_poses",
-            "timing"} <= set(rec)
+            "timing"} <= set(line)
     # Records stay compact: no heightmaps, no per-step history images.
-    assert "heightmap" not in json.dumps(rec)
-    assert out.summary["table"]["oracle"]["average"]["overall"]["mean"] == pytest.approx(1.0)
+    assert "heightmap" not in json.dumps(line)
+    assert out.summary.table["oracle"]["average"].overall.mean == pytest.approx(1.0)
     for name in ("DBLF", "FFP", "Random", "Oracle"):
         assert name in out.table_md
 
@@ -67,7 +69,7 @@ def test_interrupted_run_resumes_without_redoing_or_duplicating(tiny_suite, tmp_
     keys = _keys(run_dir)
     assert len(keys) == len(set(keys)) == reference.planned
     # Same results (the run-details table holds timings, which differ between any two runs).
-    assert resumed.summary["table"] == reference.summary["table"]
+    assert resumed.summary.table == reference.summary.table
     assert results_table(resumed.summary) == results_table(reference.summary)
     again = run_bench(_cfg(tiny_suite, run_dir, workers=workers), figures=False)
     assert again.ran == 0 and again.table_md == resumed.table_md
@@ -76,18 +78,18 @@ def test_interrupted_run_resumes_without_redoing_or_duplicating(tiny_suite, tmp_
 def test_pool_and_serial_give_the_same_numbers(tiny_suite, tmp_path):
     serial = run_bench(_cfg(tiny_suite, tmp_path / "a", workers=1), figures=False)
     pooled = run_bench(_cfg(tiny_suite, tmp_path / "b", workers=2), figures=False)
-    assert serial.summary["table"] == pooled.summary["table"]
+    assert serial.summary.table == pooled.summary.table
 
 
 def test_a_crashing_policy_is_recorded_and_the_rest_goes_on(tiny_suite, tmp_path, crash_policy):
     run_dir = tmp_path / "run"
     out = run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy), workers=2), figures=False)
     records = read_record_file(run_dir / "episodes.jsonl").records
-    failed = [r for r in records if r["status"] == "error"]
+    failed = [r for r in records if r.status == "error"]
     assert out.failed == len(failed) == 2 * 2  # two hard cases x two seeds
-    assert all(r["policy"] == crash_policy and r["difficulty"] == "hard" for r in failed)
-    assert all("deliberate failure" in r["error"] and "Traceback" in r["traceback"] for r in failed)
-    assert sum(r["status"] == "ok" for r in records) == out.planned - 4
+    assert all(r.policy == crash_policy and r.difficulty == "hard" for r in failed)
+    assert all("deliberate failure" in r.error and "Traceback" in r.traceback for r in failed)
+    assert sum(r.status == "ok" for r in records) == out.planned - 4
     assert f"| {crash_policy} * |" in out.table_md
     # A rerun does not retry recorded failures unless asked to.
     assert run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy)), figures=False).ran == 0
@@ -140,8 +142,8 @@ def test_a_policy_that_cannot_be_built_fails_before_any_work(tiny_suite, tmp_pat
 def test_ray_executor_gives_the_same_numbers(tiny_suite, tmp_path):
     pytest.importorskip("ray")
     local = run_bench(_cfg(tiny_suite, tmp_path / "a", workers=1), figures=False)
-    remote = run_bench(_cfg(tiny_suite, tmp_path / "b", workers=2, exec_backend="ray"), figures=False)
-    assert remote.summary["table"] == local.summary["table"]
+    remote = run_bench(_cfg(tiny_suite, tmp_path / "b", workers=2, executor="ray"), figures=False)
+    assert remote.summary.table == local.summary.table
 
 
 def test_policy_arguments_reach_the_factory_in_every_worker(tiny_suite, tmp_path):
@@ -168,7 +170,7 @@ def test_policy_arguments_reach_the_factory_in_every_worker(tiny_suite, tmp_path
     finally:
         _FACTORIES.pop("test-param", None)
     records = read_record_file(tmp_path / "run" / "episodes.jsonl").records
-    assert out.failed == 0 and all(s["action"]["rotation"] == 1 for r in records for s in r["steps"])
+    assert out.failed == 0 and all(s.action.rotation == 1 for r in records for s in r.steps)
     assert json.loads((tmp_path / "run" / "config.json").read_text())["policy_args"] == {"test-param": {"rotation": 1}}
 
 

@@ -5,19 +5,16 @@ from __future__ import annotations
 import math
 
 import pytest
+from record_helpers import error_record, ok_record
 
 from packlab.bench.summary import summarize
 from packlab.bench.table import format_cell, render_markdown
 
 
 def _rec(case, difficulty, seed, overall, sr=1.0, policy="p", status="ok"):
-    rec = {"status": status, "case_id": case, "seed": seed, "policy": policy, "backend": "geometric",
-           "difficulty": difficulty}
     if status == "ok":
-        rec["metrics"] = {"success_ratio": sr, "compactness": overall / sr, "overall": overall, "n_set_aside": 0}
-        rec["steps"] = [{"valid": True}]
-        rec["timing"] = {"episode_s": 0.5, "policy_s": 0.002, "env_s": 0.001, "decisions": 1}
-    return rec
+        return ok_record(case, seed, policy, difficulty, overall, sr)
+    return error_record(case, seed, policy, difficulty)
 
 
 def test_per_seed_means_then_mean_and_sample_std_over_seeds():
@@ -27,21 +24,21 @@ def test_per_seed_means_then_mean_and_sample_std_over_seeds():
         _rec("h1", "hard", 0, 0.1), _rec("h1", "hard", 1, 0.3),  # hard -> 0.1, 0.3
     ]
     s = summarize(recs, ["p"], [0, 1], ["easy", "hard"])
-    easy = s["table"]["p"]["easy"]["overall"]
-    assert easy["per_seed"] == pytest.approx({"0": 0.3, "1": 0.5})
-    assert easy["mean"] == pytest.approx(0.4) and easy["std"] == pytest.approx(math.sqrt(0.02))
-    avg = s["table"]["p"]["average"]["overall"]  # mean of difficulties per seed: 0.2, 0.4
-    assert avg["per_seed"] == pytest.approx({"0": 0.2, "1": 0.4}) and avg["mean"] == pytest.approx(0.3)
-    assert s["per_case"]["p"]["e1"]["overall"]["mean"] == pytest.approx(0.4)
+    easy = s.table["p"]["easy"].overall
+    assert easy.per_seed == pytest.approx({"0": 0.3, "1": 0.5})
+    assert easy.mean == pytest.approx(0.4) and easy.std == pytest.approx(math.sqrt(0.02))
+    avg = s.table["p"]["average"].overall  # mean of difficulties per seed: 0.2, 0.4
+    assert avg.per_seed == pytest.approx({"0": 0.2, "1": 0.4}) and avg.mean == pytest.approx(0.3)
+    assert s.per_case["p"]["e1"].overall.mean == pytest.approx(0.4)
     assert format_cell(easy) == "0.400 ± 0.141"
 
 
 def test_failed_episodes_are_counted_not_averaged_and_flagged():
     recs = [_rec("e1", "easy", 0, 0.5), _rec("e2", "easy", 0, 0.0, status="error")]
     s = summarize(recs, ["p"], [0], ["easy"])
-    assert s["table"]["p"]["easy"]["overall"]["mean"] == pytest.approx(0.5)
-    assert s["counts"]["p"]["errors"] == 1 and s["counts"]["p"]["episodes"] == 1
-    assert s["errors"][0]["case_id"] == "e2"
+    assert s.table["p"]["easy"].overall.mean == pytest.approx(0.5)
+    assert s.counts["p"].errors == 1 and s.counts["p"].episodes == 1
+    assert s.errors[0].case_id == "e2"
     md = render_markdown(s)
     assert "| p * |" in md and "1 episode(s) failed" in md
 
@@ -55,5 +52,5 @@ def test_order_of_records_does_not_matter():
 
 def test_a_method_without_records_shows_dashes():
     s = summarize([_rec("e1", "easy", 0, 0.5)], ["p", "q"], [0], ["easy"])
-    assert s["table"]["q"]["easy"]["overall"]["mean"] is None
+    assert s.table["q"]["easy"].overall.mean is None
     assert "| q | - | - | - |" in render_markdown(s)

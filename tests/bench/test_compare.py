@@ -9,13 +9,19 @@ import pytest
 from packlab.bench.compare import compare_markdown, merge_summaries
 from packlab.cli.main import main
 from packlab.core.errors import PacklabError
+from packlab.core.records import summary_from_json
 
 
 def _cell(mean: float) -> dict:
     return {"mean": mean, "std": 0.01, "per_seed": {"0": mean}}
 
 
-def _summary(policies: dict[str, float], seeds=(0, 1, 2), sha="abc") -> dict:
+def _summary(policies: dict[str, float], seeds=(0, 1, 2), sha="abc"):
+    """A summary as written before summaries carried a format (read through the migration)."""
+    return summary_from_json(json.dumps(_summary_json(policies, seeds, sha)), "summary.json")
+
+
+def _summary_json(policies: dict[str, float], seeds=(0, 1, 2), sha="abc") -> dict:
     groups = ("easy", "average")
     return {
         "suite": "s", "backend": "mujoco", "n_cases": 2, "seeds": list(seeds),
@@ -34,9 +40,9 @@ def test_rows_follow_runs_and_keep_their_numbers():
         [_summary({"vlm": 0.4}), _summary({"vlm": 0.3}), _summary({"dblf": 0.5, "mta": 0.7})],
         ["full", "blank image", "heuristics"],
     )
-    assert merged["policies"] == ["full", "blank image", "heuristics: DBLF", "heuristics: MTA"]
-    assert merged["table"]["blank image"]["easy"]["overall"]["mean"] == 0.3
-    assert merged["table"]["heuristics: MTA"]["average"]["overall"]["mean"] == 0.7
+    assert merged.policies == ("full", "blank image", "heuristics: DBLF", "heuristics: MTA")
+    assert merged.table["blank image"]["easy"].overall.mean == 0.3
+    assert merged.table["heuristics: MTA"]["average"].overall.mean == 0.7
 
 
 @pytest.mark.parametrize(
@@ -58,7 +64,7 @@ def test_labels_must_match_runs_and_differ():
 def test_cli_prints_and_writes_the_table(tmp_path, capsys):
     for name, v in (("run-full", 0.4), ("run-blank", 0.25)):
         (tmp_path / name).mkdir()
-        (tmp_path / name / "summary.json").write_text(json.dumps(_summary({"vlm": v})))
+        (tmp_path / name / "summary.json").write_text(json.dumps(_summary_json({"vlm": v})))
     out = tmp_path / "cmp" / "table.md"
     rc = main(["bench", "compare", str(tmp_path / "run-full"), str(tmp_path / "run-blank"),
                "--labels", "full,blank image", "--out", str(out)])  # fmt: skip

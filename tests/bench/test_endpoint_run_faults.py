@@ -91,8 +91,8 @@ def test_an_unusable_server_stops_the_run_in_bounded_time(tmp_path, capsys, serv
     assert wall < BOUND_S
     # The breaker (default 3 consecutive transport errors) stopped the run; those records stay.
     assert len(records) == 3
-    assert all(r["status"] == "error" and r["error_kind"] == "transport" for r in records)
-    assert records[-1]["error"].startswith(("EndpointUnavailable", "EndpointError"))
+    assert all(r.status == "error" and r.error_kind == "transport" for r in records)
+    assert records[-1].error.startswith(("EndpointUnavailable", "EndpointError"))
     assert err[-1].startswith("packlab bench: error: stopped after 3 consecutive transport errors")
     assert (tmp_path / "run" / "summary.json").exists()
 
@@ -102,8 +102,8 @@ def test_garbage_answers_are_invalid_steps_and_the_run_completes(tmp_path, capsy
     code, wall, err, records = _bench(tmp_path, capsys, server)
     assert code == EXIT_OK, err
     assert wall < BOUND_S
-    assert len(records) == 3 * 4 and all(r["status"] == "ok" for r in records)
+    assert len(records) == 3 * 4 and all(r.status == "ok" for r in records)
     # Every step is an invalid, unparsable one: the objects are set aside, nothing is packed.
-    steps = [s for r in records for s in r["steps"]]
-    assert steps and all(not s["valid"] and s["reason"] == "unparsable" for s in steps)
-    assert all(r["metrics"]["overall"] == 0.0 for r in records)
+    steps = [s for r in records for s in r.steps]
+    assert steps and all(not s.valid and s.reason == "unparsable" for s in steps)
+    assert all(r.metrics.overall == 0.0 for r in records)

@@ -40,7 +40,7 @@ def test_bench_run_directory_follows_the_umask(tmp_path, umask, capsys):
 def test_generated_dataset_follows_the_umask(tmp_path, umask, capsys):
     out = tmp_path / "data"
     assert main(["generate", "--difficulty", "easy", "--episodes", "2", "--validation", "geometric",
-                 "--workers", "1", "--backend", "serial", "--image-size", "16", "--out", str(out),
+                 "--workers", "1", "--image-size", "16", "--out", str(out),
                  "--no-progress"]) == 0
     modes = _modes(out)
     assert modes["meta/config.json"] == modes["meta/info.json"] == 0o666 & ~umask

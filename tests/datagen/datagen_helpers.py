@@ -17,7 +17,7 @@ def tiny_config(**overrides) -> DatasetConfig:
 
 
 def make_dataset(out: Path, cfg: DatasetConfig | None = None, **options) -> dict:
-    return generate_dataset(cfg or tiny_config(), RunOptions(str(out), backend="serial", progress=False, **options))
+    return generate_dataset(cfg or tiny_config(), RunOptions(str(out), workers=1, progress=False, **options))
 
 
 def tree_bytes(root: Path) -> dict[str, bytes]:

@@ -7,6 +7,8 @@ import json
 import pytest
 
 from packlab.cli.main import main
+from packlab.core.records import PACKDATA_FORMAT, to_builtins
+from packlab.datagen.format import read_info
 
 
 def test_generate_then_inspect(tmp_path, capsys):
@@ -53,3 +55,29 @@ def test_recipe_flag_reproduces_packdata_20k():
 def test_inspect_of_a_missing_dataset_fails_cleanly(tmp_path, capsys):
     assert main(["inspect-data", str(tmp_path)]) == 2
     assert "no meta/info.json" in capsys.readouterr().err
+
+
+def test_info_json_is_a_typed_versioned_record(tiny_dataset):
+    info = read_info(tiny_dataset)
+    assert info.format_version == PACKDATA_FORMAT and info.counts.episodes == 10
+    # Written as it always was: the record's plain form with sorted keys, indent 1.
+    text = (tiny_dataset / "meta/info.json").read_text()
+    assert json.dumps(to_builtins(info), indent=1, sort_keys=True) + "\n" == text
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"format_version": "packdata-2"},
+     "field 'format_version' = 'packdata-2': unknown format version"),
+    ({"counts": {"episodes": "ten"}}, "field 'counts.episodes' = 'ten': Expected `int`, got `str`"),
+])
+def test_inspect_of_an_unreadable_info_json_names_file_field_and_value(tiny_dataset, tmp_path,
+                                                                       capsys, change, message):
+    root = tmp_path / "copy"
+    (root / "meta").mkdir(parents=True)
+    info = json.loads((tiny_dataset / "meta/info.json").read_text())
+    for key, value in change.items():
+        info[key] = {**info[key], **value} if isinstance(value, dict) else value
+    (root / "meta/info.json").write_text(json.dumps(info))
+    assert main(["inspect-data", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{root / 'meta/info.json'}: {message}" in err

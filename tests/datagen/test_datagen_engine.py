@@ -91,7 +91,7 @@ def test_rerun_of_a_finished_dataset_does_nothing(tiny_dataset, tmp_path):
 
 def test_process_pool_output_equals_serial(tiny_dataset, tmp_path):
     out = tmp_path / "pool"
-    generate_dataset(tiny_config(), RunOptions(str(out), workers=2, backend="process", progress=False))
+    generate_dataset(tiny_config(), RunOptions(str(out), workers=2, executor="process", progress=False))
     assert tree_bytes(out) == tree_bytes(tiny_dataset)
 
 
@@ -133,8 +133,8 @@ def test_unwritable_output_fails_before_any_work(tmp_path):
 
 
 def test_bad_run_options():
-    with pytest.raises(ConfigError, match="backend"):
-        RunOptions("x", backend="slurm")
+    with pytest.raises(ConfigError, match="executor"):
+        RunOptions("x", executor="slurm")
     with pytest.raises(ConfigError, match="workers"):
         RunOptions("x", workers=-1)
 
@@ -148,5 +148,5 @@ def test_recipe_resolves_to_the_published_mix():
 
 def test_empty_difficulty_count_is_allowed(tmp_path):
     info = make_dataset(tmp_path / "d", tiny_config(episodes=(2, 0, 0)))
-    assert info["counts"]["episodes"] == 2
+    assert info.counts.episodes == 2
     assert Path(tmp_path / "d/data/steps/easy-00000.parquet").exists()

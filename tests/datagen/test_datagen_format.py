@@ -61,7 +61,7 @@ def test_images_are_the_rasterised_heightmaps(tiny_dataset):
 
 
 def test_sft_export_is_what_the_vlm_reader_expects(tiny_dataset):
-    from packlab.vlm.sft_data import load_sft_examples
+    from packlab.vlm.data.sft_examples import load_sft_examples
 
     examples, root = load_sft_examples(tiny_dataset)
     rows = _steps(tiny_dataset)

@@ -2,6 +2,7 @@
 
 import math
 
+import msgspec
 import mujoco
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import pytest
 from packlab.bench.summary import summarize
 from packlab.bench.table import render_markdown
 from packlab.bench.task import run_task
+from packlab.core.records import episode_from_json, to_builtins
 from packlab.core.types import Action, Box, Case, Container, PlanStep
 from packlab.sim.episode import Episode
 from packlab.sim.physics.mujoco_backend import MujocoBackend, PhysicsConfig, _net_squared_speeds
@@ -75,27 +77,28 @@ def test_a_pile_that_cannot_settle_within_tiny_caps_is_flagged_and_counted():
 
     flagged = run_task(case, "oracle", 0, "mujoco", physics=TINY_CAPS)
     calm = run_task(case, "oracle", 0, "mujoco")
-    assert flagged["status"] == calm["status"] == "ok"
-    assert flagged["metrics"]["at_rest"] is False and calm["metrics"]["at_rest"] is True
-    calm["policy"] = "calm"
+    assert flagged.status == calm.status == "ok"
+    assert flagged.metrics.at_rest is False and calm.metrics.at_rest is True
+    calm = msgspec.structs.replace(calm, policy="calm")
     summary = summarize([flagged, calm])
-    assert summary["counts"]["oracle"]["not_at_rest"] == 1
-    assert summary["counts"]["oracle"]["unsettled_steps"] == flagged["metrics"]["unsettled_steps"] >= 1
-    assert summary["counts"]["calm"]["not_at_rest"] == 0
-    assert summary["counts"]["oracle"]["max_residual_linear_mps"] == flagged["metrics"]["residual_linear_mps"]
+    assert summary.counts["oracle"].not_at_rest == 1
+    assert summary.counts["oracle"].unsettled_steps == flagged.metrics.unsettled_steps >= 1
+    assert summary.counts["calm"].not_at_rest == 0
+    assert summary.counts["oracle"].max_residual_linear_mps == flagged.metrics.residual_linear_mps
     table = render_markdown(summary)
     assert "| unsettled steps | not at rest |" in table
     oracle_row = [line for line in table.splitlines() if line.startswith("| Oracle")][-1]  # run details
-    assert f"| {flagged['metrics']['unsettled_steps']} | 1 |" in oracle_row
+    assert f"| {flagged.metrics.unsettled_steps} | 1 |" in oracle_row
 
 
 def test_old_records_without_rest_fields_still_summarise():
-    rec = run_task(_toppling_slab_case(), "oracle", 0, "geometric")
+    rec = to_builtins(run_task(_toppling_slab_case(), "oracle", 0, "geometric"))
+    del rec["format"]  # written before records carried their version: migrated on reading
     for key in ("unsettled_steps", "at_rest", "residual_linear_mps", "residual_angular_radps"):
         rec["metrics"].pop(key)
     rec["metrics"]["capped_placements"] = 2
-    counts = summarize([rec])["counts"]["oracle"]
-    assert counts["unsettled_steps"] == 2 and counts["not_at_rest"] == 0
+    counts = summarize([episode_from_json(rec, "old")]).counts["oracle"]
+    assert counts.unsettled_steps == 2 and counts.not_at_rest == 0
 
 
 def test_a_box_outside_the_walls_lands_on_the_floor_and_rests():

@@ -3,8 +3,9 @@
 - :mod:`.suites`: bundled case files with checksums (``packlab-bench-v1``), any case file too.
 - :mod:`.describe`: a suite's statistics per difficulty (``packlab bench --describe``).
 - :mod:`.config`: ``RunConfig`` (what to run) and its resolved form saved as config.json.
-- :mod:`.task` / :mod:`.executors`: one episode -> one record; serial, process pool or Ray.
-- :mod:`.records`: episodes.jsonl (append, resume, torn-tail repair).
+- :mod:`.task`: one episode -> one record (run by ``packlab.executors``: in-process, pool or Ray).
+- :mod:`.records`: episodes.jsonl of typed, versioned records (``packlab.core.records``): append,
+  resume, torn-tail repair.
 - :mod:`.runner`: ``run_bench``, the ``packlab bench`` entry point.
 - :mod:`.summary` / :mod:`.table` / :mod:`.report`: records -> numbers -> Table 2 and figures.
 - :mod:`.replay`: recorded actions -> step heightmaps (for ``packlab viz episode``).

@@ -19,17 +19,18 @@ from typing import Any
 
 from packlab.bench.describe import difficulty_order
 from packlab.bench.suites import DEFAULT_SUITE, CaseSource, resolve_cases
+from packlab.core.choices import Executor, PhysicsBackend, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
+from packlab.policies import available_policies
+from packlab.policies.heuristics import SCORERS
+from packlab.sim.physics.mujoco_backend import PhysicsConfig
 
-#: Version of the run-directory layout (config.json, episodes.jsonl records).
-#: 2 (issue 10): error records carry ``error_kind``, episode records say whether the boxes were at
-#: rest when scored, and heuristics break ties by the larger object unless told otherwise. A
-#: run-1 directory therefore cannot be resumed (its heuristic episodes were played under the old
-#: tie rule); the identity check refuses it by this field. Reports still read run-1 records.
-RUN_FORMAT = "packlab-bench-run-2"
-EXEC_BACKENDS = ("process", "ray")
-TRANSITION_BACKENDS = ("geometric", "mujoco")
+#: RUN_FORMAT (packlab.core.records, with the record types): the version of the run-directory
+#: layout (config.json, episodes.jsonl records). A run-1 directory cannot be resumed (its
+#: heuristic episodes were played under the old tie rule); the identity check refuses it by this
+#: field. Reports still read run-1 records (they migrate).
 #: Limits of a run's size, checked while the flags are parsed (before anything is allocated):
 #: ``--seeds 0-100000000`` must be an error, not a process that eats memory until it dies.
 MAX_SEEDS = 1000  # run seeds per run (each seed reruns every case x policy)
@@ -55,8 +56,6 @@ def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
 
     VLM policies are registered too but never run unless named: they need models and hardware.
     """
-    from packlab.policies.heuristics import SCORERS
-
     names = (*SCORERS, "random")
     if all(c.gt_plan is not None for c in cases):
         names += ("oracle",)
@@ -132,9 +131,9 @@ def _check_time_limit(flag: str, value: float | None) -> None:
                           f"(0 on the command line means no limit)")
 
 
-def time_limit_arg(value: float) -> float | None:
-    """A --episode-timeout / --deadline flag value: 0 means no limit (None)."""
-    return None if value == 0 else value
+def time_limit_arg(value: float | None) -> float | None:
+    """A --episode-timeout / --deadline flag value: 0 (or None) means no limit (None)."""
+    return None if value is None or value == 0 else value
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,11 +143,13 @@ class RunConfig:
     cases: str = DEFAULT_SUITE  # a registered suite name or a case file (JSON, JSONL, parquet)
     policies: tuple[str, ...] = ()  # empty: default_policies()
     seeds: tuple[int, ...] = (0, 1, 2)  # run seeds: buffer shuffle and policy randomness
-    backend: str = "mujoco"
+    backend: PhysicsBackend = "mujoco"  # the transition backend
     difficulties: tuple[str, ...] = ()  # empty: every difficulty in the cases
     out: str = ""  # empty: runs/bench-<suite>
-    workers: int = 0  # 0: all local cores
-    exec_backend: str = "process"
+    workers: int = 0  # 0: all local cores (Ray: CPUs of a Ray it starts itself)
+    #: Where episodes run (packlab.executors): "process" (a local pool; in this process with
+    #: one worker) or "ray". Not part of the identity: the records are the same on either.
+    executor: Executor = "process"
     progress: bool = True
     retry_errors: bool = False  # rerun episodes recorded as failed (the new record supersedes)
     #: PhysicsConfig fields to change from the engine's defaults (mujoco only), e.g.
@@ -175,10 +176,8 @@ class RunConfig:
                 raise ConfigError(f"seeds: {s!r} is not a non-negative integer <= {MAX_SEED_VALUE}")
         if len(set(self.seeds)) != len(self.seeds):
             raise ConfigError(f"seeds = {list(self.seeds)}: a seed is repeated")
-        if self.backend not in TRANSITION_BACKENDS:
-            raise ConfigError(f"backend = {self.backend!r}: unknown; choose one of {', '.join(TRANSITION_BACKENDS)}")
-        if self.exec_backend not in EXEC_BACKENDS:
-            raise ConfigError(f"backend-exec = {self.exec_backend!r}: unknown; choose one of {', '.join(EXEC_BACKENDS)}")
+        require_choice(self.backend, PhysicsBackend, "backend")
+        require_choice(self.executor, Executor, "executor")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
             raise ConfigError(f"workers = {self.workers!r}: must be a whole number >= 0 (0 = all cores)")
         if self.workers > MAX_WORKERS:
@@ -191,8 +190,6 @@ class RunConfig:
         if len(set(self.policies)) != len(self.policies):
             raise ConfigError(f"policies = {','.join(self.policies)}: a policy is repeated")
         if self.policies:
-            from packlab.policies import available_policies
-
             known = available_policies()
             for name in self.policies:
                 if name not in known:
@@ -233,7 +230,7 @@ class ResolvedRun:
             "backend": self.config.backend,
             "difficulties": list(self.difficulties),
             "physics": self.physics,
-            "execution": {"workers": self.workers, "exec_backend": self.config.exec_backend,
+            "execution": {"workers": self.workers, "executor": self.config.executor,
                           "episode_timeout_s": self.config.episode_timeout_s,
                           "max_transport_failures": self.config.max_transport_failures,
                           "deadline_s": self.config.deadline_s},
@@ -255,8 +252,6 @@ def physics_from_json(fields: dict[str, Any] | None) -> Any:
     """A config.json ``physics`` entry back to a PhysicsConfig (None stays None)."""
     if not fields:
         return None
-    from packlab.sim.physics.mujoco_backend import PhysicsConfig
-
     try:
         return PhysicsConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
     except TypeError as exc:  # a field this version of the engine does not know
@@ -302,8 +297,6 @@ def parse_policy_args(items: list[str] | tuple[str, ...]) -> tuple[tuple[str, st
 def _physics_fields(backend: str, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any] | None:
     if backend != "mujoco":
         return None
-    from packlab.sim.physics.mujoco_backend import PhysicsConfig
-
     known = {f.name for f in dataclasses.fields(PhysicsConfig)}
     for key, _ in overrides:
         if key not in known:
@@ -377,7 +370,6 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
 __all__ = [
     "DEFAULT_EPISODE_TIMEOUT_S",
     "DEFAULT_MAX_TRANSPORT_FAILURES",
-    "EXEC_BACKENDS",
     "IDENTITY_KEYS",
     "MAX_SEEDS",
     "MAX_SEED_VALUE",

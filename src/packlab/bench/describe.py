@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from packlab.core.choices import Difficulty, choices
 from packlab.core.types import Case
 
 
@@ -81,7 +82,7 @@ def group_stats(name: str, cases: Sequence[Case]) -> GroupStats:
 
 def difficulty_order(names: Sequence[str]) -> list[str]:
     """easy, medium, hard first (the paper's order), then any other label alphabetically."""
-    known = ["easy", "medium", "hard"]
+    known = choices(Difficulty)
     return [n for n in known if n in names] + sorted(n for n in set(names) if n not in known)
 
 

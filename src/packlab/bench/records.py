@@ -1,4 +1,9 @@
-"""The run directory's ``episodes.jsonl``: one JSON record per finished (case, seed, policy, backend).
+"""The run directory's ``episodes.jsonl``: a typed record per (case, seed, policy, backend) done.
+
+Records are ``packlab.core.records.EpisodeRecord``s (``EpisodeOk`` or ``EpisodeError``), each
+with its ``format`` version; reading checks it and migrates records written before records
+carried one (run-1 and early run-2; ``packlab.core.records.migrate_episode``). A newer or
+unknown version, or a field of the wrong type, is an error naming the file, line and field.
 
 Records are appended by a single writer (the runner's main process) and flushed per line, so a
 killed run leaves at most one torn last line. Readers skip a torn last line; the writer cuts it
@@ -15,14 +20,21 @@ Record kinds (``status``):
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Self, TextIO
+from typing import Self, TextIO
 
 from packlab.core.errors import PacklabError
+from packlab.core.records import (
+    EpisodeError,
+    EpisodeOk,
+    EpisodeRecord,
+    NotJSON,
+    decode_episode,
+    dumps_line,
+)
 
 EPISODES_FILE = "episodes.jsonl"
 CONFIG_FILE = "config.json"
@@ -32,8 +44,8 @@ CASES_FILE = "cases.jsonl"
 RecordKey = tuple[str, int, str, str]
 
 
-def record_key(record: dict[str, Any]) -> RecordKey:
-    return (str(record["case_id"]), int(record["seed"]), str(record["policy"]), str(record["backend"]))
+def record_key(record: EpisodeRecord) -> RecordKey:
+    return record.key
 
 
 class RecordsError(PacklabError):
@@ -44,13 +56,13 @@ class RecordsError(PacklabError):
 class RecordFile:
     """What a records file holds: the parsed records and where the intact part ends."""
 
-    records: tuple[dict[str, Any], ...]
+    records: tuple[EpisodeRecord, ...]
     good_bytes: int  # length of the intact prefix (everything up to the last complete record)
     torn_tail: bool  # True when bytes after good_bytes are an unfinished record
 
 
 def _parse_lines(data: bytes, path: Path) -> RecordFile:
-    records: list[dict[str, Any]] = []
+    records: list[EpisodeRecord] = []
     offset = 0
     lines = data.split(b"\n")
     # The part after the last newline is either empty (a clean file) or an unfinished write.
@@ -59,14 +71,13 @@ def _parse_lines(data: bytes, path: Path) -> RecordFile:
         end = offset + len(raw) + 1
         if raw.strip():
             try:
-                rec = json.loads(raw)
-                record_key(rec)
-            except (ValueError, KeyError, TypeError) as exc:
+                rec = decode_episode(raw, str(path), lineno)
+            except NotJSON as exc:
                 if lineno == len(complete) and not tail.strip():
                     # A last line that ends in a newline yet does not parse: a write cut short
                     # exactly after a buffer boundary. Treat as torn, like a missing newline.
                     return RecordFile(tuple(records), offset, True)
-                raise RecordsError(f"{path}:{lineno}: unreadable record ({exc}); the file is damaged") from None
+                raise RecordsError(f"{exc}; the file is damaged") from None
             records.append(rec)
         offset = end
     return RecordFile(tuple(records), offset, bool(tail.strip()))
@@ -80,17 +91,17 @@ def read_record_file(path: str | os.PathLike[str]) -> RecordFile:
     return _parse_lines(path.read_bytes(), path)
 
 
-def read_records(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+def read_records(path: str | os.PathLike[str]) -> list[EpisodeRecord]:
     """The records of a file, one per key: a later record of a key replaces an earlier one."""
-    latest: dict[RecordKey, dict[str, Any]] = {}
+    latest: dict[RecordKey, EpisodeRecord] = {}
     for rec in read_record_file(path).records:
-        latest[record_key(rec)] = rec
+        latest[rec.key] = rec
     return list(latest.values())
 
 
-def dumps(record: dict[str, Any]) -> str:
+def dumps(record: EpisodeRecord) -> str:
     """One compact line (no spaces: records are many and read by machines)."""
-    return json.dumps(record, separators=(",", ":"))
+    return dumps_line(record)
 
 
 class RecordWriter:
@@ -110,13 +121,13 @@ class RecordWriter:
         self._fh = open(self.path, "a", encoding="utf-8")
         return self
 
-    def write(self, record: dict[str, Any]) -> None:
+    def write(self, record: EpisodeRecord) -> None:
         assert self._fh is not None, "use RecordWriter as a context manager"
         self._fh.write(dumps(record) + "\n")
         # Flush per record: a kill then loses at most the record being written.
         self._fh.flush()
 
-    def write_all(self, records: Iterable[dict[str, Any]]) -> None:
+    def write_all(self, records: Iterable[EpisodeRecord]) -> None:
         for rec in records:
             self.write(rec)
 
@@ -126,15 +137,13 @@ class RecordWriter:
             self._fh = None
 
 
-def iter_ok(records: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-    return (r for r in records if r.get("status", "ok") == "ok")
+def iter_ok(records: Iterable[EpisodeRecord]) -> Iterator[EpisodeOk]:
+    return (r for r in records if isinstance(r, EpisodeOk))
 
 
-def error_kind(record: dict[str, Any]) -> str | None:
+def error_kind(record: EpisodeRecord) -> str | None:
     """A failed record's kind ("exception", "timeout", "transport"); None for a result."""
-    if record.get("status", "ok") == "ok":
-        return None
-    return str(record.get("error_kind", "exception"))
+    return record.error_kind if isinstance(record, EpisodeError) else None
 
 
 __all__ = [

@@ -13,16 +13,14 @@ from typing import Any
 import numpy as np
 
 from packlab.core.errors import ConfigError
+from packlab.core.records import EpisodeOk, EpisodeRecord, StepRecord
 from packlab.core.types import Action, Case, Unparsable
 from packlab.sim.episode import Episode
 
 
-def action_from_record(step: dict[str, Any]) -> Action | Unparsable:
-    """The action of a step record (``StepResult.to_record()['action']``)."""
-    a = step["action"]
-    if "unparsable" in a:
-        return Unparsable(str(a["unparsable"]), str(a.get("error", "")))
-    return Action(int(a["object_id"]), int(a["rotation"]), int(a["x"]), int(a["y"]))
+def action_from_record(step: StepRecord) -> Action | Unparsable:
+    """The action of a step record."""
+    return step.action.to_action()
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,23 +34,24 @@ class Replay:
     matches_record: bool  # replayed scores and processed objects equal the recorded ones
 
 
-def replay_record(case: Case, record: dict[str, Any], physics: Any = None) -> Replay:
+def replay_record(case: Case, record: EpisodeRecord, physics: Any = None) -> Replay:
     """Step a record's actions through a fresh episode on the record's backend."""
-    if record.get("status", "ok") != "ok":
-        raise ConfigError(f"record {record.get('case_id')}/{record.get('policy')}/seed {record.get('seed')}: "
-                          f"status {record.get('status')!r} has no actions to replay")
-    if record["case_id"] != case.episode_id:
-        raise ConfigError(f"record case_id = {record['case_id']!r} does not match case {case.episode_id!r}")
-    episode = Episode(record["backend"], physics)
-    episode.reset(case, int(record["seed"]))
+    if not isinstance(record, EpisodeOk):
+        raise ConfigError(f"record {record.case_id}/{record.policy}/seed {record.seed}: "
+                          f"status {record.status!r} has no actions to replay")
+    if record.case_id != case.episode_id:
+        raise ConfigError(f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}")
+    episode = Episode(record.backend, physics)
+    episode.reset(case, record.seed)
     heightmaps, same_objects = [], True
-    for step in record["steps"]:
+    for step in record.steps:
         result = episode.step(action_from_record(step))
         heightmaps.append(episode.heightmap.copy())
-        same_objects &= result.internal_id == step["internal_id"] and result.valid == step["valid"]
+        same_objects &= result.internal_id == step.internal_id and result.valid == step.valid
     m = episode.metrics()
-    rec = record["metrics"]
-    same_scores = all(abs(getattr(m, k) - float(rec[k])) <= 1e-6 for k in ("overall", "success_ratio", "compactness"))
+    rec = record.metrics
+    same_scores = all(abs(getattr(m, k) - float(getattr(rec, k))) <= 1e-6
+                      for k in ("overall", "success_ratio", "compactness"))
     return Replay(tuple(heightmaps), m.overall, m.success_ratio, m.compactness, bool(same_objects and same_scores))
 
 

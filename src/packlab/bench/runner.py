@@ -19,9 +19,9 @@ stopped, every record written stays, and the summary and table are written for w
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any, Self
 
 from packlab.bench.config import ResolvedRun, RunConfig, check_resumable, resolve
-from packlab.bench.executors import execute
 from packlab.bench.records import (
     CASES_FILE,
     CONFIG_FILE,
@@ -41,9 +40,14 @@ from packlab.bench.records import (
     read_records,
     record_key,
 )
-from packlab.bench.task import DeadlineReached, Task
+from packlab.bench.report import write_outputs
+from packlab.bench.task import DeadlineReached, Task, error_record, run_task
 from packlab.cases import save_cases
 from packlab.core.errors import ConfigError, RunAborted
+from packlab.core.records import EpisodeError, EpisodeRecord, RunSummary, Timing
+from packlab.core.types import Case
+from packlab.executors import Context, Lost, Results, progress_bar, run_items
+from packlab.policies import make_policy
 
 INVOCATIONS_FILE = "invocations.jsonl"
 
@@ -53,7 +57,7 @@ class BenchOutcome:
     """What a bench invocation did and produced."""
 
     run_dir: Path
-    summary: dict[str, Any]
+    summary: RunSummary
     table_md: str
     planned: int  # episodes in the configuration
     already_done: int  # found in the records at start (not rerun)
@@ -74,6 +78,58 @@ def task_keys(run: ResolvedRun) -> dict[RecordKey, Task]:
             for seed in run.config.seeds:
                 keys[(case.episode_id, seed, policy, run.config.backend)] = Task(i, policy, seed)
     return keys
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeWork:
+    """The bench's work function for ``packlab.executors``: a Task -> its record. Holds what every
+    worker needs besides its tasks (the cases go to workers once: by fork or Ray's object store)."""
+
+    cases: tuple[Case, ...]
+    backend: str
+    physics: Any
+    policy_kwargs: dict[str, dict[str, Any]]
+    timeout_s: float | None
+
+    def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
+        # ctx.deadline is set only in this process: there the episode's alarm is the only stop.
+        return run_task(self.cases[task.case_index], task.policy, task.seed, self.backend,
+                        self.physics, self.policy_kwargs.get(task.policy), timeout_s=self.timeout_s,
+                        deadline=ctx.deadline)
+
+    def lost(self, task: Task, lost: Lost) -> EpisodeError:
+        """The error record of an episode whose worker died or was killed (silent too long)."""
+        if lost.kind == "overdue":
+            kind = "timeout"
+            message = (f"EpisodeTimeout: no result {lost.elapsed_s:.0f} s after the start, past "
+                       f"the {self.timeout_s:g} s limit (--episode-timeout) and the alarm; worker "
+                       f"process killed")
+        elif lost.executor == "ray":
+            kind, message = "exception", lost.detail
+        else:
+            kind = "exception"
+            message = f"WorkerDied: the worker process running this episode died ({lost.detail})"
+        timing = Timing() if lost.elapsed_s is None else Timing(episode_s=round(lost.elapsed_s, 6))
+        return error_record(self.cases[task.case_index], task.policy, task.seed, self.backend, kind,
+                            message, timing=timing)
+
+
+def is_timeout(record: EpisodeRecord) -> bool:
+    """A timed-out episode's worker is replaced: the alarm interrupted the policy at an arbitrary
+    point, and a fresh process leaves no half-updated state (a cached model, a socket
+    mid-message) to the next episode."""
+    return error_kind(record) == "timeout"
+
+
+def execute(run: ResolvedRun, tasks: list[Task],
+            deadline: float | None = None) -> Results[EpisodeRecord]:
+    """Records of ``tasks`` as they finish, on the run's executor and workers."""
+    config = run.config
+    work = EpisodeWork(run.cases, config.backend, run.physics_config(), run.policy_kwargs(),
+                       config.episode_timeout_s)
+    return run_items(work, tasks, executor=config.executor, workers=run.workers,
+                     timeout_s=config.episode_timeout_s, deadline=deadline, on_lost=work.lost,
+                     recycle=is_timeout)
 
 
 def longest_first(tasks: list[Task], run: ResolvedRun) -> list[Task]:
@@ -101,7 +157,7 @@ def _check_or_write_config(run: ResolvedRun) -> None:
     tmp.replace(path)
 
 
-def prepare_run_dir(run: ResolvedRun) -> list[dict[str, Any]]:
+def prepare_run_dir(run: ResolvedRun) -> list[EpisodeRecord]:
     """Create or check the run directory; return the records already there for this run."""
     run.out.mkdir(parents=True, exist_ok=True)
     _check_or_write_config(run)
@@ -113,8 +169,6 @@ def prepare_run_dir(run: ResolvedRun) -> list[dict[str, Any]]:
 def preflight_policies(names: tuple[str, ...], kwargs: dict[str, dict[str, Any]] | None = None) -> None:
     """Build each policy once here, so a policy that cannot even be created (missing extra,
     broken import) is one clear error now instead of a failed record for every episode."""
-    from packlab.policies import make_policy
-
     for name in names:
         try:
             make_policy(name, **(kwargs or {}).get(name, {}))
@@ -122,19 +176,12 @@ def preflight_policies(names: tuple[str, ...], kwargs: dict[str, dict[str, Any]]
             raise ConfigError(f"policy = {name!r}: cannot be created ({type(exc).__name__}: {exc})") from exc
 
 
-def _progress_bar(total: int, initial: int, label: str, enabled: bool) -> Any:
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, desc=label, unit="ep", file=sys.stderr, disable=not enabled,
-                dynamic_ncols=True, smoothing=0.05)
-
-
 def _log_invocation(run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int,
                     aborted: str = "") -> None:
     entry = {
         "started": datetime.fromtimestamp(started, UTC).isoformat(timespec="seconds"),
         "wall_s": round(wall_s, 3), "ran": ran, "failed": failed,
-        "workers": run.workers, "exec_backend": run.config.exec_backend,
+        "workers": run.workers, "executor": run.config.executor,
     }
     if aborted:
         entry["aborted"] = aborted
@@ -142,7 +189,7 @@ def _log_invocation(run: ResolvedRun, started: float, wall_s: float, ran: int, f
         fh.write(json.dumps(entry) + "\n")
 
 
-def needs_rerun(record: dict[str, Any], retry_errors: bool) -> bool:
+def needs_rerun(record: EpisodeRecord, retry_errors: bool) -> bool:
     """Whether a record from an earlier invocation is work still to do.
 
     A transport error is always rerun: it records that a server was unreachable, not what the
@@ -162,11 +209,11 @@ class TransportBreaker:
 
     def __init__(self, limit: int) -> None:
         self.limit, self.count = limit, 0
-        self.last: dict[str, Any] | None = None
+        self.last: EpisodeError | None = None
 
-    def observe(self, record: dict[str, Any]) -> bool:
+    def observe(self, record: EpisodeRecord) -> bool:
         """Count one record; True when the breaker trips."""
-        if error_kind(record) == "transport":
+        if isinstance(record, EpisodeError) and record.error_kind == "transport":
             self.count += 1
             self.last = record
         else:
@@ -174,9 +221,10 @@ class TransportBreaker:
         return self.limit > 0 and self.count >= self.limit
 
     def reason(self) -> str:
-        last = self.last or {}
+        last = self.last
+        where = "" if last is None else f"last: {last.policy} on {last.case_id} seed {last.seed}: {last.error}"
         return (f"stopped after {self.count} consecutive transport errors (--max-transport-failures {self.limit}); "
-                f"last: {last.get('policy')} on {last.get('case_id')} seed {last.get('seed')}: {last.get('error')}")
+                f"{where}")
 
 
 class RunLock:
@@ -189,8 +237,6 @@ class RunLock:
         self._fh: Any = None
 
     def __enter__(self) -> Self:
-        import fcntl
-
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "a+", encoding="utf-8")
         try:
@@ -211,7 +257,7 @@ class RunLock:
         self._fh.close()  # closing releases the flock
 
 
-def run_bench(config: RunConfig, *, on_record: Callable[[dict[str, Any]], None] | None = None,
+def run_bench(config: RunConfig, *, on_record: Callable[[EpisodeRecord], None] | None = None,
               figures: bool = True) -> BenchOutcome:
     """Run (or resume) a bench configuration and write its records, summary, table and figures.
 
@@ -227,10 +273,8 @@ def run_bench(config: RunConfig, *, on_record: Callable[[dict[str, Any]], None] 
         return _run_locked(run, on_record, figures, deadline)
 
 
-def _run_locked(run: ResolvedRun, on_record: Callable[[dict[str, Any]], None] | None,
+def _run_locked(run: ResolvedRun, on_record: Callable[[EpisodeRecord], None] | None,
                 figures: bool, deadline: float | None) -> BenchOutcome:
-    from packlab.bench.report import write_outputs
-
     config = run.config
     # Every record of this configuration by key, as a report would read the file: a new record
     # replaces the old one of its key; old failures not rerun (yet) stay in the tables' counts.
@@ -242,13 +286,9 @@ def _run_locked(run: ResolvedRun, on_record: Callable[[dict[str, Any]], None] | 
     aborted = ""
     started_wall, started = time.time(), time.perf_counter()
     if pending:
-        if run.config.backend == "mujoco":
-            # Import the engine before forking so workers inherit it instead of loading it each.
-            import packlab.sim.physics.mujoco_backend  # noqa: F401
-        results = execute(run.cases, pending, run.config.backend, run.physics_config(), run.workers,
-                          run.config.exec_backend, run.policy_kwargs(),
-                          timeout_s=config.episode_timeout_s, deadline=deadline)
-        bar = _progress_bar(len(planned), len(done_keys), f"bench {run.source.label}", run.config.progress)
+        results = execute(run, pending, deadline)  # workers start (fork) before the bar's thread
+        label = f"bench {run.source.label}"
+        bar = progress_bar(len(planned), len(done_keys), label, config.progress)
         breaker = TransportBreaker(config.max_transport_failures)
         try:
             with RecordWriter(run.out / EPISODES_FILE) as writer:
@@ -256,7 +296,7 @@ def _run_locked(run: ResolvedRun, on_record: Callable[[dict[str, Any]], None] | 
                     writer.write(record)
                     latest[record_key(record)] = record
                     ran += 1
-                    if record["status"] != "ok":
+                    if isinstance(record, EpisodeError):
                         failed += 1
                         bar.set_postfix_str(f"{failed} failed", refresh=False)
                     bar.update(1)
@@ -271,18 +311,16 @@ def _run_locked(run: ResolvedRun, on_record: Callable[[dict[str, Any]], None] | 
             aborted = str(exc)
         finally:
             bar.close()
-            close = getattr(results, "close", None)
-            if close is not None:
-                close()  # stops the workers now when we leave early (breaker, error, interrupt)
+            results.close()  # stops the workers now when we leave early (breaker, error, interrupt)
             wall_s = time.perf_counter() - started
             _log_invocation(run, started_wall, wall_s, ran, failed, aborted)
     wall_s = time.perf_counter() - started
     records = list(latest.values())
     summary, table_md, outputs = write_outputs(run.out, run.to_json(), records, run.cases, figures=figures)
-    errors = sum(1 for r in records if r.get("status", "ok") != "ok")
+    errors = sum(1 for r in records if isinstance(r, EpisodeError))
     return BenchOutcome(run.out, summary, table_md, len(planned), len(done_keys), ran, failed,
                         wall_s, tuple(outputs), len(records), errors, aborted)
 
 
-__all__ = ["BenchOutcome", "RunLock", "TransportBreaker", "longest_first", "needs_rerun", "prepare_run_dir",
-           "run_bench", "task_keys"]
+__all__ = ["BenchOutcome", "EpisodeWork", "RunLock", "TransportBreaker", "execute", "is_timeout",
+           "longest_first", "needs_rerun", "prepare_run_dir", "run_bench", "task_keys"]

@@ -24,6 +24,7 @@ from pathlib import Path
 from packlab.cases import cases_sha256, load_cases, save_cases
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Case
+from packlab.datagen import generate_cases
 
 #: Where the bundled suites live inside the installed package.
 SUITE_PACKAGE_DIR = ("data", "suites")
@@ -147,8 +148,6 @@ def suite_digest(name: str, directory: str | os.PathLike[str] | None = None) -> 
 
 def build_suite(spec: SuiteSpec, progress: bool = False) -> list[Case]:
     """Regenerate a suite's cases from its spec (deterministic; slow: replays every plan)."""
-    from packlab.datagen import generate_cases  # the data engine; only suite makers need it
-
     cases: list[Case] = []
     for difficulty, n in spec.counts:
         if progress:

@@ -17,6 +17,9 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
 
 Records are sorted by key before any sum, so the result does not depend on the order in which
 parallel workers finished, and the summary of records read back from disk equals the live one.
+
+The result is a ``packlab.core.records.RunSummary`` (summary.json, with its ``format``); a
+missing mean (no finished episode) is None, written as null.
 """
 
 from __future__ import annotations
@@ -24,11 +27,28 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
-from typing import Any
+
+from msgspec import UNSET
 
 from packlab.bench.describe import difficulty_order
-from packlab.bench.records import record_key
+from packlab.core.records import (
+    SUMMARY_FORMAT,
+    CaseCells,
+    Cell,
+    EpisodeError,
+    EpisodeOk,
+    EpisodeRecord,
+    ErrorEntry,
+    MetricCells,
+    PolicyCounts,
+    RunConfigHead,
+    RunSummary,
+    Timing,
+)
 from packlab.metrics import AVERAGE, METRICS
+
+AGGREGATION = ("per-seed mean over cases (average: mean of difficulties); "
+               "mean and sample std over seeds")
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -43,59 +63,79 @@ def _std(values: Sequence[float]) -> float:
     return math.sqrt(math.fsum((v - m) ** 2 for v in values) / (len(values) - 1))
 
 
-def _cell(per_seed: dict[str, float]) -> dict[str, Any]:
+def _number(value: float) -> float | None:
+    """JSON has no NaN; a missing mean (no finished episode) is None (written as null)."""
+    return None if math.isnan(value) else value
+
+
+def _cell(per_seed: dict[str, float]) -> Cell:
     values = list(per_seed.values())
-    return {"mean": _mean(values), "std": _std(values), "per_seed": per_seed}
+    return Cell(_number(_mean(values)), _number(_std(values)), per_seed)
 
 
-def _nan_to_none(obj: Any) -> Any:
-    """JSON has no NaN; a missing mean (no finished episode) is written as null."""
-    if isinstance(obj, float) and math.isnan(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _nan_to_none(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_nan_to_none(v) for v in obj]
-    return obj
+def _metric_cells(per_metric: dict[str, dict[str, float]]) -> MetricCells:
+    return MetricCells(*(_cell(per_metric[m]) for m in METRICS))
 
 
-def _unsettled_steps(metrics: dict[str, Any]) -> int:
-    """Placements whose settle hit its cap; records written before ``unsettled_steps`` named
-    the same count ``capped_placements``."""
-    return int(metrics.get("unsettled_steps", metrics.get("capped_placements", 0)))
+def _timing(t: Timing, name: str) -> float:
+    value = getattr(t, name)
+    return 0.0 if value is UNSET or value is None else float(value)
 
 
-def summarize(records: Iterable[dict[str, Any]], policies: Sequence[str] | None = None,
+def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
+    steps = [s for r in mine for s in r.steps]
+    decisions = sum(int(_timing(r.timing, "decisions")) for r in mine)
+    policy_s = math.fsum(_timing(r.timing, "policy_s") for r in mine)
+    env_s = math.fsum(_timing(r.timing, "env_s") for r in mine)
+    return PolicyCounts(
+        episodes=len(mine),
+        errors=n_errors,
+        steps=len(steps),
+        invalid_steps=sum(1 for s in steps if not s.valid),
+        set_aside=sum(r.metrics.n_set_aside for r in mine),
+        unsettled_steps=sum(r.metrics.unsettled_steps for r in mine),
+        not_at_rest=sum(1 for r in mine if r.metrics.at_rest is False),
+        max_residual_linear_mps=max((r.metrics.residual_linear_mps for r in mine), default=0.0),
+        max_residual_angular_radps=max((r.metrics.residual_angular_radps for r in mine),
+                                       default=0.0),
+        decision_ms=1000.0 * policy_s / decisions if decisions else None,
+        step_ms=1000.0 * env_s / decisions if decisions else None,
+        episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
+    )
+
+
+def summarize(records: Iterable[EpisodeRecord], policies: Sequence[str] | None = None,
               seeds: Sequence[int] | None = None, difficulties: Sequence[str] | None = None,
-              meta: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The summary (JSON-able) of a run's records; see the module docstring for the rules.
+              meta: RunConfigHead | None = None) -> RunSummary:
+    """The summary of a run's records; see the module docstring for the rules.
 
     ``policies`` / ``seeds`` / ``difficulties`` fix the order (and selection) of rows and
-    columns; by default they are taken from the records.
+    columns; by default they are taken from the records. ``meta`` (the run's config.json) names
+    the suite, backend and cases.
     """
-    recs = sorted(records, key=record_key)
+    recs = sorted(records, key=lambda r: r.key)
     if policies is None:
-        policies = list(dict.fromkeys(r["policy"] for r in recs))
+        policies = list(dict.fromkeys(r.policy for r in recs))
     if seeds is None:
-        seeds = sorted({int(r["seed"]) for r in recs})
+        seeds = sorted({r.seed for r in recs})
     if difficulties is None:
-        difficulties = difficulty_order([r.get("difficulty", "") for r in recs])
+        difficulties = difficulty_order([r.difficulty for r in recs])
     policies, seeds, difficulties = list(policies), [int(s) for s in seeds], list(difficulties)
     wanted = set(policies)
-    recs = [r for r in recs if r["policy"] in wanted and int(r["seed"]) in seeds
-            and r.get("difficulty", "") in difficulties]
-    ok = [r for r in recs if r.get("status", "ok") == "ok"]
-    errors = [r for r in recs if r.get("status", "ok") != "ok"]
+    recs = [r for r in recs
+            if r.policy in wanted and r.seed in seeds and r.difficulty in difficulties]
+    ok = [r for r in recs if isinstance(r, EpisodeOk)]
+    errors = [r for r in recs if isinstance(r, EpisodeError)]
 
     # metric value by (policy, difficulty, case, seed)
-    value: dict[tuple[str, str], dict[str, dict[int, dict[str, float]]]] = defaultdict(lambda: defaultdict(dict))
+    value: dict[tuple[str, str], dict[str, dict[int, dict[str, float]]]] = defaultdict(
+        lambda: defaultdict(dict))
     for r in ok:
-        value[(r["policy"], r.get("difficulty", ""))][r["case_id"]][int(r["seed"])] = {
-            m: float(r["metrics"][m]) for m in METRICS
-        }
+        value[(r.policy, r.difficulty)][r.case_id][r.seed] = {
+            m: float(getattr(r.metrics, m)) for m in METRICS}
 
-    table: dict[str, dict[str, dict[str, Any]]] = {}
-    per_case: dict[str, dict[str, Any]] = {}
+    table: dict[str, dict[str, MetricCells]] = {}
+    per_case: dict[str, dict[str, CaseCells]] = {}
     for p in policies:
         table[p], per_case[p] = {}, {}
         by_group: dict[str, dict[str, dict[str, float]]] = {}  # group -> metric -> seed -> score
@@ -109,8 +149,9 @@ def summarize(records: Iterable[dict[str, Any]], policies: Sequence[str] | None 
                     if scores:
                         by_group[d][m][str(s)] = _mean(scores)
             for c in sorted(cases):
-                per_case[p][c] = {"difficulty": d, **{
-                    m: _cell({str(s): cases[c][s][m] for s in seeds if s in cases[c]}) for m in METRICS}}
+                seeds_of_case = [s for s in seeds if s in cases[c]]
+                per_case[p][c] = CaseCells(d, *(
+                    _cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS))
         by_group[AVERAGE] = {}
         for m in METRICS:
             by_group[AVERAGE][m] = {}
@@ -119,46 +160,25 @@ def summarize(records: Iterable[dict[str, Any]], policies: Sequence[str] | None 
                 if len(parts) == len(difficulties) and parts:
                     by_group[AVERAGE][m][str(s)] = _mean(parts)
         for g, metrics in by_group.items():
-            table[p][g] = {m: _cell(per_seed) for m, per_seed in metrics.items()}
+            table[p][g] = _metric_cells(metrics)
 
-    counts: dict[str, dict[str, Any]] = {}
-    for p in policies:
-        mine = [r for r in ok if r["policy"] == p]
-        steps = [s for r in mine for s in r.get("steps", ())]
-        decisions = sum(r.get("timing", {}).get("decisions", 0) for r in mine)
-        policy_s = math.fsum(r.get("timing", {}).get("policy_s", 0.0) for r in mine)
-        env_s = math.fsum(r.get("timing", {}).get("env_s", 0.0) for r in mine)
-        counts[p] = {
-            "episodes": len(mine),
-            "errors": sum(1 for r in errors if r["policy"] == p),
-            "steps": len(steps),
-            "invalid_steps": sum(1 for s in steps if not s.get("valid", True)),
-            "set_aside": sum(int(r["metrics"].get("n_set_aside", 0)) for r in mine),
-            "unsettled_steps": sum(_unsettled_steps(r["metrics"]) for r in mine),
-            "not_at_rest": sum(1 for r in mine if r["metrics"].get("at_rest") is False),
-            "max_residual_linear_mps": max((float(r["metrics"].get("residual_linear_mps", 0.0)) for r in mine),
-                                           default=0.0),
-            "max_residual_angular_radps": max((float(r["metrics"].get("residual_angular_radps", 0.0))
-                                               for r in mine), default=0.0),
-            "decision_ms": 1000.0 * policy_s / decisions if decisions else float("nan"),
-            "step_ms": 1000.0 * env_s / decisions if decisions else float("nan"),
-            "episode_s": _mean([r.get("timing", {}).get("episode_s", 0.0) for r in mine]),
-        }
-
-    summary = {
-        **(meta or {}),
-        "policies": policies,
-        "seeds": seeds,
-        "difficulties": difficulties,
-        "metrics": list(METRICS),
-        "aggregation": "per-seed mean over cases (average: mean of difficulties); mean and sample std over seeds",
-        "table": table,
-        "per_case": per_case,
-        "counts": counts,
-        "errors": [{"case_id": r["case_id"], "seed": r["seed"], "policy": r["policy"],
-                    "error": r.get("error", "")} for r in errors],
-    }
-    return _nan_to_none(summary)
+    counts = {p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))
+              for p in policies}
+    run = {} if meta is None else {"suite": meta.suite, "backend": meta.backend,
+                                   "n_cases": meta.n_cases, "cases_sha256": meta.cases_sha256}
+    return RunSummary(
+        format=SUMMARY_FORMAT,
+        **run,
+        policies=tuple(policies),
+        seeds=tuple(seeds),
+        difficulties=tuple(difficulties),
+        metrics=tuple(METRICS),
+        aggregation=AGGREGATION,
+        table=table,
+        per_case=per_case,
+        counts=counts,
+        errors=tuple(ErrorEntry(r.case_id, r.seed, r.policy, r.error) for r in errors),
+    )
 
 
-__all__ = ["AVERAGE", "METRICS", "summarize"]
+__all__ = ["AGGREGATION", "AVERAGE", "METRICS", "summarize"]

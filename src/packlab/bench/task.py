@@ -14,7 +14,7 @@ Time limits use ``SIGALRM`` (``signal.setitimer``) in the thread that runs the e
 must be the process's main thread: the handler raises inside whatever the policy is doing,
 including a blocking ``time.sleep`` or socket read. Code that never returns to the
 interpreter (a C loop) cannot be interrupted this way; the process pool backs the alarm up by
-killing a worker that stays silent past the limit (see ``executors``).
+killing a worker that stays silent past the limit (see ``packlab.executors``).
 """
 
 from __future__ import annotations
@@ -29,13 +29,18 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from packlab.core.errors import EndpointUnavailable, RunAborted
+import msgspec
+
+from packlab.core.choices import ErrorKind, choices
+from packlab.core.errors import EndpointUnavailable
+from packlab.core.records import RUN_FORMAT, EpisodeError, EpisodeOk, EpisodeRecord, Timing, convert
 from packlab.core.types import Case
+from packlab.executors import DeadlineReached
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
 
 #: Values of a failed record's ``error_kind``.
-ERROR_KINDS = ("exception", "timeout", "transport")
+ERROR_KINDS = choices(ErrorKind)
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,10 +58,6 @@ class EpisodeTimeout(BaseException):
     A BaseException so that a policy's own ``except Exception: retry`` cannot swallow it and
     carry on past the limit.
     """
-
-
-class DeadlineReached(RunAborted):
-    """The run's overall deadline (``--deadline``) passed; the episode in progress is dropped."""
 
 
 class _DeadlineAlarm(BaseException):
@@ -107,6 +108,7 @@ def is_transport_error(exc: BaseException) -> bool:
 def _header(case: Case, policy: str, seed: int, backend: str) -> dict[str, Any]:
     # Key fields first so a record reads well in a text editor.
     return {
+        "format": RUN_FORMAT,
         "case_id": case.episode_id,
         "seed": seed,
         "policy": policy,
@@ -121,18 +123,18 @@ def one_line(exc: BaseException) -> str:
     return text[:500]
 
 
-def error_record(case: Case, policy: str, seed: int, backend: str, kind: str, message: str,
-                 trace: str = "", timing: dict[str, Any] | None = None) -> dict[str, Any]:
-    """A failed episode's record (also built by executors, e.g. for a worker that died)."""
+def error_record(case: Case, policy: str, seed: int, backend: str, kind: ErrorKind, message: str,
+                 trace: str = "", timing: Timing | None = None) -> EpisodeError:
+    """A failed episode's record (also built by the runner, e.g. for a worker that died)."""
     assert kind in ERROR_KINDS, kind
-    return {"status": "error", **_header(case, policy, seed, backend), "error_kind": kind,
-            "error": message[:500], "traceback": trace, "timing": timing or {}}
+    return EpisodeError(**_header(case, policy, seed, backend), error_kind=kind, error=message[:500],
+                        traceback=trace, timing=timing or Timing())
 
 
 def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = None,
              policy_kwargs: dict[str, Any] | None = None, *, timeout_s: float | None = None,
-             deadline: float | None = None) -> dict[str, Any]:
-    """The record of one episode (``status`` "ok"), or of its failure (``status`` "error").
+             deadline: float | None = None) -> EpisodeRecord:
+    """The record of one episode (``EpisodeOk``), or of its failure (``EpisodeError``).
 
     A fresh policy per episode (``make_policy(policy, **policy_kwargs)``), so no state leaks
     between episodes; policies that hold heavy models cache them per process themselves.
@@ -142,6 +144,7 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
     started, started_cpu = time.perf_counter(), time.process_time()
     head = _header(case, policy, seed, backend)
     timing: dict[str, Any] = {}
+    record: EpisodeRecord
     try:
         with time_limit(timeout_s, deadline):
             result = run_episode(case, make_policy(policy, **(policy_kwargs or {})), seed, backend=backend,
@@ -149,7 +152,9 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).
         body["policy"] = policy
-        record = {"status": "ok", **head, **body}
+        # Typed (and checked) here, from the one dict layout the engine writes.
+        record = convert({**head, **body, "timing": {}}, EpisodeOk,
+                         f"record of {case.episode_id}/{policy}/seed {seed}")
         step_s = sum(s.wall_time_s for s in result.steps)
         timing = {"policy_s": round(result.policy_time_s, 6), "env_s": round(step_s, 6),
                   "decisions": len(result.steps)}
@@ -163,9 +168,9 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
         record = error_record(case, policy, seed, backend, kind, one_line(exc), traceback.format_exc())
     # cpu_s beside the wall time: on a shared machine the wall time also counts time spent
     # waiting for a core, the CPU time only the episode's own work.
-    record["timing"] = {"episode_s": round(time.perf_counter() - started, 6),
-                        "cpu_s": round(time.process_time() - started_cpu, 6), **timing, "pid": os.getpid()}
-    return record
+    return msgspec.structs.replace(record, timing=Timing(
+        episode_s=round(time.perf_counter() - started, 6), cpu_s=round(time.process_time() - started_cpu, 6),
+        **timing, pid=os.getpid()))
 
 
 __all__ = ["ERROR_KINDS", "DeadlineReached", "EpisodeTimeout", "Task", "error_record", "is_transport_error",

@@ -13,8 +13,10 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
+from packlab.core.choices import Difficulty, choices
+
 #: File order when a reference benchmark directory is loaded (other levels follow, sorted).
-REFERENCE_LEVEL_ORDER = ("easy", "medium", "hard")
+REFERENCE_LEVEL_ORDER = choices(Difficulty)  # easy, medium, hard
 #: The per-level file inside a reference benchmark directory.
 REFERENCE_FILE = "test.parquet"
 #: What the reference's ``episode_to_eval_row`` puts beside ``extra_info`` in each row.

@@ -13,6 +13,9 @@ import os
 from pathlib import Path
 from typing import Any
 
+import pyarrow as pa
+import pyarrow.parquet as pq
+
 from packlab.cases.layout import REFERENCE_FILE, reference_level_files
 from packlab.cases.reader import shorten
 from packlab.cases.records import case_from_dict
@@ -119,9 +122,6 @@ def _read_json(path: Path, source: str, id_prefix: str) -> list[Case]:
 
 def _read_parquet(path: Path, source: str, id_prefix: str,
                   default_difficulty: str = "") -> list[Case]:
-    import pyarrow as pa  # imported here: JSON users need not pay for pyarrow
-    import pyarrow.parquet as pq
-
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as exc:

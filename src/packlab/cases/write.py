@@ -14,6 +14,9 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+import pyarrow as pa
+import pyarrow.parquet as pq
+
 from packlab.cases.layout import (
     LEVEL_NAME,
     REFERENCE_FILE,
@@ -66,9 +69,7 @@ def _reference_rows(cases: Sequence[Case]) -> list[dict[str, Any]]:
 
 # -- row writers ---------------------------------------------------------------------------------
 
-def _reference_table(rows: list[dict[str, Any]]) -> Any:
-    import pyarrow as pa
-
+def _reference_table(rows: list[dict[str, Any]]) -> pa.Table:
     try:
         # Types inferred from the rows, as the reference's pandas ``to_parquet`` does.
         return pa.Table.from_pylist(rows)
@@ -79,8 +80,6 @@ def _reference_table(rows: list[dict[str, Any]]) -> Any:
 
 def _parquet_writer(rows: list[dict[str, Any]]) -> Callable[[IO[bytes]], None]:
     """Builds the table now (so a bad one fails before any file exists); writes it later."""
-    import pyarrow.parquet as pq
-
     table = _reference_table(rows)
     return lambda fh: pq.write_table(table, fh)
 

@@ -10,15 +10,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from packlab.bench.compare import compare_markdown
 from packlab.bench.config import (
-    DEFAULT_EPISODE_TIMEOUT_S,
-    DEFAULT_MAX_TRANSPORT_FAILURES,
-    EXEC_BACKENDS,
     MAX_SEEDS,
-    TRANSITION_BACKENDS,
     RunConfig,
     parse_names,
     parse_physics,
@@ -26,11 +23,12 @@ from packlab.bench.config import (
     parse_seeds,
     time_limit_arg,
 )
-from packlab.bench.suites import DEFAULT_SUITE
+from packlab.bench.describe import describe_cases, format_description
+from packlab.bench.report import build_report
+from packlab.bench.runner import BenchOutcome, run_bench
+from packlab.bench.suites import resolve_cases
+from packlab.cli.options import add_field, config_kwargs
 from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
-
-if TYPE_CHECKING:  # the runner imports the engine; load it only when a run starts
-    from packlab.bench.runner import BenchOutcome
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,35 +37,47 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
                     "write summary.json, table.md and figures. Rerun the same command to resume.",
     )
-    p.add_argument("--cases", default=DEFAULT_SUITE,
-                   help=f"a bundled suite name, a case file (JSON, JSONL, reference parquet) or a reference "
-                        f"benchmark directory (<dir>/<difficulty>/test.parquet); default {DEFAULT_SUITE}")
-    p.add_argument("--policies", help="comma-separated policy names (default: every heuristic, random, oracle)")
-    p.add_argument("--seeds", default="0,1,2",
-                   help=f"run seeds, e.g. 0,1,2 or 0-4 (default 0,1,2; at most {MAX_SEEDS})")
-    p.add_argument("--backend", choices=TRANSITION_BACKENDS, default="mujoco", help="transition backend")
-    p.add_argument("--difficulty", help="comma-separated difficulties to run (default: all)")
-    p.add_argument("--out", help="run directory (default runs/bench-<suite>); an existing one is resumed")
-    p.add_argument("--workers", type=int, default=0, help="parallel workers (0 = all local cores)")
-    p.add_argument("--backend-exec", choices=EXEC_BACKENDS, default="process",
-                   help="where episodes run: local process pool or Ray (needs the ray extra)")
-    p.add_argument("--policy-arg", action="append", default=[], metavar="POLICY:KEY=VALUE",
-                   help="a policy factory argument, e.g. vlm:model=runs/sft/final (repeatable)")
-    p.add_argument("--physics", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a mujoco PhysicsConfig field for this run (repeatable; part of the run's identity)")
-    p.add_argument("--retry-errors", action="store_true",
-                   help="rerun episodes recorded as failed (transport errors are rerun anyway)")
-    p.add_argument("--episode-timeout", type=float, default=DEFAULT_EPISODE_TIMEOUT_S, metavar="SECONDS",
-                   help=f"wall-clock limit of one episode, recorded as an error of kind timeout "
-                        f"(default {DEFAULT_EPISODE_TIMEOUT_S:g}; 0 = none)")
-    p.add_argument("--max-transport-failures", type=int, default=DEFAULT_MAX_TRANSPORT_FAILURES, metavar="N",
-                   help=f"stop the run after N consecutive episodes whose model server was unreachable "
-                        f"(default {DEFAULT_MAX_TRANSPORT_FAILURES}; 0 = never)")
-    p.add_argument("--deadline", type=float, default=0, metavar="SECONDS",
-                   help="stop this invocation after SECONDS (records kept, exit code 3; rerun to resume); "
-                        "default none")
+    add_field(p, RunConfig, "cases", "--cases",
+              help="a bundled suite name, a case file (JSON, JSONL, reference parquet) or a "
+                   "reference benchmark directory (<dir>/<difficulty>/test.parquet); "
+                   "default {default}")
+    add_field(p, RunConfig, "policies", "--policies", parse=partial(parse_names, flag="policies"),
+              help="comma-separated policy names (default: every heuristic, random, oracle)")
+    add_field(p, RunConfig, "seeds", "--seeds", parse=parse_seeds,
+              help=f"run seeds, e.g. 0,1,2 or 0-4 (default {{default}}; at most {MAX_SEEDS})")
+    add_field(p, RunConfig, "backend", "--backend", help="transition backend; default {default}")
+    add_field(p, RunConfig, "difficulties", "--difficulty",
+              parse=partial(parse_names, flag="difficulty"),
+              help="comma-separated difficulties to run (default: all)")
+    add_field(p, RunConfig, "out", "--out",
+              help="run directory (default runs/bench-<suite>); an existing one is resumed")
+    add_field(p, RunConfig, "workers", "--workers",
+              help="parallel workers (0 = all local cores; 1 = in this process); default {default}")
+    add_field(p, RunConfig, "executor", "--executor",
+              help="where episodes run: a local process pool or Ray (needs the ray extra); "
+                   "default {default}")
+    add_field(p, RunConfig, "policy_args", "--policy-arg", parse=parse_policy_args, action="append",
+              metavar="POLICY:KEY=VALUE",
+              help="a policy factory argument, e.g. vlm:model=runs/sft/final (repeatable)")
+    add_field(p, RunConfig, "physics_overrides", "--physics", parse=parse_physics, action="append",
+              metavar="KEY=VALUE",
+              help="change a mujoco PhysicsConfig field for this run (repeatable; part of the "
+                   "run's identity)")
+    add_field(p, RunConfig, "retry_errors", "--retry-errors",
+              help="rerun episodes recorded as failed (transport errors are rerun anyway)")
+    add_field(p, RunConfig, "episode_timeout_s", "--episode-timeout", type=float,
+              parse=time_limit_arg, metavar="SECONDS",
+              help="wall-clock limit of one episode, recorded as an error of kind timeout "
+                   "(default {default}; 0 = none)")
+    add_field(p, RunConfig, "max_transport_failures", "--max-transport-failures", metavar="N",
+              help="stop the run after N consecutive episodes whose model server was unreachable "
+                   "(default {default}; 0 = never)")
+    add_field(p, RunConfig, "deadline_s", "--deadline", type=float, parse=time_limit_arg,
+              metavar="SECONDS",
+              help="stop this invocation after SECONDS (records kept, exit code 3; rerun to "
+                   "resume); default {default}")
+    add_field(p, RunConfig, "progress", "--no-progress", help="no progress bar on stderr")
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=run)
 
@@ -90,29 +100,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> RunConfig:
-    return RunConfig(
-        cases=args.cases,
-        policies=parse_names(args.policies, "policies"),
-        seeds=parse_seeds(args.seeds),
-        backend=args.backend,
-        difficulties=parse_names(args.difficulty, "difficulty"),
-        out=args.out or "",
-        workers=args.workers,
-        exec_backend=args.backend_exec,
-        progress=not args.no_progress,
-        retry_errors=args.retry_errors,
-        physics_overrides=parse_physics(args.physics),
-        policy_args=parse_policy_args(args.policy_arg),
-        episode_timeout_s=time_limit_arg(args.episode_timeout),
-        max_transport_failures=args.max_transport_failures,
-        deadline_s=time_limit_arg(args.deadline),
-    )
+    """The RunConfig the flags describe; a flag left out leaves the field's default."""
+    return RunConfig(**config_kwargs(args, "bench", RunConfig))
 
 
 def describe(cases: str) -> int:
-    from packlab.bench.describe import describe_cases, format_description
-    from packlab.bench.suites import resolve_cases
-
     source = resolve_cases(cases)
     print(format_description(f"{source.label} ({source.origin}, sha256 {source.sha256[:12]}...)",
                              describe_cases(source.cases)))
@@ -123,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
     if args.describe:
         return describe(args.cases)
     config = config_from_args(args)  # every flag checked before anything is loaded or written
-    from packlab.bench.runner import run_bench
-
     outcome = run_bench(config, figures=not args.no_figures)
     print(outcome.table_md)
     resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
@@ -153,8 +143,6 @@ def exit_status(outcome: BenchOutcome) -> tuple[int, str]:
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from packlab.bench.report import build_report
-
     _, table_md, paths = build_report(args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed)
     print(table_md)
     for path in paths:
@@ -169,8 +157,6 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 def run_compare(args: argparse.Namespace) -> int:
-    from packlab.bench.compare import compare_markdown
-
     labels = [x.strip() for x in args.labels.split(",")] if args.labels else None
     out = Path(args.out) if args.out else None
     if out is not None and out.is_dir():  # checked before the work, not after it

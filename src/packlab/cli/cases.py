@@ -7,6 +7,10 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from packlab.bench.suites import resolve_cases
+from packlab.cases import save_cases, write_reference
+from packlab.core.errors import ConfigError
+
 #: Export formats: packlab's own JSONL, or the reference's benchmark layout.
 EXPORT_FORMATS = ("reference", "jsonl")
 
@@ -36,8 +40,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_validate(args: argparse.Namespace) -> int:
-    from packlab.bench.suites import resolve_cases
-
     source = resolve_cases(args.src)
     cases = source.cases
     levels = Counter(c.difficulty or "(none)" for c in cases)
@@ -52,10 +54,6 @@ def run_validate(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from packlab.bench.suites import resolve_cases
-    from packlab.cases import save_cases, write_reference
-    from packlab.core.errors import ConfigError
-
     out = Path(args.out)
     if out.exists() or out.is_symlink():  # checked before loading: no work wasted on a refused target
         raise ConfigError(f"--out {out}: already exists; remove it or choose another path")

@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 
 from packlab.core.errors import ConfigError
+from packlab.core.records import to_builtins
+from packlab.datagen.format import read_info
 from packlab.datagen.stats import collect, dataset_cases, format_report, save_histograms
 
 
@@ -23,10 +25,11 @@ def run(args: argparse.Namespace) -> int:
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
         raise ConfigError(f"dir = {str(root)!r}: no meta/info.json; not a finished packlab dataset")
-    info = json.loads(info_path.read_text())
+    info = read_info(root)  # typed, its format_version checked
     dists = collect(dataset_cases(root))
     if args.json:
-        print(json.dumps({"info": info, "distributions": {k: d.summary() for k, d in dists.items()}}, indent=1))
+        as_json = json.loads(json.dumps(to_builtins(info), sort_keys=True))  # the file's key order
+        print(json.dumps({"info": as_json, "distributions": {k: d.summary() for k, d in dists.items()}}, indent=1))
     else:
         print(format_report(info, dists))
     if args.plots:

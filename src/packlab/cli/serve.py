@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import argparse
 
+from packlab.vlm.serve.command import add_arguments, run_server  # no torch at import
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from packlab.vlm.serve import add_arguments, run_server  # stdlib only at import
-
     p = subparsers.add_parser(
         "serve",
         help="serve a packing VLM over an OpenAI-compatible API (test server)",

@@ -4,13 +4,25 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
+from typing import Any
 
+from packlab.cli.options import add_field, config_kwargs
 from packlab.core.errors import PacklabError
+from packlab.viz.plots import plot_loss_curve
+from packlab.vlm.data.sft_examples import RECIPES
+from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side, missing_extra
+from packlab.vlm.train.config import LR_PRETRAINED, LR_TINY, SFTConfig
 
-VLM_EXTRA_HINT = (
-    "the vlm extra is not installed: pip install torch==2.13.0 (CPU wheel, first), "
-    "then pip install -e '.[vlm]'"
-)
+#: The trainer's module (vlm extra), imported when the command runs.
+TRAINER_MODULE = "packlab.vlm.train.sft"
+
+
+def _template_kwargs(text: str) -> dict[str, Any]:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise PacklabError(f"--template-kwargs is not JSON: {e}") from None
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,102 +35,62 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "accelerate launch --config_file configs/accelerate/fsdp_8gpu.yaml "
         "-m packlab.cli.main train sft ...",
     )
-    s.add_argument(
-        "--data", required=True, help="dataset directory (reads sft/*.jsonl) or one .jsonl"
-    )
-    s.add_argument(
-        "--model",
-        default="tiny:qwen3_5:small",
-        help="local checkpoint directory, or tiny:<family>:<size> for a random-weight model "
-        "(families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, small, base)",
-    )
-    s.add_argument(
-        "--out", required=True, help="run directory (config, loss log, curve, checkpoints)"
-    )
-    s.add_argument("--epochs", type=int, default=1)
-    s.add_argument(
-        "--lr", type=float, default=None, help="default 1e-5 for checkpoints, 1e-3 for tiny models"
-    )
-    s.add_argument(
-        "--micro-batch", type=int, default=1, help="examples per forward pass per device"
-    )
-    s.add_argument(
-        "--grad-accum",
-        type=int,
-        default=8,
-        help="global batch = micro-batch x grad-accum x devices",
-    )
-    s.add_argument(
-        "--max-length",
-        type=int,
-        default=4096,
-        help="token limit; the oldest past steps are dropped until an example fits",
-    )
-    s.add_argument(
-        "--max-steps", type=int, default=None, help="stop after this many optimizer steps"
-    )
-    s.add_argument("--warmup-ratio", type=float, default=0.03)
-    s.add_argument("--weight-decay", type=float, default=0.0)
-    s.add_argument("--precision", choices=("auto", "bf16", "no"), default="auto")
-    s.add_argument("--gradient-checkpointing", action="store_true")
-    s.add_argument(
-        "--lora", action="store_true", help="train LoRA adapters (merged into the final model)"
-    )
-    s.add_argument("--lora-r", type=int, default=16)
-    s.add_argument("--history", choices=("full", "current_only", "no_actions"), default="full")
-    s.add_argument("--image", choices=("heightmap", "blank", "none"), default="heightmap")
-    s.add_argument("--recipe", choices=("easy", "easy+medium", "mixed"), default="mixed")
-    s.add_argument(
-        "--data-fraction", type=float, default=1.0, help="fraction of episodes kept (seeded)"
-    )
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument(
-        "--template-kwargs",
-        default="{}",
-        help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'",
-    )
+    field = partial(add_field, s, SFTConfig)
+    field("data", "--data", required=True,
+          help="dataset directory (reads sft/*.jsonl) or one .jsonl")
+    field("model", "--model",
+          help="local checkpoint directory, or tiny:<family>:<size> for a random-weight model "
+               "(families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, small, base); "
+               "default {default}")
+    field("out", "--out", required=True,
+          help="run directory (config, loss log, curve, checkpoints)")
+    field("epochs", "--epochs", help="default {default}")
+    field("lr", "--lr", help=f"default {LR_PRETRAINED:g} for checkpoints, {LR_TINY:g} for tiny "
+                             f"models")
+    field("micro_batch", "--micro-batch",
+          help="examples per forward pass per device; default {default}")
+    field("grad_accum", "--grad-accum",
+          help="global batch = micro-batch x grad-accum x devices; default {default}")
+    field("max_length", "--max-length",
+          help="token limit; the oldest past steps are dropped until an example fits; "
+               "default {default}")
+    field("max_steps", "--max-steps", help="stop after this many optimizer steps")
+    field("warmup_ratio", "--warmup-ratio", help="default {default}")
+    field("weight_decay", "--weight-decay", help="default {default}")
+    field("precision", "--precision", help="default {default}")
+    field("gradient_checkpointing", "--gradient-checkpointing")
+    field("lora", "--lora", help="train LoRA adapters (merged into the final model)")
+    field("lora_r", "--lora-r", help="default {default}")
+    field("history", "--history", help="default {default}")
+    field("image", "--image", help="default {default}")
+    field("recipe", "--recipe", choices=tuple(RECIPES), help="default {default}")
+    field("data_fraction", "--data-fraction",
+          help="fraction of episodes kept (seeded); default {default}")
+    field("seed", "--seed", help="default {default}")
+    field("template_kwargs", "--template-kwargs", parse=_template_kwargs,
+          help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'")
     s.set_defaults(func=run_sft)
 
 
-def run_sft(args: argparse.Namespace) -> int:
-    from packlab.vlm.sft_config import SFTConfig
+def config_from_args(args: argparse.Namespace) -> SFTConfig:
+    """The SFTConfig the flags describe; a flag left out leaves the field's default."""
+    return SFTConfig(**config_kwargs(args, "train sft", SFTConfig))
 
+
+def run_sft(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
     try:
-        template_kwargs = json.loads(args.template_kwargs)
-    except json.JSONDecodeError as e:
-        raise PacklabError(f"--template-kwargs is not JSON: {e}") from None
-    cfg = SFTConfig(
-        data=args.data,
-        out=args.out,
-        model=args.model,
-        epochs=args.epochs,
-        lr=args.lr,
-        micro_batch=args.micro_batch,
-        grad_accum=args.grad_accum,
-        max_length=args.max_length,
-        max_steps=args.max_steps,
-        warmup_ratio=args.warmup_ratio,
-        weight_decay=args.weight_decay,
-        precision=args.precision,
-        gradient_checkpointing=args.gradient_checkpointing,
-        lora=args.lora,
-        lora_r=args.lora_r,
-        history=args.history,
-        image=args.image,
-        recipe=args.recipe,
-        data_fraction=args.data_fraction,
-        seed=args.seed,
-        template_kwargs=template_kwargs,
-    )
-    try:
-        from packlab.vlm.sft import train_sft
+        trainer = import_torch_side(TRAINER_MODULE)
     except ModuleNotFoundError as e:
-        if e.name in ("torch", "transformers", "accelerate", "peft", "tokenizers", "safetensors"):
+        if missing_extra(e):
             raise PacklabError(VLM_EXTRA_HINT) from None
         raise
-    res = train_sft(cfg)
+    res = trainer.train_sft(cfg)
     if not res.is_main_process:
         return 0  # under accelerate/torchrun only rank 0 reports
+    if res.losses:
+        title = f"SFT {cfg.model} ({res.n_examples} examples)"
+        plot_loss_curve(res.loss_log, res.out / "loss_curve.png", title=title)
     print(
         f"trained {res.optimizer_steps} steps on {res.n_examples} examples "
         f"in {res.wall_time_s:.0f} s; "

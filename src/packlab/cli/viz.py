@@ -9,11 +9,21 @@ the recorded actions (records keep actions, not heightmaps).
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import sys
 from pathlib import Path
 
+from packlab.bench.config import physics_from_json
+from packlab.bench.records import CASES_FILE, CONFIG_FILE, EPISODES_FILE, iter_ok, read_records
+from packlab.bench.replay import replay_record
+from packlab.cases import load_cases
 from packlab.core.errors import ConfigError
+from packlab.viz.plots import save_figure
+from packlab.viz.render import episode_figure
+
+#: Heightmap tiles drawn at most: episode_figure's own default, stated there.
+MAX_STEPS = inspect.signature(episode_figure).parameters["max_steps"].default
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,13 +38,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--seed", type=int, help="run seed (default: the smallest recorded)")
     e.add_argument("--cases", help="case file holding the case (default: cases.jsonl beside the records)")
     e.add_argument("--out", required=True, help="PNG file to write")
-    e.add_argument("--max-steps", type=int, default=40, help="heightmap tiles at most (default 40)")
+    e.add_argument("--max-steps", type=int, default=MAX_STEPS,
+                   help="heightmap tiles at most (default %(default)s)")
     e.set_defaults(func=run_episode_figure)
 
 
 def _paths(records: str) -> tuple[Path, Path]:
-    from packlab.bench.records import EPISODES_FILE
-
     path = Path(records)
     if path.is_dir():
         return path / EPISODES_FILE, path
@@ -42,37 +51,29 @@ def _paths(records: str) -> tuple[Path, Path]:
 
 
 def run_episode_figure(args: argparse.Namespace) -> int:
-    from packlab.bench.config import physics_from_json
-    from packlab.bench.records import CASES_FILE, CONFIG_FILE, read_records
-    from packlab.bench.replay import replay_record
-    from packlab.cases import load_cases
-    from packlab.viz.plots import save_figure
-    from packlab.viz.render import episode_figure
-
     episodes, run_dir = _paths(args.records)
     if not episodes.is_file():
         raise ConfigError(f"records = {args.records!r}: no {episodes.name} there")
-    mine = [r for r in read_records(episodes) if r["case_id"] == args.case and r["policy"] == args.policy
-            and r.get("status", "ok") == "ok"]
+    mine = [r for r in iter_ok(read_records(episodes)) if r.case_id == args.case and r.policy == args.policy]
     if args.seed is not None:
-        mine = [r for r in mine if int(r["seed"]) == args.seed]
+        mine = [r for r in mine if r.seed == args.seed]
     if not mine:
         raise ConfigError(f"{episodes}: no finished record of case {args.case!r}, policy {args.policy!r}"
                           + (f", seed {args.seed}" if args.seed is not None else ""))
-    record = min(mine, key=lambda r: int(r["seed"]))
+    record = min(mine, key=lambda r: r.seed)
     cases_path = Path(args.cases) if args.cases else run_dir / CASES_FILE
     case = next((c for c in load_cases(cases_path) if c.episode_id == args.case), None)
     if case is None:
         raise ConfigError(f"{cases_path}: no case with episode_id {args.case!r}")
     physics = None
     cfg_path = run_dir / CONFIG_FILE
-    if record["backend"] == "mujoco" and cfg_path.is_file():
+    if record.backend == "mujoco" and cfg_path.is_file():
         # Replay with the engine settings the run was scored with.
         physics = physics_from_json(json.loads(cfg_path.read_text(encoding="utf-8")).get("physics"))
     replay = replay_record(case, record, physics)
     if not replay.matches_record:
         print(f"packlab viz: warning: the replay scored Overall {replay.overall:.4f}, the record "
-              f"{record['metrics']['overall']:.4f}; the engine or its settings differ from the run's",
+              f"{record.metrics.overall:.4f}; the engine or its settings differ from the run's",
               file=sys.stderr)
     path = save_figure(episode_figure(case, record, replay.heightmaps, args.max_steps), args.out)
     print(f"wrote {path}")

@@ -22,6 +22,16 @@ HistoryMode = Literal["full", "current_only", "no_actions"]
 Difficulty = Literal["easy", "medium", "hard"]
 #: Heuristic tie rule between equally scored placements (docs/heuristics.md).
 TieBreak = Literal["larger_volume", "shown_order"]
+#: Layout family of generated cases: the paper's ``layered``, or the opt-in richer ``stepped``.
+LayoutFamily = Literal["layered", "stepped"]
+#: SFT export of a dataset: one chat example per step (its history as context), per episode, none.
+SFTExport = Literal["per_step", "per_episode", "none"]
+#: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).
+Precision = Literal["auto", "bf16", "no"]
+#: How a bench episode failed (a failed record's ``error_kind``; docs/robustness.md): the policy
+#: or engine raised (or its worker died), it ran past ``--episode-timeout``, or a remote
+#: policy's server was unreachable.
+ErrorKind = Literal["exception", "timeout", "transport"]
 
 
 def choices(choice_type: object) -> tuple[str, ...]:

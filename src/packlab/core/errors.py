@@ -16,6 +16,19 @@ class CaseFormatError(PacklabError, ValueError):
         self.source, self.line, self.field, self.value, self.problem = source, line, field, value, problem
 
 
+class RecordFormatError(PacklabError, ValueError):
+    """A record file (bench episodes or summary, dataset info) that this packlab cannot read as
+    its typed record: an unknown format version, or a field missing or of the wrong type. The
+    message names file, line (JSONL only), field and value (see ``packlab.core.records``)."""
+
+    def __init__(self, source: str, line: int | None, field: str, value: object, problem: str, *,
+                 show_value: bool = True):
+        where = f"{source}:{line}" if line is not None else source
+        shown = f" = {value!r}" if show_value else ""
+        super().__init__(f"{where}: field '{field}'{shown}: {problem}")
+        self.source, self.line, self.field, self.value, self.problem = source, line, field, value, problem
+
+
 class ConfigError(PacklabError, ValueError):
     """A configuration value is invalid; the message names the field and value."""
 

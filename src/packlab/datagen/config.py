@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from packlab.core.choices import LayoutFamily, PhysicsBackend, SFTExport, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
 
@@ -102,10 +103,6 @@ class ObjectLimits:
     rotated_fraction: float = 0.25  # objects presented with rotation 1 in the plan
 
 
-#: Layout families (see ``packlab.datagen.layout``): "layered" is the paper's, "stepped" is the
-#: opt-in richer family (regions of a layer split at different heights).
-LAYOUT_FAMILIES = ("layered", "stepped")
-
 #: Corners of the floor a first placement may be anchored at: (x at max?, y at max?).
 CORNERS: dict[str, tuple[bool, bool]] = {
     "x0y0": (False, False),
@@ -134,7 +131,9 @@ class AnchorConfig:
 class CaseConfig:
     """Everything that decides what case a case seed turns into (besides the difficulty)."""
 
-    layout: str = "layered"
+    #: Layout family (``packlab.datagen.layout``): "layered" is the paper's, "stepped" the opt-in
+    #: richer family (regions of a layer split at different heights).
+    layout: LayoutFamily = "layered"
     #: Stepped family only: chance that a region of a layer is split into two sub-layers.
     step_prob: float = 0.6
     anchor: AnchorConfig = field(default_factory=AnchorConfig)
@@ -146,8 +145,7 @@ class CaseConfig:
     n_types: int = 8
 
     def __post_init__(self) -> None:
-        if self.layout not in LAYOUT_FAMILIES:
-            raise ConfigError(f"layout = {self.layout!r}: unknown; choose from {', '.join(LAYOUT_FAMILIES)}")
+        require_choice(self.layout, LayoutFamily, "layout")
         if not 0.0 <= self.step_prob <= 1.0:
             raise ConfigError(f"step_prob = {self.step_prob!r}: must be in [0, 1]")
         if self.objects.min_side_mm % self.cell_xy_mm:
@@ -159,25 +157,19 @@ class CaseConfig:
         return asdict(self)
 
 
-#: What replay validation runs each plan on: physics (the default) or exact Eq. 2 (fast checks).
-VALIDATION_BACKENDS = ("mujoco", "geometric")
-
-
 @dataclass(frozen=True, slots=True)
 class ValidationConfig:
     """Replay validation: backend, the run seed of the shuffle, and when a replay is accepted."""
 
-    backend: str = "mujoco"
+    #: What replay validation runs each plan on: physics (the default) or exact Eq. 2 (fast).
+    backend: PhysicsBackend = "mujoco"
     run_seed: int = 0
     min_overall: float = 0.99
     #: Fresh case seeds tried for one dataset slot before the slot is reported as failed.
     max_attempts: int = 20
 
     def __post_init__(self) -> None:
-        if self.backend not in VALIDATION_BACKENDS:
-            raise ConfigError(
-                f"validation = {self.backend!r}: unknown; choose from {', '.join(VALIDATION_BACKENDS)}"
-            )
+        require_choice(self.backend, PhysicsBackend, "validation")
         if not 0.0 <= self.min_overall <= 1.0:
             raise ConfigError(f"min_overall = {self.min_overall!r}: must be in [0, 1]")
         if self.max_attempts < 1:
@@ -208,8 +200,6 @@ RECIPES: dict[str, Recipe] = {
 }
 
 
-#: SFT export: one chat example per step (its whole history as context) or per episode.
-SFT_MODES = ("per_step", "per_episode", "none")
 #: Size limits checked on creation: a typo such as --episodes 100000000000 must be an error,
 #: not a plan that exhausts memory. The user seed is stored as an int64 Parquet column.
 MAX_EPISODES_PER_DIFFICULTY = 1_000_000
@@ -226,15 +216,21 @@ class DatasetConfig:
 
     difficulties: tuple[str, ...]
     episodes: tuple[int, ...]
-    seed: int
+    #: The user seed (training seed space, datagen/seeds.py). None: the recipe's seed, else 0;
+    #: resolved on creation, so a made config always holds an int.
+    seed: int | None = None
     case: CaseConfig = field(default_factory=CaseConfig)
     validation: ValidationConfig = field(default_factory=ValidationConfig)
     shard_size: int = 100
     image_size: int = 224
-    sft: str = "per_step"
+    #: SFT export: one chat example per step (its whole history as context), per episode, none.
+    sft: SFTExport = "per_step"
     recipe: str | None = None
 
     def __post_init__(self) -> None:
+        if self.seed is None:
+            recipe = RECIPES.get(self.recipe) if self.recipe is not None else None
+            object.__setattr__(self, "seed", recipe.seed if recipe is not None else 0)
         if not self.difficulties:
             raise ConfigError("difficulty: give at least one of " + ", ".join(DIFFICULTIES))
         for name in self.difficulties:
@@ -256,8 +252,7 @@ class DatasetConfig:
             raise ConfigError(f"shard_size = {self.shard_size}: must be at least 1")
         if not 16 <= self.image_size <= 4096:
             raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
-        if self.sft not in SFT_MODES:
-            raise ConfigError(f"sft = {self.sft!r}: choose from {', '.join(SFT_MODES)}")
+        require_choice(self.sft, SFTExport, "sft")
         if self.recipe is not None and self.recipe not in RECIPES:
             raise ConfigError(f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}")
 

@@ -8,31 +8,40 @@ order shards finish in. Each finished shard leaves a marker (``meta/shards/<shar
 written after all its files); a rerun of the same command skips marked shards and redoes the
 rest, so killing a run loses at most the shards in flight.
 
-Backends: ``process`` (default; a local process pool, one shard per task), ``serial`` (in this
-process) and ``ray`` (one Ray task per shard; the output directory must be on storage every Ray
-node can write).
+Executors (``packlab.executors``, ``RunOptions.executor``): ``process`` (default; a local process
+pool, one shard per item; in this process with one worker) and ``ray`` (one Ray task per shard;
+the output directory must be on storage every Ray node can write).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import signal
-import sys
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.records import (
+    PACKDATA_FORMAT,
+    DatasetCounts,
+    DatasetInfo,
+    DifficultyCounts,
+    FilesInfo,
+    GeneratorInfo,
+    ImageInfo,
+)
 from packlab.datagen import format as fmt
 from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig
 from packlab.datagen.generator import SlotOutcome, fill_slot
+from packlab.executors import Context, Lost, WorkerLost, progress_bar, run_items
+from packlab.vlm.prompt.render import PROMPT_VERSION
 
 #: The seed domain of training data (see packlab.datagen.seeds): disjoint from the bench's.
 TRAIN_DOMAIN = "train"
-EXEC_BACKENDS = ("process", "serial", "ray")
 
 #: Called once per finished slot with (kept?, rejected attempts) for progress reporting.
 Report = Callable[[bool, int], None]
@@ -43,14 +52,13 @@ class RunOptions:
     """How a dataset is produced (never what it contains)."""
 
     out: str
-    workers: int = 0  # 0: one per CPU core
-    backend: str = "process"
+    workers: int = 0  # 0: one per CPU core; 1: in this process (process executor)
+    executor: Executor = "process"  # where shards run (packlab.executors)
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.backend not in EXEC_BACKENDS:
-            raise ConfigError(f"backend = {self.backend!r}: unknown; choose from {', '.join(EXEC_BACKENDS)}")
-        if self.workers < 0:
+        require_choice(self.executor, Executor, "executor")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
             raise ConfigError(f"workers = {self.workers}: must be >= 0 (0 = one per core)")
 
     @property
@@ -193,11 +201,9 @@ def finished_shards(root: Path) -> dict[str, ShardStats]:
     return out
 
 
-def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> dict[str, Any]:
+def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> DatasetInfo:
     """``meta/info.json``: what the directory holds and how it was made (deterministic)."""
-    from packlab.vlm.prompt import PROMPT_VERSION
-
-    per: dict[str, dict[str, Any]] = {}
+    per: dict[str, DifficultyCounts] = {}
     for d in cfg.difficulties:
         mine = [s for s in shards if s.difficulty == d]
         rej: Counter[str] = Counter()
@@ -205,141 +211,93 @@ def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> dict[str, Any]
             rej.update(s.rejections)
         attempts = sum(s.attempts for s in mine)
         episodes = sum(s.episodes for s in mine)
-        per[d] = {
-            "requested": cfg.episodes[cfg.difficulties.index(d)],
-            "episodes": episodes,
-            "steps": sum(s.steps for s in mine),
-            "attempts": attempts,
-            "rejected": sum(rej.values()),
-            "acceptance_rate": round(episodes / attempts, 6) if attempts else None,
-            "rejections": dict(sorted(rej.items())),
-            "failed_slots": sorted(slot for s in mine for slot in s.failed_slots),
-        }
+        per[d] = DifficultyCounts(
+            requested=cfg.episodes[cfg.difficulties.index(d)],
+            episodes=episodes,
+            steps=sum(s.steps for s in mine),
+            attempts=attempts,
+            rejected=sum(rej.values()),
+            acceptance_rate=round(episodes / attempts, 6) if attempts else None,
+            rejections=dict(sorted(rej.items())),
+            failed_slots=tuple(sorted(slot for s in mine for slot in s.failed_slots)),
+        )
     total_rej: Counter[str] = Counter()
     for v in per.values():
-        total_rej.update(v["rejections"])
-    return {
-        "format_version": fmt.FORMAT_VERSION,
-        "name": cfg.recipe or "packdata-custom",
-        "generator": {"name": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed_domain": TRAIN_DOMAIN},
-        "generator_config": _config_json(cfg),
-        "validation_backend": cfg.validation.backend,
-        "prompt_version": PROMPT_VERSION,
-        "counts": {
-            "episodes": sum(v["episodes"] for v in per.values()),
-            "steps": sum(v["steps"] for v in per.values()),
-            "shards": len(shards),
-            "by_difficulty": per,
-        },
-        "rejections": dict(sorted(total_rej.items())),
-        "image": {"size": cfg.image_size, "format": "png", "mode": "P", "axes": "x=columns left->right, "
-                  "y=rows top->bottom, cell (0,0) top-left", "colour": "absolute height, floor to rim"},
-        "files": {"steps": f"{fmt.STEPS_DIR}/*.parquet", "episodes": f"{fmt.EPISODES_DIR}/*.parquet",
-                  "sft": f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None, "sft_mode": cfg.sft,
-                  "images": f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png"},
-    }
+        total_rej.update(v.rejections)
+    return DatasetInfo(
+        format_version=PACKDATA_FORMAT,
+        name=cfg.recipe or "packdata-custom",
+        generator=GeneratorInfo(name=GENERATOR_NAME, version=GENERATOR_VERSION, seed_domain=TRAIN_DOMAIN),
+        generator_config=_config_json(cfg),
+        validation_backend=cfg.validation.backend,
+        prompt_version=PROMPT_VERSION,
+        counts=DatasetCounts(
+            episodes=sum(v.episodes for v in per.values()),
+            steps=sum(v.steps for v in per.values()),
+            shards=len(shards),
+            by_difficulty=per,
+        ),
+        rejections=dict(sorted(total_rej.items())),
+        image=ImageInfo(size=cfg.image_size, format="png", mode="P",
+                        axes="x=columns left->right, y=rows top->bottom, cell (0,0) top-left",
+                        colour="absolute height, floor to rim"),
+        files=FilesInfo(steps=f"{fmt.STEPS_DIR}/*.parquet", episodes=f"{fmt.EPISODES_DIR}/*.parquet",
+                        sft=f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None, sft_mode=cfg.sft,
+                        images=f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png"),
+    )
 
 
-def write_info(cfg: DatasetConfig, root: Path) -> dict[str, Any]:
+def write_info(cfg: DatasetConfig, root: Path) -> DatasetInfo:
     wanted = {s.name for s in plan_shards(cfg)}
     shards = [s for name, s in finished_shards(root).items() if name in wanted]
     info = dataset_info(cfg, shards)
-    fmt.atomic_write_json(root / fmt.META_DIR / "info.json", info)
+    fmt.write_info(root, info)
     fmt.atomic_write_bytes(root / "README.md", fmt.dataset_card(info).encode())
     return info
 
 
 # -- running shards ---------------------------------------------------------------------------
 
+@dataclass(frozen=True, slots=True)
+class ShardWork:
+    """The engine's work function for ``packlab.executors``: a shard -> its files under ``root``
+    and its stats. Each finished slot reports ``(kept, rejected attempts)`` for the progress bar."""
+
+    cfg: DatasetConfig
+    root: Path
+
+    def __call__(self, spec: ShardSpec, ctx: Context) -> ShardStats:
+        def report(kept: bool, rejected: int) -> None:
+            ctx.report((kept, rejected))
+
+        return run_shard(self.cfg, spec, self.root, report)
+
+
+def _lost_shard(spec: ShardSpec, lost: Lost) -> ShardStats:
+    raise WorkerLost(f"the worker making shard {spec.name} was lost ({lost.kind}: {lost.detail}); "
+                     "finished shards are kept: rerun the same command to resume")
+
+
 class _Progress:
-    """tqdm on stderr counting slots, with rejections in the postfix."""
+    """Slots done on a progress bar, with rejections in the postfix (``open`` it once the
+    executor's workers have started)."""
 
-    def __init__(self, total: int, initial: int, enabled: bool) -> None:
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=total, initial=initial, unit="ep", desc="generate", file=sys.stderr,
-                        disable=not enabled, dynamic_ncols=True, smoothing=0.05)
+    def __init__(self) -> None:
+        self.bar: Any = None
         self.rejected = 0
 
-    def __call__(self, kept: bool, rejected: int) -> None:
-        self.advance(1, rejected)
+    def open(self, total: int, initial: int, enabled: bool) -> None:
+        self.bar = progress_bar(total, initial, "generate", enabled)
 
-    def advance(self, slots: int, rejected: int) -> None:
+    def __call__(self, payload: tuple[bool, int]) -> None:
+        _, rejected = payload
         self.rejected += rejected
         self.bar.set_postfix(rejected=self.rejected, refresh=False)
-        self.bar.update(slots)
+        self.bar.update(1)
 
     def close(self) -> None:
-        self.bar.close()
-
-
-_WORKER_QUEUE: Any = None
-
-
-def _init_worker(queue: Any) -> None:
-    global _WORKER_QUEUE
-    _WORKER_QUEUE = queue
-    # Ctrl-C reaches every process of the terminal's group; only the parent handles it (by
-    # terminating the pool), so a worker never dies half-way through reporting.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _pool_task(cfg: DatasetConfig, spec: ShardSpec, root: str) -> ShardStats:
-    return run_shard(cfg, spec, Path(root), lambda kept, rej: _WORKER_QUEUE.put((kept, rej)))
-
-
-def _run_process_pool(cfg: DatasetConfig, pending: list[ShardSpec], root: Path, workers: int,
-                      progress: _Progress) -> None:
-    import multiprocessing as mp
-    import queue as queue_mod
-
-    # spawn: workers start clean (no inherited threads or engine state from this process).
-    ctx = mp.get_context("spawn")
-    reports = ctx.Queue()
-
-    def drain(timeout: float) -> None:
-        try:
-            progress(*reports.get(timeout=timeout))
-            while True:
-                progress(*reports.get_nowait())
-        except queue_mod.Empty:
-            pass
-
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(reports,))
-    try:
-        running = [pool.apply_async(_pool_task, (cfg, spec, str(root))) for spec in pending]
-        while running:
-            drain(0.2)
-            for result in [r for r in running if r.ready()]:
-                result.get()  # a worker's exception surfaces here
-                running.remove(result)
-        pool.close()
-        pool.join()
-        drain(0.0)
-    except BaseException:
-        # Interrupted or failed: stop the workers now. Shards in flight have no marker and are
-        # redone by the next run; their staged files are removed then.
-        pool.terminate()
-        pool.join()
-        raise
-
-
-def _run_ray(cfg: DatasetConfig, pending: list[ShardSpec], root: Path, workers: int, progress: _Progress) -> None:
-    try:
-        import ray
-    except ModuleNotFoundError:
-        raise ConfigError("backend = 'ray' needs the ray extra: pip install 'packlab[ray]'") from None
-    if not ray.is_initialized():
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-    task = ray.remote(num_cpus=1)(run_shard)
-    refs = {task.remote(cfg, spec, root): spec for spec in pending}
-    while refs:
-        ready, _ = ray.wait(list(refs), num_returns=1)
-        for ref in ready:
-            stats: ShardStats = ray.get(ref)
-            spec = refs.pop(ref)
-            # Ray reports per shard, not per slot: advance by the shard's slots at once.
-            progress.advance(spec.count, stats.attempts - stats.episodes)
+        if self.bar is not None:
+            self.bar.close()
 
 
 def shard_order(pending: list[ShardSpec]) -> list[ShardSpec]:
@@ -348,25 +306,23 @@ def shard_order(pending: list[ShardSpec]) -> list[ShardSpec]:
     return sorted(pending, key=lambda s: (weight.get(s.difficulty, 3), s.difficulty, s.index))
 
 
-def generate_dataset(cfg: DatasetConfig, options: RunOptions) -> dict[str, Any]:
+def generate_dataset(cfg: DatasetConfig, options: RunOptions) -> DatasetInfo:
     """Make (or finish) the dataset of ``cfg`` in ``options.out``; returns its ``info.json``."""
     root = prepare_output(cfg, options.out)
     shards = plan_shards(cfg)
     done = finished_shards(root)
     pending = shard_order([s for s in shards if s.name not in done])
     total = sum(s.count for s in shards)
-    progress = _Progress(total, total - sum(s.count for s in pending), options.progress)
-    try:
-        workers = min(options.n_workers, max(len(pending), 1))
-        if not pending:
-            pass
-        elif options.backend == "ray":
-            _run_ray(cfg, pending, root, workers, progress)
-        elif options.backend == "serial" or workers == 1:
-            for spec in pending:
-                run_shard(cfg, spec, root, progress)
-        else:
-            _run_process_pool(cfg, pending, root, workers, progress)
-    finally:
-        progress.close()
+    workers = min(options.n_workers, max(len(pending), 1))
+    progress = _Progress()
+    # Interrupted or failed: leaving the block stops the workers. Shards in flight have no marker
+    # and are redone by the next run; their staged files are removed then.
+    with run_items(ShardWork(cfg, root), pending, executor=options.executor, workers=workers,
+                   on_report=progress, on_lost=_lost_shard) as results:
+        progress.open(total, total - sum(s.count for s in pending), options.progress)
+        try:
+            for _ in results:
+                pass  # each shard's files and marker are on disk once it is yielded
+        finally:
+            progress.close()
     return write_info(cfg, root)

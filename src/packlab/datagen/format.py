@@ -9,7 +9,7 @@ Layout of a dataset directory (every path inside is relative, so the directory c
     data/episodes/<shard>.parquet   one row per kept episode (case, metrics, provenance)
     data/steps/<shard>.parquet      one row per step (shown buffer, action, heightmap, image path)
     images/<difficulty>/<shard>/<episode_id>/<step>.png   heightmap before each step
-    sft/<shard>.jsonl               chat examples rendered by packlab.vlm.prompt
+    sft/<shard>.jsonl               chat examples rendered by packlab.vlm.prompt.render
 
 ``<shard>`` is ``<difficulty>-<index:05d>``. Files speak centimetres as the case format does,
 except heightmaps, which keep the core's exact integer millimetres (``heightmap_mm``). Every file
@@ -34,12 +34,21 @@ import pyarrow.parquet as pq
 
 from packlab.cases import case_to_dict
 from packlab.core.fileio import write_atomically
+from packlab.core.records import PACKDATA_FORMAT, DatasetInfo, dataset_info_from_json, to_builtins
 from packlab.core.types import Action, Container, ShownItem
 from packlab.datagen.validate import Trajectory
 from packlab.sim.raster import heightmap_to_image
+from packlab.vlm.prompt.render import (
+    PROMPT_VERSION,
+    TurnState,
+    action_text,
+    render_messages,
+    with_answer,
+)
 
-#: Bump when a file's layout or a column's meaning changes.
-FORMAT_VERSION = "packdata-1"
+#: Bump when a file's layout or a column's meaning changes (stated once, beside the record
+#: types: packlab.core.records.PACKDATA_FORMAT, ``format_version`` of meta/info.json).
+FORMAT_VERSION = PACKDATA_FORMAT
 
 STEPS_DIR = "data/steps"
 EPISODES_DIR = "data/episodes"
@@ -47,6 +56,7 @@ IMAGES_DIR = "images"
 SFT_DIR = "sft"
 META_DIR = "meta"
 SHARDS_DIR = "meta/shards"
+INFO_FILE = "meta/info.json"
 
 _SHOWN = pa.struct([
     ("object_id", pa.int32()),  # index in the shown buffer (what an action's object_id refers to)
@@ -69,7 +79,7 @@ STEP_SCHEMA = pa.schema([
     ("image", pa.string()),  # PNG of heightmap_mm, relative to the dataset root
     ("shown", pa.list_(_SHOWN)),  # the buffer in the order shown at this step
     ("action", _ACTION),
-    ("action_text", pa.string()),  # the exact assistant target (packlab.vlm.prompt.action_text)
+    ("action_text", pa.string()),  # the exact assistant target (vlm.prompt.render.action_text)
     ("internal_id", pa.int32()),  # the object placed
     ("drop_mm", pa.list_(pa.int32())),  # footprint min corner (x, y) and Eq. 2 height z, mm
 ])
@@ -115,6 +125,20 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_bytes(path, (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode())
+
+
+def write_info(root: Path, info: DatasetInfo) -> Path:
+    """Write ``meta/info.json`` (sorted keys, as always)."""
+    path = Path(root) / INFO_FILE
+    atomic_write_json(path, to_builtins(info))
+    return path
+
+
+def read_info(root: str | os.PathLike[str]) -> DatasetInfo:
+    """A dataset's ``meta/info.json`` as a typed record, its ``format_version`` checked: an
+    unknown one, or a field missing or of the wrong type, is a RecordFormatError naming it."""
+    path = Path(root) / INFO_FILE
+    return dataset_info_from_json(path.read_bytes(), str(path))
 
 
 def write_parquet(path: Path, table: pa.Table) -> None:
@@ -197,8 +221,6 @@ def _shown_row(s: ShownItem) -> dict[str, Any]:
 
 def step_rows(trajectory: Trajectory, shard: str) -> list[dict[str, Any]]:
     """One row per step of a kept trajectory (every step valid, so every action is an Action)."""
-    from packlab.vlm.prompt import action_text
-
     case = trajectory.case
     c = case.container
     drops = trajectory.drops
@@ -294,14 +316,12 @@ def _container_of(row: dict[str, Any]) -> Container:
 
 
 def sft_records(rows: Sequence[dict[str, Any]], mode: str) -> Iterable[dict[str, Any]]:
-    """Chat examples of one episode's step rows (in step order), rendered by packlab.vlm.prompt.
+    """Chat examples of one episode's step rows (in step order), rendered by vlm.prompt.render.
 
     ``per_step``: one example per step, its context the whole history before it (the format
-    ``packlab.vlm.sft_data`` reads). ``per_episode``: one example per episode, the full
+    ``packlab.vlm.data.sft_examples`` reads). ``per_episode``: one example per episode, the full
     conversation ending with the last step's answer. Images are the rows' relative paths.
     """
-    from packlab.vlm.prompt import PROMPT_VERSION, TurnState, render_messages, with_answer
-
     if not rows:
         return
     container = _container_of(rows[0])
@@ -348,9 +368,9 @@ def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> l
 
 # -- dataset card -----------------------------------------------------------------------------
 
-def dataset_card(info: dict[str, Any]) -> str:
+def dataset_card(info: DatasetInfo) -> str:
     """README.md of a dataset: the YAML header lets ``datasets.load_dataset(DIR, name)`` work."""
-    counts = info.get("counts", {})
+    counts = info.counts
     return (
         "---\n"
         "configs:\n"
@@ -360,12 +380,12 @@ def dataset_card(info: dict[str, Any]) -> str:
         "- config_name: episodes\n"
         f"  data_files: \"{EPISODES_DIR}/*.parquet\"\n"
         "---\n\n"
-        f"# {info.get('name', 'PackData')}\n\n"
+        f"# {info.name}\n\n"
         "Closed-loop bin-packing trajectories made by packlab's layout-first data engine: perfect\n"
         "layouts, a placement order from reverse removal, each replayed through the closed loop\n"
-        f"({info.get('validation_backend', 'mujoco')}) and kept only when every step is valid and\n"
+        f"({info.validation_backend}) and kept only when every step is valid and\n"
         "Overall >= the threshold in meta/info.json.\n\n"
-        f"Episodes: {counts.get('episodes', 0)}; steps: {counts.get('steps', 0)}. Format {FORMAT_VERSION}.\n\n"
+        f"Episodes: {counts.episodes}; steps: {counts.steps}. Format {info.format_version}.\n\n"
         "```python\n"
         "import datasets\n"
         f"steps = datasets.load_dataset(\"parquet\", data_files=\"{STEPS_DIR}/*.parquet\", split=\"train\")\n"

@@ -23,6 +23,7 @@ from packlab.datagen.layout import Layout, build_layout
 from packlab.datagen.removal import PlacementOrder, reverse_removal
 from packlab.datagen.scenario import Scenario, sample_scenario
 from packlab.datagen.seeds import case_seed, case_streams, domain_tag
+from packlab.datagen.validate import Trajectory, check_case
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,15 +113,13 @@ class SlotOutcome:
     """The first accepted attempt of a slot (``case`` None when all failed) and the rejections."""
 
     case: Case | None
-    trajectory: Any  # validate.Trajectory of the accepted replay; None without replay
+    trajectory: Trajectory | None  # the accepted replay; None without replay
     rejected: tuple[str, ...]  # reasons of the rejected attempts, in order
 
 
 def fill_slot(user_seed: int, domain: str, difficulty: str, slot: int, cfg: CaseConfig,
               validation: ValidationConfig, id_prefix: str, replay_plan: bool = True) -> SlotOutcome:
     """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out)."""
-    from packlab.datagen.validate import check_case  # validate imports the episode loop
-
     rejected = []
     for attempt in range(validation.max_attempts):
         case = slot_case(user_seed, domain, difficulty, slot, attempt, cfg, id_prefix)

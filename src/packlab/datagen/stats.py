@@ -14,8 +14,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow.parquet as pq
 
+from packlab.cases import case_from_dict
+from packlab.core.records import DatasetInfo
 from packlab.core.types import Case
+from packlab.datagen.format import EPISODES_DIR
+from packlab.viz.distributions import cell_scatter_figure, histogram_figure
+from packlab.viz.plots import save_figure
 
 
 @dataclass(slots=True)
@@ -102,32 +108,28 @@ def collect(cases: Iterable[Case]) -> dict[str, Distribution]:
 
 def dataset_cases(root: str | Path) -> Iterable[Case]:
     """Every kept case of a dataset directory, from its episode shards' ``case_json``."""
-    import pyarrow.parquet as pq
-
-    from packlab.cases import case_from_dict
-    from packlab.datagen.format import EPISODES_DIR
-
     for path in sorted(Path(root, EPISODES_DIR).glob("*.parquet")):
         for row, text in enumerate(pq.read_table(path, columns=["case_json"]).column(0).to_pylist(), 1):
             yield case_from_dict(json.loads(text), str(path), row)
 
 
-def format_report(info: dict[str, Any], dists: dict[str, Distribution]) -> str:
+def format_report(info: DatasetInfo, dists: dict[str, Distribution]) -> str:
     """A plain-text report: counts and rejections from info.json, then distributions."""
-    counts = info.get("counts", {})
+    counts = info.counts
     lines = [
-        (f"dataset {info.get('name', '?')} ({info.get('format_version', '?')}): "
-        f"{counts.get('episodes', 0)} episodes, {counts.get('steps', 0)} steps, {counts.get('shards', 0)} shards"),
+        (f"dataset {info.name} ({info.format_version}): "
+        f"{counts.episodes} episodes, {counts.steps} steps, {counts.shards} shards"),
         "",
         f"{'difficulty':<10} {'requested':>9} {'episodes':>9} {'steps':>8} {'attempts':>9} {'accept':>7}  rejections",
     ]
-    by = counts.get("by_difficulty", {})
-    order = info.get("generator_config", {}).get("difficulties") or list(by)
+    by = counts.by_difficulty
+    listed = info.generator_config.get("difficulties")
+    order = [str(d) for d in listed] if isinstance(listed, list) and listed else list(by)
     for name in order:
         d = by[name]
-        rate = d.get("acceptance_rate")
-        rej = ", ".join(f"{k}={v}" for k, v in d.get("rejections", {}).items()) or "-"
-        lines.append(f"{name:<10} {d['requested']:>9} {d['episodes']:>9} {d['steps']:>8} {d['attempts']:>9} "
+        rate = d.acceptance_rate
+        rej = ", ".join(f"{k}={v}" for k, v in d.rejections.items()) or "-"
+        lines.append(f"{name:<10} {d.requested:>9} {d.episodes:>9} {d.steps:>8} {d.attempts:>9} "
                      f"{'-' if rate is None else f'{rate:.3f}':>7}  {rej}")
     for name in sorted(dists, key=lambda n: order.index(n) if n in order else len(order)):
         s = dists[name].summary()
@@ -142,48 +144,26 @@ def format_report(info: dict[str, Any], dists: dict[str, Distribution]) -> str:
     return "\n".join(lines)
 
 
+#: Histogram panels of ``save_histograms``: (title, values of one group's ``Distribution``).
+_HISTOGRAMS = (
+    ("objects per case", lambda d: [k for k, n in d.objects_per_case.items() for _ in range(n)]),
+    ("object height (cm)", lambda d: [k for k, n in d.heights_cm.items() for _ in range(n)]),
+    ("object side (cm)", lambda d: [v for lw in d.sides_cm for v in lw]),
+    ("footprint aspect", lambda d: d.aspect),
+    ("stack height / container height", lambda d: d.stack_ratio),
+)
+
+
 def save_histograms(dists: dict[str, Distribution], out_dir: str | Path) -> list[Path]:
-    """PNG histograms (matplotlib, headless) of the main distributions; returns the files."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """PNG histograms (``packlab.viz.distributions``) of the main distributions; returns the files."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    panels = [
-        ("objects per case", lambda d: [k for k, n in d.objects_per_case.items() for _ in range(n)]),
-        ("object height (cm)", lambda d: [k for k, n in d.heights_cm.items() for _ in range(n)]),
-        ("object side (cm)", lambda d: [v for lw in d.sides_cm for v in lw]),
-        ("footprint aspect", lambda d: d.aspect),
-        ("stack height / container height", lambda d: d.stack_ratio),
-    ]
     written = []
-    for title, values in panels:
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        for name, d in dists.items():
-            v = values(d)
-            if v:
-                ax.hist(v, bins=30, alpha=0.55, label=name or "unlabelled")
-        ax.set_title(title)
-        ax.legend()
-        path = out / (title.split(" (")[0].replace(" / ", "_over_").replace(" ", "_") + ".png")
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        written.append(path)
-    fig, ax = plt.subplots(figsize=(4, 4))
-    for name, d in dists.items():
-        if d.first_cell_frac:
-            xy = np.asarray(d.first_cell_frac)
-            ax.scatter(xy[:, 0], xy[:, 1], s=6, alpha=0.5, label=name or "unlabelled")
-    ax.set_xlim(0, 1)
-    ax.set_ylim(1, 0)  # y down, like the heightmap images
-    ax.set_title("first placement (cell / grid)")
-    ax.legend()
-    path = out / "first_anchor.png"
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    written.append(path)
+    for title, values in _HISTOGRAMS:
+        fig = histogram_figure(title, {name: values(d) for name, d in dists.items()})
+        name = title.split(" (")[0].replace(" / ", "_over_").replace(" ", "_")
+        written.append(save_figure(fig, out / f"{name}.png", dpi=100))
+    points = {name: np.asarray(d.first_cell_frac) for name, d in dists.items() if d.first_cell_frac}
+    fig = cell_scatter_figure("first placement (cell / grid)", points)
+    written.append(save_figure(fig, out / "first_anchor.png", dpi=100))
     return written

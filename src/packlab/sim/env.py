@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from importlib import resources
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -30,7 +30,9 @@ from gymnasium import spaces
 from packlab.cases import load_cases
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.core.types import Action, Case
+from packlab.metrics import inside_mask, success_ratio
 from packlab.sim.episode import Episode
+from packlab.sim.raster import heightmap_to_rgb
 
 ENV_ID = "packlab/Pack-v0"
 
@@ -40,10 +42,45 @@ def demo_cases_path() -> str:
     return str(resources.files("packlab") / "data" / "demo_cases.jsonl")
 
 
+class _InsideVolume:
+    """Incremental reward bookkeeping: the inside volume, updated only for boxes that moved.
+
+    A step's reward is the change in Success Ratio (``metrics.success_ratio`` of the inside
+    volume), the same float ``Episode.metrics()`` would give, without rescoring the episode:
+    only boxes whose settled centre changed this step are re-judged (on the geometric backend
+    the one just placed; on MuJoCo also any box the placement pushed).
+    """
+
+    def reset(self, case: Case) -> None:
+        self._container = case.container
+        self._volumes = [b.volume_mm3 for b in case.objects]
+        self._total = sum(self._volumes)
+        #: (n, 3) float mm, settled centres after the last step; NaN rows: not in the container.
+        self._positions = np.full((len(case.objects), 3), np.nan)
+        self._inside = np.zeros(len(case.objects), dtype=bool)  # (n,) judged on self._positions
+        self._volume = 0  # mm^3 of the inside boxes
+        self._fraction = 0.0  # Success Ratio after the last step
+
+    def update(self, positions_mm: np.ndarray) -> float:
+        """The reward of the step whose settled centres (n, 3) float mm are ``positions_mm``."""
+        before = self._positions
+        unchanged = (positions_mm == before) | (np.isnan(positions_mm) & np.isnan(before))
+        moved = np.flatnonzero(~np.all(unchanged, axis=1))
+        now_inside = inside_mask(positions_mm[moved], self._container)
+        for i, inside in zip(moved.tolist(), now_inside.tolist()):
+            if inside != self._inside[i]:
+                self._volume += self._volumes[i] if inside else -self._volumes[i]
+                self._inside[i] = inside
+        self._positions = positions_mm.copy()
+        fraction = success_ratio(self._volume, self._total)
+        reward, self._fraction = fraction - self._fraction, fraction
+        return reward
+
+
 class PackEnv(gym.Env):
     """Closed-loop bin packing as a Gymnasium environment (see the module docstring)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(
         self,
@@ -77,7 +114,7 @@ class PackEnv(gym.Env):
         self.action_space = spaces.Discrete(n_actions)
         self._episode = Episode(backend, physics)
         self._case: Case | None = None
-        self._inside_fraction = 0.0
+        self._reward = _InsideVolume()
 
     # -- encoding --------------------------------------------------------------------------
     def decode_action(self, index: int) -> Action:
@@ -114,27 +151,23 @@ class PackEnv(gym.Env):
         self._case = self.cases[int(index)]
         run_seed = int(options.get("run_seed", self.np_random.integers(2**31 - 1)))
         self._episode.reset(self._case, run_seed)
-        self._inside_fraction = 0.0
+        self._reward.reset(self._case)
         return self._observation(), {"case_id": self._case.episode_id, "run_seed": run_seed}
 
     def step(self, action):
         if self._case is None:
             raise RuntimeError("PackEnv.step() before reset()")
         result = self._episode.step(self.decode_action(int(action)))
-        metrics = self._episode.metrics()
-        reward = metrics.success_ratio - self._inside_fraction
-        self._inside_fraction = metrics.success_ratio
+        reward = self._reward.update(result.positions_mm)
         terminated = self._episode.done
         info: dict[str, Any] = {"valid": result.valid, "reason": result.reason}
         if terminated:
-            info["metrics"] = metrics.to_dict()
+            info["metrics"] = self._episode.metrics().to_dict()
         return self._observation(), float(reward), terminated, False, info
 
     def render(self):
         if self.render_mode != "rgb_array" or self._case is None:
             return None
-        from packlab.sim.raster import heightmap_to_rgb
-
         return heightmap_to_rgb(self._episode.heightmap, self._case.container)
 
 

@@ -25,14 +25,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import TYPE_CHECKING
 
 import numpy as np
+from PIL import Image
 
 from packlab.core.types import Container
-
-if TYPE_CHECKING:  # Pillow is only needed to build images, not to compute them
-    from PIL import Image
 
 DEFAULT_SIZE = 224
 
@@ -177,8 +174,6 @@ def heightmap_to_rgb(heightmap: np.ndarray, container: Container, size: int = DE
 def heightmap_to_image(heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE,
                        major_every: int = 5, mode: str = "RGB") -> Image.Image:
     """The image as a PIL image: ``mode="RGB"`` (default) or ``"P"`` (palette, smallest PNGs)."""
-    from PIL import Image
-
     indices = heightmap_to_indices(heightmap, container, size, major_every)
     if mode == "P":
         image = Image.frombytes("P", (indices.shape[1], indices.shape[0]), indices.tobytes())

@@ -1,4 +1,5 @@
-"""Bench figures from a run summary: per-case Overall distributions and average-Overall bars.
+"""Bench figures from a run summary: per-case Overall distributions and average-Overall bars;
+the SFT loss curve of a training run (``plot_loss_curve``).
 
 Figures are built on ``matplotlib.figure.Figure`` directly (no pyplot state, no GUI backend), so
 they can be made in worker processes and tests alike; ``save_figure`` writes PNGs via Agg.
@@ -6,13 +7,17 @@ they can be made in worker processes and tests alike; ``save_figure`` writes PNG
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from msgspec import UnsetType
 
+from packlab.core.records import RunSummary
 from packlab.metrics import AVERAGE
 from packlab.viz.labels import display_name, group_title
 
@@ -42,21 +47,27 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 130) -> Pa
     return path
 
 
-def _case_overall(summary: dict[str, Any], policy: str, difficulty: str) -> np.ndarray:
+def _case_overall(summary: RunSummary, policy: str, difficulty: str) -> np.ndarray:
     """Per-case Overall (mean over seeds) of one method on one difficulty."""
-    per_case = summary["per_case"].get(policy, {})
-    vals = [c["overall"]["mean"] for c in per_case.values()
-            if c["difficulty"] == difficulty and c["overall"]["mean"] is not None]
+    per_case = summary.per_case.get(policy, {})
+    vals = [c.overall.mean for c in per_case.values()
+            if c.difficulty == difficulty and c.overall.mean is not None]
     return np.asarray(vals, dtype=float)
 
 
-def overall_distribution_figure(summary: dict[str, Any]) -> Figure:
+def _run_field(summary: RunSummary, name: str, default: str) -> Any:
+    """A run field of the summary (suite, backend); ``default`` when the summary has none."""
+    value = getattr(summary, name)
+    return default if isinstance(value, UnsetType) else value
+
+
+def overall_distribution_figure(summary: RunSummary) -> Figure:
     """One panel per difficulty: a box per method over its cases' Overall, with every case as a dot.
 
     Each dot is one case's Overall averaged over the run seeds; dots are jittered sideways with
     a fixed RNG so the picture is the same every time it is rebuilt.
     """
-    policies, groups = summary["policies"], summary["difficulties"]
+    policies, groups = list(summary.policies), list(summary.difficulties)
     fig = Figure(figsize=(max(6.0, 0.55 * len(policies) * len(groups) + 2.0), 4.4))
     axes = fig.subplots(1, len(groups), sharey=True, squeeze=False)[0]
     rng = np.random.default_rng(0)
@@ -87,20 +98,21 @@ def overall_distribution_figure(summary: dict[str, Any]) -> Figure:
         for side in ("top", "right"):
             ax.spines[side].set_visible(False)
     axes[0].set_ylabel("Overall per case (mean over seeds)")
-    n_seeds = len(summary["seeds"])
-    fig.suptitle(f"{summary.get('suite', 'bench')}: Overall by case ({summary.get('backend', '')}, "
-                 f"{n_seeds} seed{'s' if n_seeds != 1 else ''})", fontsize=12)
+    n_seeds = len(summary.seeds)
+    suite, backend = _run_field(summary, "suite", "bench"), _run_field(summary, "backend", "")
+    seeds = f"{n_seeds} seed{'s' if n_seeds != 1 else ''}"
+    fig.suptitle(f"{suite}: Overall by case ({backend}, {seeds})", fontsize=12)
     fig.tight_layout()
     return fig
 
 
-def average_overall_figure(summary: dict[str, Any]) -> Figure:
+def average_overall_figure(summary: RunSummary) -> Figure:
     """Bars of mean Overall per method: one per difficulty (light) and the average (solid).
 
     Error bars are the sample standard deviation across run seeds; the average's value is
     printed above its bar.
     """
-    policies, diffs = summary["policies"], summary["difficulties"]
+    policies, diffs = list(summary.policies), list(summary.difficulties)
     groups = [*diffs, AVERAGE] if len(diffs) > 1 else list(diffs)
     n = len(groups)
     width = 0.8 / n
@@ -110,9 +122,10 @@ def average_overall_figure(summary: dict[str, Any]) -> Figure:
     for j, group in enumerate(groups):
         means, stds = [], []
         for p in policies:
-            cell = summary["table"][p].get(group, {}).get("overall") or {}
-            means.append(np.nan if cell.get("mean") is None else cell["mean"])
-            stds.append(0.0 if cell.get("std") is None else cell["std"])
+            cells = summary.table[p].get(group)
+            cell = None if cells is None else cells.overall
+            means.append(np.nan if cell is None or cell.mean is None else cell.mean)
+            stds.append(0.0 if cell is None or cell.std is None else cell.std)
         colours = [method_colour(p, policies) for p in policies]
         is_avg = group == AVERAGE or n == 1
         offs = x - 0.4 + width * (j + 0.5)
@@ -135,17 +148,52 @@ def average_overall_figure(summary: dict[str, Any]) -> Figure:
         ax.spines[side].set_visible(False)
     if n > 1:
         # Legend by group shade, drawn in neutral grey so it does not suggest one method.
-        from matplotlib.patches import Patch
-
         handles = [Patch(facecolor="#555555", alpha=1.0 if g == AVERAGE else _GROUP_ALPHA.get(j, 0.5),
                          edgecolor="#333333" if g == AVERAGE else "none", label=group_title(g))
                    for j, g in enumerate(groups)]
         ax.legend(handles=handles, ncol=n, fontsize=8, frameon=False, loc="upper left")
     bars_are = "bars: difficulties, then average; " if n > 1 else ""
-    ax.set_title(f"{summary.get('suite', 'bench')}: mean Overall per method ({bars_are}± std across seeds)",
+    suite = _run_field(summary, "suite", "bench")
+    ax.set_title(f"{suite}: mean Overall per method ({bars_are}± std across seeds)",
                  fontsize=10)
     fig.tight_layout()
     return fig
 
 
-__all__ = ["average_overall_figure", "method_colour", "overall_distribution_figure", "save_figure"]
+def loss_curve_figure(log_path: str | os.PathLike[str], title: str = "SFT loss") -> Figure:
+    """Loss per optimizer step (and a moving average) from an SFT run's loss_log.jsonl."""
+    text = Path(log_path).read_text()
+    rows = [json.loads(line) for line in text.splitlines() if line.strip()]
+    steps = [r["step"] for r in rows]
+    losses = [r["loss"] for r in rows]
+    fig = Figure(figsize=(6, 3.5), dpi=120)
+    ax = fig.add_subplot()
+    ax.plot(steps, losses, lw=0.8, alpha=0.5, label="per step")
+    w = max(1, len(losses) // 20)
+    if len(losses) >= 2 * w > 2:
+        avg = [sum(losses[i - w + 1 : i + 1]) / w for i in range(w - 1, len(losses))]
+        ax.plot(steps[w - 1 :], avg, lw=1.6, label=f"moving mean ({w})")
+    ax.set_xlabel("optimizer step")
+    ax.set_ylabel("answer-token NLL")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def plot_loss_curve(
+    log_path: str | os.PathLike[str], png_path: str | os.PathLike[str], title: str = "SFT loss"
+) -> Path:
+    """:func:`loss_curve_figure` written as a PNG (``packlab train sft`` writes loss_curve.png)."""
+    return save_figure(loss_curve_figure(log_path, title), png_path, dpi=120)
+
+
+__all__ = [
+    "average_overall_figure",
+    "loss_curve_figure",
+    "method_colour",
+    "overall_distribution_figure",
+    "plot_loss_curve",
+    "save_figure",
+]

@@ -1,8 +1,8 @@
 """3D pictures of packings from final poses: boxes coloured by type, the container as an outline.
 
-Poses come from bench records (``final_poses``: centre in mm and quaternion wxyz per internal
-id; ``None`` for objects set aside). Every box is drawn where it settled, rotation included, so
-a toppled box looks toppled; a box whose centre left the container is outlined in red.
+Poses come from bench records (``EpisodeOk.final_poses``: centre in mm and quaternion wxyz by
+str(internal id); ``None`` for objects set aside). Every box is drawn where it settled, rotation
+included, so a toppled box looks toppled; a box whose centre left the container is outlined in red.
 """
 
 from __future__ import annotations
@@ -14,9 +14,12 @@ import numpy as np
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+from packlab.core.records import EpisodeOk, FinalPose, MetricsRecord, StepRecord
 from packlab.core.types import Case, Container
 from packlab.metrics import box_inside
 from packlab.sim.heightmap import quat_to_matrix
+from packlab.sim.raster import height_colour, heightmap_to_rgb
+from packlab.viz.labels import display_name
 
 #: Type colours (type_id modulo the list): soft, distinguishable, legible with black edges.
 TYPE_COLOURS = ["#8DB3E2", "#F4A582", "#A6D96A", "#C2A5CF", "#FFD966", "#80CDC1", "#F1B6DA",
@@ -93,7 +96,8 @@ def painter_order(corners: list[np.ndarray]) -> list[int]:
     return order
 
 
-def draw_packing(ax: Any, case: Case, poses: Mapping[str, Any], title: str = "", zoom: float = 0.92) -> int:
+def draw_packing(ax: Any, case: Case, poses: Mapping[str, FinalPose | None], title: str = "",
+                 zoom: float = 0.92) -> int:
     """Draw a case's boxes at ``poses`` (record form, keyed by str(internal_id)) on a 3D axis.
 
     Returns the number of boxes drawn (set-aside boxes have no pose and are not drawn).
@@ -104,8 +108,8 @@ def draw_packing(ax: Any, case: Case, poses: Mapping[str, Any], title: str = "",
     for box in case.objects:
         pose = poses.get(str(box.internal_id))
         if pose is not None:
-            corners = box_corners(box.size_mm, pose["position_mm"], pose["quaternion"])
-            boxes.append((box, corners, box_inside(pose["position_mm"], c)))
+            corners = box_corners(box.size_mm, pose.position_mm, pose.quaternion)
+            boxes.append((box, corners, box_inside(pose.position_mm, c)))
     # Our own drawing order (see painter_order) instead of mplot3d's per-polygon depth sort.
     ax.computed_zorder = False
     floor = np.array([[0, 0, 0], [c.size_mm[0], 0, 0], [c.size_mm[0], c.size_mm[1], 0], [0, c.size_mm[1], 0]], float)
@@ -135,26 +139,24 @@ def draw_packing(ax: Any, case: Case, poses: Mapping[str, Any], title: str = "",
     return len(boxes)
 
 
-def scores_text(metrics: Mapping[str, Any]) -> str:
-    return (f"SR {metrics['success_ratio']:.3f} · C {metrics['compactness']:.3f} · "
-            f"Overall {metrics['overall']:.3f}")
+def scores_text(metrics: MetricsRecord) -> str:
+    return (f"SR {metrics.success_ratio:.3f} · C {metrics.compactness:.3f} · "
+            f"Overall {metrics.overall:.3f}")
 
 
-def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, Mapping[str, Any]]],
+def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, EpisodeOk]],
                               seed: int | None = None, columns: int = 4) -> Figure:
     """Side by side: each method's final packing of one case, titled with its three scores."""
-    from packlab.viz.labels import display_name
-
     n = max(1, len(entries))
     cols = min(columns, n)
     rows = -(-n // cols)
     fig = Figure(figsize=(3.6 * cols, 3.5 * rows + 0.5))
     for i, (policy, record) in enumerate(entries):
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
-        m = record["metrics"]
-        aside = f" · {m['n_set_aside']} set aside" if m.get("n_set_aside") else ""
-        draw_packing(ax, case, record.get("final_poses", {}),
-                     f"{display_name(policy)}\n{scores_text(m)}{aside}")
+        m = record.metrics
+        aside = f" · {m.n_set_aside} set aside" if m.n_set_aside else ""
+        title = f"{display_name(policy)}\n{scores_text(m)}{aside}"
+        draw_packing(ax, case, record.final_poses, title)
     x, y, z = (v / 10 for v in case.container.size_mm)
     seed_txt = f", seed {seed}" if seed is not None else ""
     fig.suptitle(f"{case.episode_id} ({case.difficulty}, {len(case.objects)} objects, buffer {case.buffer_size}, "
@@ -163,12 +165,12 @@ def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, Mapping[s
     return fig
 
 
-def _step_label(step: Mapping[str, Any]) -> str:
-    a = step["action"]
-    if "unparsable" in a:
-        return f"{step['step']}: unparsable"
-    head = f"{step['step']}: #{step['internal_id']} r{a['rotation']} ({a['x']},{a['y']})"
-    return head if step["valid"] else f"{step['step']}: {step['reason']}"
+def _step_label(step: StepRecord) -> str:
+    a = step.action
+    if isinstance(a.unparsable, str):
+        return f"{step.step}: unparsable"
+    head = f"{step.step}: #{step.internal_id} r{a.rotation} ({a.x},{a.y})"
+    return head if step.valid else f"{step.step}: {step.reason}"
 
 
 def _crop_background(rgb: np.ndarray) -> np.ndarray:
@@ -182,8 +184,6 @@ def _crop_background(rgb: np.ndarray) -> np.ndarray:
 
 def _height_scale(ax: Any, container: Container) -> None:
     """A horizontal colour bar of the raster's fixed height scale, floor to rim, then above."""
-    from packlab.sim.raster import height_colour
-
     rim = container.height_mm
     heights = np.linspace(0, rim * 1.08, 256)
     strip = np.array([[height_colour(int(h), container) for h in heights]], dtype=np.uint8)
@@ -195,17 +195,14 @@ def _height_scale(ax: Any, container: Container) -> None:
     ax.set_title("heightmap colour: height (cm); red = above the rim", fontsize=8, pad=3)
 
 
-def episode_figure(case: Case, record: Mapping[str, Any], heightmaps: Sequence[np.ndarray],
+def episode_figure(case: Case, record: EpisodeOk, heightmaps: Sequence[np.ndarray],
                    max_steps: int = 40) -> Figure:
     """One episode: the final packing (left) and the heightmap after each step (right grid).
 
     Heightmaps use ``packlab.sim.raster``'s fixed colour scale (the picture the VLM reads), so
     colours compare across steps; each tile is titled with the step's action.
     """
-    from packlab.sim.raster import heightmap_to_rgb
-    from packlab.viz.labels import display_name
-
-    steps = list(record["steps"])[:max_steps]
+    steps = list(record.steps)[:max_steps]
     n = len(steps)
     cols = int(np.ceil(np.sqrt(n * 1.6))) if n else 1
     rows = max(1, -(-n // cols))
@@ -215,21 +212,21 @@ def episode_figure(case: Case, record: Mapping[str, Any], heightmaps: Sequence[n
     outer = fig.add_gridspec(1, 2, width_ratios=[left_w, tile * cols], wspace=0.04)
     left = outer[0, 0].subgridspec(2, 1, height_ratios=[14, 1], hspace=0.25)
     ax3d = fig.add_subplot(left[0, 0], projection="3d")
-    draw_packing(ax3d, case, record.get("final_poses", {}), scores_text(record["metrics"]), zoom=0.82)
+    draw_packing(ax3d, case, record.final_poses, scores_text(record.metrics), zoom=0.82)
     _height_scale(fig.add_subplot(left[1, 0]), case.container)
     tiles = outer[0, 1].subgridspec(rows, cols, wspace=0.08, hspace=0.35)
     for i, (step, hm) in enumerate(zip(steps, heightmaps)):
         ax = fig.add_subplot(tiles[i // cols, i % cols])
         ax.imshow(_crop_background(heightmap_to_rgb(hm, case.container, size=160, major_every=5)),
                   interpolation="nearest")
-        ax.set_title(_step_label(step), fontsize=7, color="black" if step["valid"] else "#D62728", pad=2)
+        ax.set_title(_step_label(step), fontsize=7, color="black" if step.valid else "#D62728", pad=2)
         ax.set_xticks([])
         ax.set_yticks([])
         for spine in ax.spines.values():
             spine.set_visible(False)
-    more = f" (first {max_steps} of {len(record['steps'])} steps)" if len(record["steps"]) > max_steps else ""
-    fig.suptitle(f"{display_name(record['policy'])} on {case.episode_id} ({case.difficulty}, {len(case.objects)} "
-                 f"objects), seed {record['seed']}, {record['backend']}{more}\n"
+    more = f" (first {max_steps} of {len(record.steps)} steps)" if len(record.steps) > max_steps else ""
+    fig.suptitle(f"{display_name(record.policy)} on {case.episode_id} ({case.difficulty}, {len(case.objects)} "
+                 f"objects), seed {record.seed}, {record.backend}{more}\n"
                  f"tiles: heightmap after each step (x right, y down), titled step: #object rotation (x, y)",
                  fontsize=10)
     return fig
