@@ -67,8 +67,12 @@ def _cpu_s(r: EpisodeOk) -> float:
     return _seconds(r.timing.cpu_s, _seconds(r.timing.episode_s))
 
 
-def timing_tables(records: list[EpisodeRecord], suite_counts: dict[str, int] | None, wall_s: float | None,
-                  workers: int) -> str:
+def timing_tables(
+    records: list[EpisodeRecord],
+    suite_counts: dict[str, int] | None,
+    wall_s: float | None,
+    workers: int,
+) -> str:
     ok = list(iter_ok(records))
     levels = difficulty_order([r.difficulty for r in ok])
     policies = list(dict.fromkeys(r.policy for r in ok))
@@ -83,33 +87,53 @@ def timing_tables(records: list[EpisodeRecord], suite_counts: dict[str, int] | N
     scale = {d: (suite_counts[d] / len(ran_cases[d]) if suite_counts else 1.0) for d in levels}
     full_cpu = sum(cpu_ep[d] * scale[d] for d in levels)
     if wall_s is not None:
-        lines.append(f"measured: {len(records)} episodes on {workers} workers in {wall_s:.1f} s wall; "
-                     f"episode CPU {total_cpu:.1f} s (episode wall {total_wall:.1f} s: the excess is waiting "
-                     f"for a core on a shared machine)")
+        lines.append(
+            f"measured: {len(records)} episodes on {workers} workers in {wall_s:.1f} s wall; "
+            f"episode CPU {total_cpu:.1f} s (episode wall {total_wall:.1f} s: the excess is waiting "
+            f"for a core on a shared machine)"
+        )
         if suite_counts:
-            lines.append(f"full default run, extrapolated per difficulty: CPU {full_cpu:.0f} s -> "
-                         f"~{full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min) on {workers} idle cores; "
-                         f"~{wall_s * full_cpu / total_cpu:.0f} s at this run's load")
+            lines.append(
+                f"full default run, extrapolated per difficulty: CPU {full_cpu:.0f} s -> "
+                f"~{full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min) on {workers} idle cores; "
+                f"~{wall_s * full_cpu / total_cpu:.0f} s at this run's load"
+            )
         else:
-            lines.append(f"CPU / workers = {full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min): "
-                         f"the wall time on {workers} idle cores")
+            lines.append(
+                f"CPU / workers = {full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min): "
+                f"the wall time on {workers} idle cores"
+            )
     else:
-        lines.append(f"{len(records)} episodes: episode CPU {total_cpu:.1f} s -> ~{total_cpu / workers:.0f} s "
-                     f"({total_cpu / workers / 60:.1f} min) on {workers} idle cores (records without cpu_s "
-                     f"count their wall time)")
+        lines.append(
+            f"{len(records)} episodes: episode CPU {total_cpu:.1f} s -> ~{total_cpu / workers:.0f} s "
+            f"({total_cpu / workers / 60:.1f} min) on {workers} idle cores (records without cpu_s "
+            f"count their wall time)"
+        )
     lines.append("")
-    head = f"{'method':<18}" + "".join(f"{d + ' ms/dec':>16}{d + ' ms/step':>17}" for d in levels) + \
-        f"{'CPU s/ep':>10}{'CPU share':>11}"
-    lines += ["time per decision (policy.act) and per environment step (place + settle), means (wall):", head,
-              "-" * len(head)]
+    head = (
+        f"{'method':<18}"
+        + "".join(f"{d + ' ms/dec':>16}{d + ' ms/step':>17}" for d in levels)
+        + f"{'CPU s/ep':>10}{'CPU share':>11}"
+    )
+    lines += [
+        "time per decision (policy.act) and per environment step (place + settle), means (wall):",
+        head,
+        "-" * len(head),
+    ]
     for p in policies:
         row = f"{display_name(p):<18}"
         mine = [r for r in ok if r.policy == p]
         for d in levels:
             rs = [r for r in mine if r.difficulty == d]
             dec = sum(int(_seconds(r.timing.decisions)) for r in rs)
-            row += (f"{1000 * sum(_seconds(r.timing.policy_s) for r in rs) / dec:>16.2f}"
-                    f"{1000 * sum(_seconds(r.timing.env_s) for r in rs) / dec:>17.2f}") if dec else f"{'-':>16}{'-':>17}"
+            row += (
+                (
+                    f"{1000 * sum(_seconds(r.timing.policy_s) for r in rs) / dec:>16.2f}"
+                    f"{1000 * sum(_seconds(r.timing.env_s) for r in rs) / dec:>17.2f}"
+                )
+                if dec
+                else f"{'-':>16}{'-':>17}"
+            )
         cpu = sum(_cpu_s(r) * scale[r.difficulty] for r in mine)
         row += f"{cpu / max(1, len(mine)) / (sum(scale[r.difficulty] for r in mine) / max(1, len(mine))):>10.3f}"
         row += f"{100 * cpu / full_cpu:>10.1f}%"
@@ -123,21 +147,40 @@ def outcome_workers(cfg: RunConfig) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--fraction", type=float, default=0.25, help="share of each difficulty's cases to run")
+    p.add_argument(
+        "--fraction", type=float, default=0.25, help="share of each difficulty's cases to run"
+    )
     p.add_argument("--workers", type=int, default=0, help="0 = all local cores")
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
-    p.add_argument("--physics", action="append", default=[], metavar="KEY=VALUE",
-                   help="PhysicsConfig override, as packlab bench --physics (repeatable)")
-    p.add_argument("--keep", metavar="DIR", help="write the run here instead of a scratch directory")
-    p.add_argument("--records", help="print the timing tables of an existing run directory and exit")
+    p.add_argument(
+        "--physics",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="PhysicsConfig override, as packlab bench --physics (repeatable)",
+    )
+    p.add_argument(
+        "--keep", metavar="DIR", help="write the run here instead of a scratch directory"
+    )
+    p.add_argument(
+        "--records", help="print the timing tables of an existing run directory and exit"
+    )
     args = p.parse_args(argv)
-    print(f"python {platform.python_version()}, {platform.machine()}, {local_cores()} cores, "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"python {platform.python_version()}, {platform.machine()}, {local_cores()} cores, "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
     if args.records:
         cfg = json.loads((Path(args.records) / "config.json").read_text())
-        print(timing_tables(read_records(Path(args.records) / "episodes.jsonl"), None, None,
-                            cfg["execution"]["workers"]))
+        print(
+            timing_tables(
+                read_records(Path(args.records) / "episodes.jsonl"),
+                None,
+                None,
+                cfg["execution"]["workers"],
+            )
+        )
         return 0
     if not 0 < args.fraction <= 1:
         print("--fraction must be in (0, 1]", file=sys.stderr)
@@ -146,16 +189,23 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="packlab-bench-time-") as scratch:
         suite = Path(scratch) / f"{DEFAULT_SUITE}-subset.jsonl"
         save_cases(cases, suite)
-        cfg = RunConfig(cases=str(suite), out=args.keep or str(Path(scratch) / "run"), backend=args.backend,
-                        seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
-                        physics_overrides=parse_physics(args.physics))
+        cfg = RunConfig(
+            cases=str(suite),
+            out=args.keep or str(Path(scratch) / "run"),
+            backend=args.backend,
+            seeds=tuple(int(s) for s in args.seeds.split(",")),
+            workers=args.workers,
+            physics_overrides=parse_physics(args.physics),
+        )
         t0 = time.perf_counter()
         outcome = run_bench(cfg, figures=False)
         wall = time.perf_counter() - t0
         records = read_records(outcome.run_dir / "episodes.jsonl")
-    print(f"{len(cases)} of {sum(counts.values())} cases ({', '.join(f'{d} {n}' for d, n in counts.items())} "
-          f"in the suite), seeds {args.seeds}, backend {args.backend}, {outcome.planned} episodes; "
-          f"load average now {os.getloadavg()[0]:.2f}")
+    print(
+        f"{len(cases)} of {sum(counts.values())} cases ({', '.join(f'{d} {n}' for d, n in counts.items())} "
+        f"in the suite), seeds {args.seeds}, backend {args.backend}, {outcome.planned} episodes; "
+        f"load average now {os.getloadavg()[0]:.2f}"
+    )
     print(timing_tables(records, counts if args.fraction < 1 else None, wall, outcome_workers(cfg)))
     print()
     print(json.dumps({"wall_s": round(wall, 2), "episodes": outcome.planned}))

@@ -30,9 +30,16 @@ def _size(root: Path, sub: str) -> tuple[int, int]:
 
 
 def measure(difficulty: str, n: int, args: argparse.Namespace, root: Path) -> dict:
-    cfg = DatasetConfig((difficulty,), (n,), seed=args.seed, shard_size=n, image_size=args.image_size,
-                        sft=args.sft, case=CaseConfig(layout=args.layout),
-                        validation=ValidationConfig(backend=args.validation))
+    cfg = DatasetConfig(
+        (difficulty,),
+        (n,),
+        seed=args.seed,
+        shard_size=n,
+        image_size=args.image_size,
+        sft=args.sft,
+        case=CaseConfig(layout=args.layout),
+        validation=ValidationConfig(backend=args.validation),
+    )
     spent = {"replay": 0.0}
     real = engine.produce_slot
 
@@ -51,9 +58,16 @@ def measure(difficulty: str, n: int, args: argparse.Namespace, root: Path) -> di
     finally:
         engine.produce_slot = real
     sizes = {k: _size(root, k) for k in ("images", "data", "sft")}
-    return {"difficulty": difficulty, "episodes": stats.episodes, "steps": stats.steps,
-            "rejected": stats.attempts - stats.episodes, "wall": wall, "cpu": cpu, "replay": spent["replay"],
-            "sizes": sizes}
+    return {
+        "difficulty": difficulty,
+        "episodes": stats.episodes,
+        "steps": stats.steps,
+        "rejected": stats.attempts - stats.episodes,
+        "wall": wall,
+        "cpu": cpu,
+        "replay": spent["replay"],
+        "sizes": sizes,
+    }
 
 
 def main() -> None:
@@ -67,8 +81,13 @@ def main() -> None:
     ap.add_argument("--sft", default="per_step")
     ap.add_argument("--cores", type=int, default=2, help="cores to extrapolate the recipe to")
     ap.add_argument("--recipe", default="packdata-20k")
-    ap.add_argument("--parallel", type=int, default=0, metavar="N",
-                    help="also time a real process-pool run of N mixed episodes on --cores workers")
+    ap.add_argument(
+        "--parallel",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also time a real process-pool run of N mixed episodes on --cores workers",
+    )
     args = ap.parse_args()
     recipe = RECIPES[args.recipe]
     counts = dict(zip(recipe.difficulties, recipe.episodes))
@@ -78,49 +97,72 @@ def main() -> None:
         for d in args.difficulties.split(","):
             rows.append(measure(d, args.episodes, args, Path(tmp) / d))
 
-        print(f"datagen throughput: {args.episodes} episodes per difficulty, validation={args.validation}, "
-              f"layout={args.layout}, images {args.image_size}px, sft={args.sft}, one core each "
-              f"(os.cpu_count()={os.cpu_count()})")
+        print(
+            f"datagen throughput: {args.episodes} episodes per difficulty, validation={args.validation}, "
+            f"layout={args.layout}, images {args.image_size}px, sft={args.sft}, one core each "
+            f"(os.cpu_count()={os.cpu_count()})"
+        )
         print()
-        print("| difficulty | episodes | steps/ep | rejected | s/ep wall | s/ep cpu | replay share | ep/s/core | "
-              "disk/ep (KiB, apparent) | disk/ep (KiB, allocated) |")
+        print(
+            "| difficulty | episodes | steps/ep | rejected | s/ep wall | s/ep cpu | replay share | ep/s/core | "
+            "disk/ep (KiB, apparent) | disk/ep (KiB, allocated) |"
+        )
         print("|---|---|---|---|---|---|---|---|---|---|")
         total_core_s = total_app = total_alloc = 0.0
         for r in rows:
             n = max(r["episodes"], 1)
             app = sum(a for a, _ in r["sizes"].values()) / n
             alloc = sum(b for _, b in r["sizes"].values()) / n
-            print(f"| {r['difficulty']} | {r['episodes']} | {r['steps'] / n:.1f} | {r['rejected']} | "
-                  f"{r['wall'] / n:.3f} | {r['cpu'] / n:.3f} | {r['replay'] / max(r['wall'], 1e-9):.0%} | "
-                  f"{n / r['wall']:.2f} | {app / 1024:.1f} | {alloc / 1024:.1f} |")
+            print(
+                f"| {r['difficulty']} | {r['episodes']} | {r['steps'] / n:.1f} | {r['rejected']} | "
+                f"{r['wall'] / n:.3f} | {r['cpu'] / n:.3f} | {r['replay'] / max(r['wall'], 1e-9):.0%} | "
+                f"{n / r['wall']:.2f} | {app / 1024:.1f} | {alloc / 1024:.1f} |"
+            )
             k = counts.get(r["difficulty"], 0)
             total_core_s += k * r["wall"] / n
             total_app += k * app
             total_alloc += k * alloc
         print()
-        by_part = {part: sum(r["sizes"][part][0] / max(r["episodes"], 1) * counts.get(r["difficulty"], 0)
-                             for r in rows) for part in ("images", "data", "sft")}
-        print(f"{args.recipe} extrapolated: {total_core_s / 3600:.2f} core-hours -> "
-              f"{total_core_s / args.cores / 60:.1f} min wall on {args.cores} cores (perfect scaling); "
-              f"disk {total_app / 2**30:.2f} GiB apparent, {total_alloc / 2**30:.2f} GiB allocated "
-              f"(images {by_part['images'] / 2**30:.2f}, parquet {by_part['data'] / 2**30:.2f}, "
-              f"sft {by_part['sft'] / 2**30:.2f} GiB apparent)")
+        by_part = {
+            part: sum(
+                r["sizes"][part][0] / max(r["episodes"], 1) * counts.get(r["difficulty"], 0)
+                for r in rows
+            )
+            for part in ("images", "data", "sft")
+        }
+        print(
+            f"{args.recipe} extrapolated: {total_core_s / 3600:.2f} core-hours -> "
+            f"{total_core_s / args.cores / 60:.1f} min wall on {args.cores} cores (perfect scaling); "
+            f"disk {total_app / 2**30:.2f} GiB apparent, {total_alloc / 2**30:.2f} GiB allocated "
+            f"(images {by_part['images'] / 2**30:.2f}, parquet {by_part['data'] / 2**30:.2f}, "
+            f"sft {by_part['sft'] / 2**30:.2f} GiB apparent)"
+        )
 
         if args.parallel:
             mix = [counts[d] for d in recipe.difficulties]
             share = [max(1, round(args.parallel * m / sum(mix))) for m in mix]
-            cfg = DatasetConfig(recipe.difficulties, tuple(share), seed=args.seed + 1,
-                                shard_size=max(1, min(share) // 2), image_size=args.image_size, sft=args.sft,
-                                case=CaseConfig(layout=args.layout),
-                                validation=ValidationConfig(backend=args.validation))
+            cfg = DatasetConfig(
+                recipe.difficulties,
+                tuple(share),
+                seed=args.seed + 1,
+                shard_size=max(1, min(share) // 2),
+                image_size=args.image_size,
+                sft=args.sft,
+                case=CaseConfig(layout=args.layout),
+                validation=ValidationConfig(backend=args.validation),
+            )
             t = time.perf_counter()
-            generate_dataset(cfg, RunOptions(str(Path(tmp) / "parallel"), workers=args.cores, progress=False))
+            generate_dataset(
+                cfg, RunOptions(str(Path(tmp) / "parallel"), workers=args.cores, progress=False)
+            )
             wall = time.perf_counter() - t
             per = {r["difficulty"]: r["wall"] / max(r["episodes"], 1) for r in rows}
             serial_estimate = sum(k * per.get(d, 0.0) for d, k in zip(recipe.difficulties, share))
-            print(f"process pool, {sum(share)} mixed episodes on {args.cores} workers: {wall:.1f} s wall "
-                  f"(one-core estimate {serial_estimate:.1f} s -> speed-up {serial_estimate / wall:.2f}x); "
-                  f"recipe at this rate: {wall / sum(share) * recipe_total(recipe) / 60:.1f} min")
+            print(
+                f"process pool, {sum(share)} mixed episodes on {args.cores} workers: {wall:.1f} s wall "
+                f"(one-core estimate {serial_estimate:.1f} s -> speed-up {serial_estimate / wall:.2f}x); "
+                f"recipe at this rate: {wall / sum(share) * recipe_total(recipe) / 60:.1f} min"
+            )
 
 
 def recipe_total(recipe) -> int:

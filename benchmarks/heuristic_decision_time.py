@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
+from packlab.core.types import Box, Case, Container
 from packlab.policies.heuristics import SCORERS, make_heuristic, observation_candidates
 from packlab.sim.episode import Episode
-from packlab.core.types import Box, Case, Container
 
 CELL_MM = 25
 
@@ -66,8 +66,9 @@ def make_case(level: str, seed: int) -> Case:
             l, w = (fy, fx) if rng.random() < 0.25 else (fx, fy)
             size_mm = (l * CELL_MM, w * CELL_MM, int(heights[layer]))
             objects.append(Box(len(objects), size_mm, len(objects)))
-    return Case(f"{level}-{seed}", Container(size), buffer, tuple(objects), seed=seed,
-                difficulty=level)
+    return Case(
+        f"{level}-{seed}", Container(size), buffer, tuple(objects), seed=seed, difficulty=level
+    )
 
 
 def time_episode(case: Case, name: str) -> list[float]:
@@ -116,8 +117,10 @@ def main() -> None:
 
     print(f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
     print(f"{args.cases} cases per difficulty, geometric backend, one row per heuristic\n")
-    header = f"{'difficulty':<10} {'grid':>7} {'buf':>3} {'method':<7} {'decisions':>9} " \
-             f"{'mean ms':>8} {'p95 ms':>8} {'max ms':>8}"
+    header = (
+        f"{'difficulty':<10} {'grid':>7} {'buf':>3} {'method':<7} {'decisions':>9} "
+        f"{'mean ms':>8} {'p95 ms':>8} {'max ms':>8}"
+    )
     print(header)
     print("-" * len(header))
     for level, (size, buffer, _, _) in LEVELS.items():
@@ -127,8 +130,10 @@ def main() -> None:
         rows.append(("search", [t for case in cases for t in time_search(case)]))
         for name, times in rows:
             ms = np.array(times) * 1e3
-            print(f"{level:<10} {grid:>7} {buffer:>3} {name:<7} {ms.size:>9} "
-                  f"{ms.mean():>8.2f} {np.percentile(ms, 95):>8.2f} {ms.max():>8.2f}")
+            print(
+                f"{level:<10} {grid:>7} {buffer:>3} {name:<7} {ms.size:>9} "
+                f"{ms.mean():>8.2f} {np.percentile(ms, 95):>8.2f} {ms.max():>8.2f}"
+            )
 
 
 if __name__ == "__main__":

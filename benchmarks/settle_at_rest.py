@@ -70,7 +70,12 @@ def engine_speeds(backend) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def centres_mm(backend) -> np.ndarray:
-    return np.array([backend._data.qpos[backend._qpos_slice(i)][:3] * 1e3 for i in np.flatnonzero(backend._placed)])
+    return np.array(
+        [
+            backend._data.qpos[backend._qpos_slice(i)][:3] * 1e3
+            for i in np.flatnonzero(backend._placed)
+        ]
+    )
 
 
 def run_on(ep: Episode) -> tuple[float, float]:
@@ -125,9 +130,11 @@ def run_one(case, policy_name: str, seed: int, tally: Tally, diagnose: bool, phy
             if diagnose and unsettled:
                 idx, lin, ang = engine_speeds(ep.backend)
                 k = int(np.argmax(lin + ang))
-                print(f"  {case.episode_id} seed {seed} {policy_name} step {step.step_index}: "
-                      f"fastest box {idx[k]} lin {lin[k]:.4f} m/s ang {ang[k]:.3f} rad/s, "
-                      f"{where(ep.backend, int(idx[k]))}")
+                print(
+                    f"  {case.episode_id} seed {seed} {policy_name} step {step.step_index}: "
+                    f"fastest box {idx[k]} lin {lin[k]:.4f} m/s ang {ang[k]:.3f} rad/s, "
+                    f"{where(ep.backend, int(idx[k]))}"
+                )
         if not ep.done:
             obs = ep.observe()
     tally.episodes += 1
@@ -154,8 +161,14 @@ def main() -> None:
     parser.add_argument("--per-level", type=int, default=5, help="first N cases of each level")
     parser.add_argument("--levels", default="easy,medium,hard")
     parser.add_argument("--seeds", default="0", help="comma-separated run seeds")
-    parser.add_argument("--physics", nargs="*", default=[], help="PhysicsConfig overrides, KEY=VALUE")
-    parser.add_argument("--diagnose", action="store_true", help="describe the fastest box of every unsettled placement")
+    parser.add_argument(
+        "--physics", nargs="*", default=[], help="PhysicsConfig overrides, KEY=VALUE"
+    )
+    parser.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="describe the fastest box of every unsettled placement",
+    )
     args = parser.parse_args()
 
     overrides = dict(parse_physics(args.physics))
@@ -163,9 +176,13 @@ def main() -> None:
     levels = args.levels.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
     suite = load_suite()
-    cases = [c for level in levels for c in [c for c in suite if c.difficulty == level][: args.per_level]]
-    print(f"packlab-bench-v1 on mujoco: {len(cases)} cases ({args.per_level} per level: {','.join(levels)}), "
-          f"seeds {','.join(map(str, seeds))}; physics overrides {overrides or 'none'}")
+    cases = [
+        c for level in levels for c in [c for c in suite if c.difficulty == level][: args.per_level]
+    ]
+    print(
+        f"packlab-bench-v1 on mujoco: {len(cases)} cases ({args.per_level} per level: {','.join(levels)}), "
+        f"seeds {','.join(map(str, seeds))}; physics overrides {overrides or 'none'}"
+    )
     tallies = {}
     for name in args.policies.split(","):
         tally = tallies[name] = Tally()
@@ -175,17 +192,21 @@ def main() -> None:
                 run_one(case, name, seed, tally, args.diagnose, physics)
         print(f"  {name}: {time.perf_counter() - t0:.1f} s")
 
-    header = (f"{'policy':8s} {'placements':>10s} {'% unsettled':>11s} {'episodes':>8s} {'not at rest':>11s} "
-              f"{'qvel lin':>8s} {'qvel ang':>8s} {'moved mm':>8s} {'>1 mm':>5s} {'final steps':>11s} "
-              f"{'dOverall':>8s} {'ms/placement':>12s} {'p95 ms':>7s}")
+    header = (
+        f"{'policy':8s} {'placements':>10s} {'% unsettled':>11s} {'episodes':>8s} {'not at rest':>11s} "
+        f"{'qvel lin':>8s} {'qvel ang':>8s} {'moved mm':>8s} {'>1 mm':>5s} {'final steps':>11s} "
+        f"{'dOverall':>8s} {'ms/placement':>12s} {'p95 ms':>7s}"
+    )
     print(header)
     print("-" * len(header))
     for name, t in tallies.items():
         pct = 100.0 * t.unsettled / t.placements if t.placements else 0.0
-        print(f"{name:8s} {t.placements:10d} {pct:10.1f}% {t.episodes:8d} {t.not_at_rest:11d} "
-              f"{t.qvel_lin:8.4f} {t.qvel_ang:8.3f} {t.moved_mm:8.2f} {t.moved_episodes:5d} "
-              f"{np.mean(t.final_steps):11.0f} {t.overall_change:8.4f} {1e3 * np.mean(t.step_s):12.2f} "
-              f"{1e3 * np.percentile(t.step_s, 95):7.1f}")
+        print(
+            f"{name:8s} {t.placements:10d} {pct:10.1f}% {t.episodes:8d} {t.not_at_rest:11d} "
+            f"{t.qvel_lin:8.4f} {t.qvel_ang:8.3f} {t.moved_mm:8.2f} {t.moved_episodes:5d} "
+            f"{np.mean(t.final_steps):11.0f} {t.overall_change:8.4f} {1e3 * np.mean(t.step_s):12.2f} "
+            f"{1e3 * np.percentile(t.step_s, 95):7.1f}"
+        )
 
 
 if __name__ == "__main__":

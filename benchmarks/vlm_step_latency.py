@@ -23,9 +23,9 @@ import time
 
 import numpy as np
 
+from packlab.core.types import Box, Case, Container
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode
-from packlab.core.types import Box, Case, Container
 
 CELL_MM = 25
 

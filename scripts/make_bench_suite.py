@@ -35,7 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--suite", default="packlab-bench-v1", choices=sorted(SUITES))
     p.add_argument("--out", help="directory to write into (default: the package's data/suites)")
     p.add_argument("--check", action="store_true", help="regenerate into a scratch dir and compare")
-    p.add_argument("--force", action="store_true", help="overwrite a bundled file whose bytes would change")
+    p.add_argument(
+        "--force", action="store_true", help="overwrite a bundled file whose bytes would change"
+    )
     args = p.parse_args(argv)
     try:
         spec = suite_spec(args.suite)
@@ -49,8 +51,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{spec.name}: regenerated sha256 {digest} is {status} {bundled}")
                 return 0 if same else 1
             if bundled.is_file() and not same and not args.force:
-                print(f"{bundled} exists with other contents; a changed suite is a new version "
-                      f"(add a new SuiteSpec) or pass --force", file=sys.stderr)
+                print(
+                    f"{bundled} exists with other contents; a changed suite is a new version "
+                    f"(add a new SuiteSpec) or pass --force",
+                    file=sys.stderr,
+                )
                 return 1
             # Copy the scratch files: the bytes written are exactly the bytes just checksummed.
             target.mkdir(parents=True, exist_ok=True)

@@ -29,8 +29,15 @@ def _split(rng: np.random.Generator, dx: int, dy: int, pieces: int, min_side: in
     return rects
 
 
-def make_layered_case(seed: int, cells=(16, 12), layer_heights_mm=(200, 150), buffer_size=3,
-                      rim_mm: int | None = None, episode_id: str | None = None, pieces: int = 4) -> Case:
+def make_layered_case(
+    seed: int,
+    cells=(16, 12),
+    layer_heights_mm=(200, 150),
+    buffer_size=3,
+    rim_mm: int | None = None,
+    episode_id: str | None = None,
+    pieces: int = 4,
+) -> Case:
     """A perfect layout: each layer tiled exactly by rectangles, placed bottom layer first."""
     rng = np.random.default_rng(seed)
     cell = 25
@@ -47,7 +54,12 @@ def make_layered_case(seed: int, cells=(16, 12), layer_heights_mm=(200, 150), bu
             plan.append(PlanStep(iid, iid, layer, (x, y, z // 2), (dx, dy, h // 2), x, y, rotation))
         z += h
     container = Container((cells[0] * cell, cells[1] * cell, rim_mm or z + 100))
-    return Case(episode_id or f"layered-{seed}", container, buffer_size, tuple(objects), seed=seed,
-                difficulty="test", gt_plan=tuple(plan))
-
-
+    return Case(
+        episode_id or f"layered-{seed}",
+        container,
+        buffer_size,
+        tuple(objects),
+        seed=seed,
+        difficulty="test",
+        gt_plan=tuple(plan),
+    )

@@ -23,10 +23,20 @@ REPO_ROOT = PACKAGE_DIR.parents[1]
 
 #: Optional heavy dependencies (extras) that may be imported inside a function, so that the
 #: core installs and imports without them. Their submodules count too.
-LAZY_IMPORTS_ALLOWED = frozenset({
-    "torch", "transformers", "peft", "accelerate", "ray", "datasets", "stable_baselines3",
-    "sb3_contrib", "openai", "jinja2",
-})
+LAZY_IMPORTS_ALLOWED = frozenset(
+    {
+        "torch",
+        "transformers",
+        "peft",
+        "accelerate",
+        "ray",
+        "datasets",
+        "stable_baselines3",
+        "sb3_contrib",
+        "openai",
+        "jinja2",
+    }
+)
 MAX_FUNCTION_LINES = 80
 FUNCTION_NODES = (ast.FunctionDef, ast.AsyncFunctionDef)
 
@@ -119,11 +129,14 @@ def test_import_linter_contract_is_kept():
     if script.exists():
         command = [str(script), "--no-cache", "--no-logo"]
     else:  # the console script is not beside this interpreter: the same check through its API
-        api = ("import sys; from importlinter.cli import lint_imports; "
-               "sys.exit(lint_imports(no_cache=True, no_logo=True))")
+        api = (
+            "import sys; from importlinter.cli import lint_imports; "
+            "sys.exit(lint_imports(no_cache=True, no_logo=True))"
+        )
         command = [sys.executable, "-c", api]
-    done = subprocess.run(command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=300,
-                          check=False)
+    done = subprocess.run(
+        command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=300, check=False
+    )
     report = done.stdout + done.stderr
     assert done.returncode == 0, f"lint-imports failed (exit {done.returncode}):\n{report}"
     assert re.search(r"\b0 broken\b", report), report

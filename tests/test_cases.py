@@ -46,7 +46,9 @@ def test_single_json_case_in_cm(tmp_path):
 def test_reference_parquet_rows(tmp_path):
     rows = [{"extra_info": {"interaction_kwargs": _record(episode_id=f"p{i}")}} for i in range(2)]
     # The reference stores the case as a JSON string inside a struct; accept both encodings.
-    rows[1]["extra_info"]["interaction_kwargs"] = json.dumps(rows[1]["extra_info"]["interaction_kwargs"])
+    rows[1]["extra_info"]["interaction_kwargs"] = json.dumps(
+        rows[1]["extra_info"]["interaction_kwargs"]
+    )
     table = pa.table({"extra_info": [json.dumps(r["extra_info"]) for r in rows]})
     pq.write_table(table, tmp_path / "bench.parquet")
     cases = load_cases(tmp_path / "bench.parquet")
@@ -58,10 +60,26 @@ def test_reference_parquet_rows(tmp_path):
     [
         (lambda r: r.pop("buffer_size"), "buffer_size", "None"),
         (lambda r: r.update(buffer_size=0), "buffer_size", "0"),
-        (lambda r: r["object_sequence"][1].update(size_cm=[-25, 40, 10]), "object_sequence[1].size_cm[0]", "-25"),
-        (lambda r: r["object_sequence"][0].update(size_cm=[26, 40, 10]), "object_sequence[0].size_cm[0]", "26"),
-        (lambda r: r["object_sequence"][0].update(size_cm=[25, 40, 35]), "object_sequence[0].size_cm", "35"),
-        (lambda r: r["object_sequence"][0].update(size_cm=[75, 45, 10]), "object_sequence[0].size_cm", "75"),
+        (
+            lambda r: r["object_sequence"][1].update(size_cm=[-25, 40, 10]),
+            "object_sequence[1].size_cm[0]",
+            "-25",
+        ),
+        (
+            lambda r: r["object_sequence"][0].update(size_cm=[26, 40, 10]),
+            "object_sequence[0].size_cm[0]",
+            "26",
+        ),
+        (
+            lambda r: r["object_sequence"][0].update(size_cm=[25, 40, 35]),
+            "object_sequence[0].size_cm",
+            "35",
+        ),
+        (
+            lambda r: r["object_sequence"][0].update(size_cm=[75, 45, 10]),
+            "object_sequence[0].size_cm",
+            "75",
+        ),
         (lambda r: r["object_sequence"][0].pop("size_cm"), "object_sequence[0].size_cm", "None"),
     ],
 )
@@ -111,19 +129,49 @@ def test_save_is_atomic_and_keeps_the_old_file_on_failure(tmp_path):
 
 # -- ids, reference rows, limits, file modes --------------------------------------------------------
 
+
 def _reference_row(**extra_overrides):
-    kwargs = {"name": "packing", "sample_id": "easy_000007", "container_size_cm": [50.0, 40.0, 30.0],
-              "buffer_size": 2, "seed": 610007,
-              "object_sequence": [{"internal_id": f"obj_0000{i}", "gt_index": i, "type_id": i,
-                                   "size_cm": [25.0, 40.0, 10.0]} for i in range(2)]}
-    plan = [{"internal_id": f"obj_0000{i}", "gt_index": i, "layer_index": 0,
-             "target_box_cells": {"x": 10 * i, "y": 0, "z": 0, "dx": 10, "dy": 16, "dz": 50},
-             "action": {"object_id": None, "x": 10 * i, "y": 0, "rotation": 0}} for i in range(2)]
-    extra = {"split": "test", "index": 7, "difficulty": "easy", "generator": "layer_cuboid_v1_layer_random_anchor",
-             "gt_plan": plan, "interaction_kwargs": kwargs}
+    kwargs = {
+        "name": "packing",
+        "sample_id": "easy_000007",
+        "container_size_cm": [50.0, 40.0, 30.0],
+        "buffer_size": 2,
+        "seed": 610007,
+        "object_sequence": [
+            {
+                "internal_id": f"obj_0000{i}",
+                "gt_index": i,
+                "type_id": i,
+                "size_cm": [25.0, 40.0, 10.0],
+            }
+            for i in range(2)
+        ],
+    }
+    plan = [
+        {
+            "internal_id": f"obj_0000{i}",
+            "gt_index": i,
+            "layer_index": 0,
+            "target_box_cells": {"x": 10 * i, "y": 0, "z": 0, "dx": 10, "dy": 16, "dz": 50},
+            "action": {"object_id": None, "x": 10 * i, "y": 0, "rotation": 0},
+        }
+        for i in range(2)
+    ]
+    extra = {
+        "split": "test",
+        "index": 7,
+        "difficulty": "easy",
+        "generator": "layer_cuboid_v1_layer_random_anchor",
+        "gt_plan": plan,
+        "interaction_kwargs": kwargs,
+    }
     extra.update(extra_overrides)
-    return {"data_source": "packing_eval", "prompt_template_id": "packing_sft", "ability": "spatial_packing",
-            "extra_info": extra}
+    return {
+        "data_source": "packing_eval",
+        "prompt_template_id": "packing_sft",
+        "ability": "spatial_packing",
+        "extra_info": extra,
+    }
 
 
 @pytest.mark.parametrize("encoding", ["struct", "json-text"])
@@ -132,13 +180,17 @@ def test_reference_row_gives_every_field(tmp_path, encoding):
 
     row = _reference_row()
     if encoding == "json-text":  # extra_info and interaction_kwargs as JSON strings
-        row["extra_info"]["interaction_kwargs"] = json.dumps(row["extra_info"]["interaction_kwargs"])
+        row["extra_info"]["interaction_kwargs"] = json.dumps(
+            row["extra_info"]["interaction_kwargs"]
+        )
         row["extra_info"] = json.dumps(row["extra_info"])
     pq.write_table(pa.Table.from_pylist([row]), tmp_path / "ref.parquet")
     (case,) = load_cases(tmp_path / "ref.parquet")
     assert case.episode_id == "easy_000007" and case.difficulty == "easy" and case.seed == 610007
     assert [b.internal_id for b in case.objects] == ["obj_00000", "obj_00001"]
-    assert [p.internal_id for p in case.gt_plan] == ["obj_00000", "obj_00001"] and case.gt_plan[1].x == 10
+    assert [p.internal_id for p in case.gt_plan] == ["obj_00000", "obj_00001"] and case.gt_plan[
+        1
+    ].x == 10
     assert case.generator == {"name": "layer_cuboid_v1_layer_random_anchor"}
     assert case.origin == CaseOrigin("test", 7)
     # The same row as a JSON line loads to the same case.
@@ -150,7 +202,9 @@ def test_reference_row_fields_that_disagree_are_refused(tmp_path):
     row = _reference_row()
     row["extra_info"]["interaction_kwargs"]["difficulty"] = "hard"
     (tmp_path / "ref.jsonl").write_text(json.dumps(row) + "\n")
-    with pytest.raises(CaseFormatError, match=r"ref.jsonl:1: field 'extra_info.difficulty' = 'easy': differs"):
+    with pytest.raises(
+        CaseFormatError, match=r"ref.jsonl:1: field 'extra_info.difficulty' = 'easy': differs"
+    ):
         load_cases(tmp_path / "ref.jsonl")
 
 
@@ -158,11 +212,16 @@ def test_generator_name_and_mapping_survive_the_reference_row():
     from packlab.cases import case_from_dict, case_to_reference_row
 
     case = case_from_dict(_reference_row())
-    assert case_to_reference_row(case, 0)["extra_info"]["generator"] == "layer_cuboid_v1_layer_random_anchor"
+    assert (
+        case_to_reference_row(case, 0)["extra_info"]["generator"]
+        == "layer_cuboid_v1_layer_random_anchor"
+    )
     rich = {"name": "packlab.datagen", "layer_heights_cm": [22, 12.4], "first_cell": [0, 0]}
     row = _reference_row(generator=json.dumps(rich))
     assert case_from_dict(row).generator == rich
-    assert case_from_dict(row, "<row>") == case_from_dict(case_to_reference_row(case_from_dict(row), 0))
+    assert case_from_dict(row, "<row>") == case_from_dict(
+        case_to_reference_row(case_from_dict(row), 0)
+    )
 
 
 def test_container_limits_hold_at_the_boundary(tmp_path):

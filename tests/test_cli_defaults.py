@@ -26,8 +26,17 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "inspect-data": ["inspect-data", "data"],
     "train sft": ["train", "sft", "--data", "data", "--out", "runs/sft"],
     "serve": ["serve"],
-    "viz episode": ["viz", "episode", "runs/x", "--case", "c", "--policy", "dblf",
-                    "--out", "x.png"],
+    "viz episode": [
+        "viz",
+        "episode",
+        "runs/x",
+        "--case",
+        "c",
+        "--policy",
+        "dblf",
+        "--out",
+        "x.png",
+    ],
 }
 
 #: Options that set no config field: what a command does (--describe), what it prints or draws,
@@ -46,8 +55,9 @@ CLI_ONLY: dict[str, set[str]] = {
 }
 
 
-def _subcommands(parser: argparse.ArgumentParser,
-                 path: str = "") -> dict[str, argparse.ArgumentParser]:
+def _subcommands(
+    parser: argparse.ArgumentParser, path: str = ""
+) -> dict[str, argparse.ArgumentParser]:
     """Every (sub)command parser by its path ("bench", "train sft"); "" is the top level."""
     found = {path: parser}
     for action in parser._actions:
@@ -58,15 +68,20 @@ def _subcommands(parser: argparse.ArgumentParser,
 
 
 def _options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
-    return {a.option_strings[0]: a for a in parser._actions
-            if a.option_strings and not isinstance(a, argparse._HelpAction)}
+    return {
+        a.option_strings[0]: a
+        for a in parser._actions
+        if a.option_strings and not isinstance(a, argparse._HelpAction)
+    }
 
 
 PARSER = build_parser()  # fills FIELD_OPTIONS
 #: Every command but those that only group subcommands ("cases", "train", "viz").
-COMMANDS = {k: v for k, v in _subcommands(PARSER).items()
-            if k and (_options(v) or not any(isinstance(a, argparse._SubParsersAction)
-                                             for a in v._actions))}
+COMMANDS = {
+    k: v
+    for k, v in _subcommands(PARSER).items()
+    if k and (_options(v) or not any(isinstance(a, argparse._SubParsersAction) for a in v._actions))
+}
 
 
 def test_every_command_is_listed_here():
@@ -105,9 +120,20 @@ def test_defaults_and_choices_come_from_the_config_field(command):
 def test_literal_fields_take_their_choices_from_core_choices():
     from packlab.core import choices as core
 
-    literals = {core.choices(t): t for t in (core.PhysicsBackend, core.Executor, core.ImageMode,
-                                              core.HistoryMode, core.Difficulty, core.TieBreak,
-                                              core.LayoutFamily, core.SFTExport, core.Precision)}
+    literals = {
+        core.choices(t): t
+        for t in (
+            core.PhysicsBackend,
+            core.Executor,
+            core.ImageMode,
+            core.HistoryMode,
+            core.Difficulty,
+            core.TieBreak,
+            core.LayoutFamily,
+            core.SFTExport,
+            core.Precision,
+        )
+    }
     for option in FIELD_OPTIONS.values():
         allowed = field_choices(option.config, option.field)
         if allowed is not None:

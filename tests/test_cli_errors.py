@@ -40,7 +40,10 @@ BENCH_CASES = [
     (["--max-transport-failures", "-1"], "max-transport-failures = -1"),
     (["--physics", "max_settle_steps=10"], "only the mujoco backend has physics settings"),
     (["--policy-arg", "dblf"], "policy-arg = 'dblf': expected POLICY:KEY=VALUE"),
-    (["--policy-arg", "oracle:x=1", "--policies", "dblf"], "policy 'oracle' is not among the policies"),
+    (
+        ["--policy-arg", "oracle:x=1", "--policies", "dblf"],
+        "policy 'oracle' is not among the policies",
+    ),
     (["--policy-arg", "dblf:nope=1", "--policies", "dblf"], "policy = 'dblf': cannot be created"),
 ]
 
@@ -48,10 +51,25 @@ BENCH_CASES = [
 @pytest.mark.parametrize("flags, message", BENCH_CASES, ids=[" ".join(f) for f, _ in BENCH_CASES])
 def test_bench_bad_flags(tmp_path, capsys, flags, message):
     out = tmp_path / "run"
-    code, err = _run(["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--out", str(out),
-                      "--no-progress", "--no-figures", *flags], capsys)
+    code, err = _run(
+        [
+            "bench",
+            "--cases",
+            demo_cases_path(),
+            "--backend",
+            "geometric",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--no-figures",
+            *flags,
+        ],
+        capsys,
+    )
     assert code == EXIT_USAGE, err
-    assert err.startswith("packlab bench: error: ") and message in err and len(err.splitlines()) == 1
+    assert (
+        err.startswith("packlab bench: error: ") and message in err and len(err.splitlines()) == 1
+    )
     assert not out.exists()  # nothing written
 
 
@@ -65,7 +83,17 @@ def test_huge_seed_range_is_refused_before_allocating(capsys):
 def test_out_naming_a_file_or_under_a_file(tmp_path, capsys):
     a_file = tmp_path / "afile"
     a_file.write_text("x")
-    base = ["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--policies", "dblf", "--seeds", "0"]
+    base = [
+        "bench",
+        "--cases",
+        demo_cases_path(),
+        "--backend",
+        "geometric",
+        "--policies",
+        "dblf",
+        "--seeds",
+        "0",
+    ]
     code, err = _run([*base, "--out", str(a_file)], capsys)
     assert code == EXIT_USAGE and f"out = '{a_file}': exists and is not a directory" in err
     code, err = _run([*base, "--out", str(a_file / "sub")], capsys)
@@ -74,22 +102,53 @@ def test_out_naming_a_file_or_under_a_file(tmp_path, capsys):
 
 
 def test_no_policies_flag_still_means_the_default_set(tmp_path, capsys):
-    code, err = _run(["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--seeds", "0",
-                      "--workers", "1", "--out", str(tmp_path / "run"), "--no-progress", "--no-figures"], capsys)
+    code, err = _run(
+        [
+            "bench",
+            "--cases",
+            demo_cases_path(),
+            "--backend",
+            "geometric",
+            "--seeds",
+            "0",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path / "run"),
+            "--no-progress",
+            "--no-figures",
+        ],
+        capsys,
+    )
     assert code == 0 and "episodes run" in err
 
 
-@pytest.mark.parametrize("flags, message", [
-    (["--difficulty", ",", "--episodes", "1"], "difficulty: give at least one"),
-    (["--difficulty", "easy", "--episodes", "100000000000"], "must be a whole number >= 0 and <= 1000000"),
-    (["--difficulty", "easy", "--episodes", "1", "--seed", "99999999999999999999999"], "seed = 9999"),
-    (["--difficulty", "easy", "--episodes", "x"], "episodes = 'x'"),
-    (["--difficulty", "easy", "--episodes", "1", "--workers", "-3"], "workers = -3"),
-    (["--difficulty", "easy", "--episodes", "1", "--image-size", "100000"], "image_size = 100000"),
-])
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--difficulty", ",", "--episodes", "1"], "difficulty: give at least one"),
+        (
+            ["--difficulty", "easy", "--episodes", "100000000000"],
+            "must be a whole number >= 0 and <= 1000000",
+        ),
+        (
+            ["--difficulty", "easy", "--episodes", "1", "--seed", "99999999999999999999999"],
+            "seed = 9999",
+        ),
+        (["--difficulty", "easy", "--episodes", "x"], "episodes = 'x'"),
+        (["--difficulty", "easy", "--episodes", "1", "--workers", "-3"], "workers = -3"),
+        (
+            ["--difficulty", "easy", "--episodes", "1", "--image-size", "100000"],
+            "image_size = 100000",
+        ),
+    ],
+)
 def test_generate_bad_flags(tmp_path, capsys, flags, message):
     out = tmp_path / "data"
-    code, err = _run(["generate", "--out", str(out), "--validation", "geometric", "--no-progress", *flags], capsys)
+    code, err = _run(
+        ["generate", "--out", str(out), "--validation", "geometric", "--no-progress", *flags],
+        capsys,
+    )
     assert code == EXIT_USAGE and err.startswith("packlab generate: error: ") and message in err
     assert len(err.splitlines()) == 1 and not out.exists()
 
@@ -97,9 +156,24 @@ def test_generate_bad_flags(tmp_path, capsys, flags, message):
 def test_generate_out_naming_a_file(tmp_path, capsys):
     a_file = tmp_path / "afile"
     a_file.write_text("x")
-    code, err = _run(["generate", "--difficulty", "easy", "--episodes", "1", "--out", str(a_file),
-                      "--validation", "geometric", "--no-progress"], capsys)
-    assert code == EXIT_USAGE and "exists and is not a directory" in err and a_file.read_text() == "x"
+    code, err = _run(
+        [
+            "generate",
+            "--difficulty",
+            "easy",
+            "--episodes",
+            "1",
+            "--out",
+            str(a_file),
+            "--validation",
+            "geometric",
+            "--no-progress",
+        ],
+        capsys,
+    )
+    assert (
+        code == EXIT_USAGE and "exists and is not a directory" in err and a_file.read_text() == "x"
+    )
 
 
 def test_argparse_errors_exit_2(capsys):
@@ -107,7 +181,8 @@ def test_argparse_errors_exit_2(capsys):
         main(["bench", "--episode-timeout", "abc"])
     assert exc.value.code == EXIT_USAGE
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        "packlab bench: error: argument --episode-timeout: invalid float value: 'abc'")
+        "packlab bench: error: argument --episode-timeout: invalid float value: 'abc'"
+    )
 
 
 def test_path_errors_and_aborts_map_to_their_exit_codes(monkeypatch, capsys):
@@ -116,6 +191,7 @@ def test_path_errors_and_aborts_map_to_their_exit_codes(monkeypatch, capsys):
     def raise_(exc):
         def run(args):
             raise exc
+
         return run
 
     monkeypatch.setattr(bench_cli, "run", raise_(IsADirectoryError(21, "Is a directory", "runs/x")))

@@ -82,8 +82,10 @@ def test_no_items_is_no_results():
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_an_exception_of_the_work_reaches_the_caller(workers):
-    with (pytest.raises(ValueError, match="three is not allowed") as err,
-          run_items(fail_on_3, ITEMS, workers=workers) as results):
+    with (
+        pytest.raises(ValueError, match="three is not allowed") as err,
+        run_items(fail_on_3, ITEMS, workers=workers) as results,
+    ):
         list(results)
     if workers > 1:
         assert any("raised in worker process" in note for note in err.value.__notes__)
@@ -141,10 +143,13 @@ def test_one_worker_runs_in_this_process():
     assert set(run_items(pid, ITEMS, workers=1)) == {os.getpid()}
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"executor": "dask"}, "executor = 'dask'"),
-    ({"workers": 0}, "workers = 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"executor": "dask"}, "executor = 'dask'"),
+        ({"workers": 0}, "workers = 0"),
+    ],
+)
 def test_bad_options_are_one_line_errors(kwargs, message):
     with pytest.raises(ConfigError, match=message):
         run_items(square, ITEMS, **kwargs)
@@ -155,8 +160,12 @@ def test_ray_gives_the_same_results_and_reports():
     ray = pytest.importorskip("ray")
     # Ray workers are fresh processes: they import this module's functions from its directory.
     path = os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        runtime_env={"env_vars": {"PYTHONPATH": path}},
+    )
     try:
         reports = []
         out = list(run_items(square, ITEMS, executor="ray", workers=2, on_report=reports.append))

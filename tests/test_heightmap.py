@@ -64,8 +64,13 @@ def test_yaw_quaternion_rotates_x_onto_y():
 
 def test_rasterise_axis_aligned_box():
     # A 50 x 75 x 40 mm box resting on the floor with its min corner at cell (1, 0), 25 mm cells.
-    hm = rasterise_poses((4, 4), 25, np.array([[50, 75, 40]]), np.array([[25 + 25, 37.5, 20]]),
-                         np.array([yaw_quaternion(0)]))
+    hm = rasterise_poses(
+        (4, 4),
+        25,
+        np.array([[50, 75, 40]]),
+        np.array([[25 + 25, 37.5, 20]]),
+        np.array([yaw_quaternion(0)]),
+    )
     expected = np.zeros((4, 4), np.int32)
     expected[1:3, 0:3] = 40
     assert hm.tolist() == expected.tolist()
@@ -73,8 +78,13 @@ def test_rasterise_axis_aligned_box():
 
 def test_rasterise_rotated_box_uses_swapped_footprint():
     # Same box at rotation 1: footprint 75 along x, 50 along y.
-    hm = rasterise_poses((4, 4), 25, np.array([[50, 75, 40]]), np.array([[37.5, 25, 20]]),
-                         np.array([yaw_quaternion(1)]))
+    hm = rasterise_poses(
+        (4, 4),
+        25,
+        np.array([[50, 75, 40]]),
+        np.array([[37.5, 25, 20]]),
+        np.array([yaw_quaternion(1)]),
+    )
     expected = np.zeros((4, 4), np.int32)
     expected[0:3, 0:2] = 40
     assert hm.tolist() == expected.tolist()
@@ -84,7 +94,9 @@ def test_rasterise_tilted_box_top_is_the_exit_of_a_vertical_ray():
     # A 100 x 100 x 20 mm slab tilted 45 degrees about y, centred at (100, 50, 100).
     angle = np.pi / 4
     q = (np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0)
-    hm = rasterise_poses((8, 4), 25, np.array([[100, 100, 20]]), np.array([[100.0, 50.0, 100.0]]), np.array([q]))
+    hm = rasterise_poses(
+        (8, 4), 25, np.array([[100, 100, 20]]), np.array([[100.0, 50.0, 100.0]]), np.array([q])
+    )
     # Along y the slab is untilted: every covered row of a column has the same height.
     assert (hm[:, 0] == hm[:, 1]).all()
     # Over the cell centre x = 112.5 (12.5 mm right of the centre) the top face is at

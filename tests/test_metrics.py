@@ -44,7 +44,9 @@ def test_box_above_rim_is_unpacked_but_raises_height():
     hm = np.zeros((4, 4), np.int32)
     hm[:2] = 100
     hm[2:] = 140
-    sr, comp, overall, vol, n, h = score_final_state(C, [500000, 200000], [(25, 50, 50), (75, 50, 120)], hm)
+    sr, comp, overall, vol, n, h = score_final_state(
+        C, [500000, 200000], [(25, 50, 50), (75, 50, 120)], hm
+    )
     assert vol == 500000 and n == 1 and h == 140
     assert sr == pytest.approx(500000 / 700000)
     assert comp == pytest.approx(500000 / (100 * 100 * 140))
@@ -77,11 +79,33 @@ def test_plan_drift_measures_the_largest_axis_deviation():
 
 
 def test_episode_metrics_carry_the_settling_counters_into_records():
-    m = EpisodeMetrics(0.5, 0.5, 0.25, 1, 2, 10, 2, 1, 0, unsettled_steps=3, final_settle_steps=5000,
-                       at_rest=False, residual_linear_mps=0.02, residual_angular_radps=0.1)
+    m = EpisodeMetrics(
+        0.5,
+        0.5,
+        0.25,
+        1,
+        2,
+        10,
+        2,
+        1,
+        0,
+        unsettled_steps=3,
+        final_settle_steps=5000,
+        at_rest=False,
+        residual_linear_mps=0.02,
+        residual_angular_radps=0.1,
+    )
     d = m.to_dict()
     assert d["unsettled_steps"] == 3 and d["final_settle_steps"] == 5000
-    assert d["at_rest"] is False and d["residual_linear_mps"] == 0.02 and d["residual_angular_radps"] == 0.1
+    assert (
+        d["at_rest"] is False
+        and d["residual_linear_mps"] == 0.02
+        and d["residual_angular_radps"] == 0.1
+    )
     # A backend without physics (geometric) leaves the defaults: at rest, nothing moving.
     calm = EpisodeMetrics(1.0, 1.0, 1.0, 1, 1, 10, 1, 1, 0).to_dict()
-    assert calm["at_rest"] is True and calm["unsettled_steps"] == 0 and calm["residual_linear_mps"] == 0.0
+    assert (
+        calm["at_rest"] is True
+        and calm["unsettled_steps"] == 0
+        and calm["residual_linear_mps"] == 0.0
+    )

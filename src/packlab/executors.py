@@ -138,11 +138,18 @@ class Results(Generic[R]):
         self.close()
 
 
-def run_items(work: Work[T, R], items: Sequence[T], *, executor: Executor = "process",
-              workers: int = 1, timeout_s: float | None = None, deadline: float | None = None,
-              on_report: Callable[[Any], None] | None = None,
-              on_lost: Callable[[T, Lost], R] | None = None,
-              recycle: Callable[[R], bool] | None = None) -> Results[R]:
+def run_items(
+    work: Work[T, R],
+    items: Sequence[T],
+    *,
+    executor: Executor = "process",
+    workers: int = 1,
+    timeout_s: float | None = None,
+    deadline: float | None = None,
+    on_report: Callable[[Any], None] | None = None,
+    on_lost: Callable[[T, Lost], R] | None = None,
+    recycle: Callable[[R], bool] | None = None,
+) -> Results[R]:
     """The results of ``work`` on every item, in completion order (see the module docstring).
 
     Items are handed out in the given order (put long ones first for a balanced end).
@@ -164,16 +171,26 @@ def run_items(work: Work[T, R], items: Sequence[T], *, executor: Executor = "pro
     return Results(running, pool.shutdown)
 
 
-def progress_bar(total: int, initial: int, desc: str, enabled: bool = True,
-                 unit: str = "ep") -> Any:
+def progress_bar(
+    total: int, initial: int, desc: str, enabled: bool = True, unit: str = "ep"
+) -> Any:
     """tqdm on stderr; create it after ``run_items`` returned (the pool forks first)."""
-    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=sys.stderr,
-                disable=not enabled, dynamic_ncols=True, smoothing=0.05)
+    return tqdm(
+        total=total,
+        initial=initial,
+        desc=desc,
+        unit=unit,
+        file=sys.stderr,
+        disable=not enabled,
+        dynamic_ncols=True,
+        smoothing=0.05,
+    )
 
 
 def _raise_lost(item: Any, lost: Lost) -> Any:
-    raise WorkerLost(f"a worker ({lost.executor}) was lost running {item!r}: "
-                     f"{lost.kind}, {lost.detail}")
+    raise WorkerLost(
+        f"a worker ({lost.executor}) was lost running {item!r}: {lost.kind}, {lost.detail}"
+    )
 
 
 def _deadline_passed(deadline: float | None) -> None:
@@ -181,8 +198,9 @@ def _deadline_passed(deadline: float | None) -> None:
         raise DeadlineReached("the run deadline was reached")
 
 
-def _run_here(work: Work[T, R], items: Sequence[T], deadline: float | None,
-              report: Callable[[Any], None]) -> Iterator[R]:
+def _run_here(
+    work: Work[T, R], items: Sequence[T], deadline: float | None, report: Callable[[Any], None]
+) -> Iterator[R]:
     ctx = Context(deadline, report)
     for item in items:
         _deadline_passed(deadline)
@@ -190,6 +208,7 @@ def _run_here(work: Work[T, R], items: Sequence[T], deadline: float | None,
 
 
 # -- the local process pool ---------------------------------------------------------------------
+
 
 def share_cores(workers: int) -> None:
     """Give each of ``workers`` processes its share of the cores for math libraries (torch, BLAS).
@@ -285,8 +304,9 @@ class _Pool:
 
     def _spawn(self) -> _Worker:
         parent_end, child_end = self._ctx.Pipe(duplex=True)
-        proc = self._ctx.Process(target=_worker_main, args=(child_end, self._work, self._n),
-                                 daemon=True)
+        proc = self._ctx.Process(
+            target=_worker_main, args=(child_end, self._work, self._n), daemon=True
+        )
         proc.start()
         child_end.close()  # the parent's copy; the worker's end stays open in the worker
         return _Worker(proc, parent_end)
@@ -353,9 +373,15 @@ def _wake_time(pool: _Pool, timeout_s: float | None, deadline: float | None) -> 
     return None if not times else max(0.0, min(times) - time.monotonic())
 
 
-def _drive(pool: _Pool, queue: deque[T], timeout_s: float | None, deadline: float | None,
-           report: Callable[[Any], None], lose: Callable[[T, Lost], R],
-           recycle: Callable[[R], bool] | None) -> Iterator[R]:
+def _drive(
+    pool: _Pool,
+    queue: deque[T],
+    timeout_s: float | None,
+    deadline: float | None,
+    report: Callable[[Any], None],
+    lose: Callable[[T, Lost], R],
+    recycle: Callable[[R], bool] | None,
+) -> Iterator[R]:
     try:
         while True:
             _deadline_passed(deadline)
@@ -376,8 +402,14 @@ def _drive(pool: _Pool, queue: deque[T], timeout_s: float | None, deadline: floa
         pool.shutdown()
 
 
-def _finish(pool: _Pool, index: int, queue: deque[T], report: Callable[[Any], None],
-            lose: Callable[[T, Lost], R], recycle: Callable[[R], bool] | None) -> Iterator[R]:
+def _finish(
+    pool: _Pool,
+    index: int,
+    queue: deque[T],
+    report: Callable[[Any], None],
+    lose: Callable[[T, Lost], R],
+    recycle: Callable[[R], bool] | None,
+) -> Iterator[R]:
     """The results of worker ``index`` (ready to read, or dead)."""
     w = pool.workers[index]
     for kind, payload in pool.messages(w):
@@ -404,8 +436,9 @@ def _finish(pool: _Pool, index: int, queue: deque[T], report: Callable[[Any], No
         yield lose(item, Lost("died", detail, elapsed, "process"))
 
 
-def _kill_overdue(pool: _Pool, queue: deque[T], timeout_s: float | None,
-                  lose: Callable[[T, Lost], R]) -> Iterator[R]:
+def _kill_overdue(
+    pool: _Pool, queue: deque[T], timeout_s: float | None, lose: Callable[[T, Lost], R]
+) -> Iterator[R]:
     if timeout_s is None:
         return
     now = time.monotonic()
@@ -419,12 +452,14 @@ def _kill_overdue(pool: _Pool, queue: deque[T], timeout_s: float | None,
 
 # -- Ray ----------------------------------------------------------------------------------------
 
+
 def _import_ray() -> Any:
     try:
         import ray
     except ModuleNotFoundError:
-        raise ConfigError("executor = 'ray' needs the ray extra: "
-                          "pip install 'packlab[ray]'") from None
+        raise ConfigError(
+            "executor = 'ray' needs the ray extra: pip install 'packlab[ray]'"
+        ) from None
     return ray
 
 
@@ -434,8 +469,14 @@ def _on_ray(work: Work[T, R], item: T) -> tuple[R, list[Any]]:
     return work(item, Context(None, reports.append)), reports
 
 
-def _run_ray(work: Work[T, R], items: Sequence[T], workers: int, deadline: float | None,
-             report: Callable[[Any], None], lose: Callable[[T, Lost], R]) -> Iterator[R]:
+def _run_ray(
+    work: Work[T, R],
+    items: Sequence[T],
+    workers: int,
+    deadline: float | None,
+    report: Callable[[Any], None],
+    lose: Callable[[T, Lost], R],
+) -> Iterator[R]:
     """Items as Ray tasks. Time limits inside an item work as in a pool (Ray runs a task in its
     worker's main thread). At the deadline every pending task is cancelled (``force=True``
     kills the worker processes running them)."""
@@ -473,5 +514,15 @@ def _run_ray(work: Work[T, R], items: Sequence[T], workers: int, deadline: float
             ray.shutdown()
 
 
-__all__ = ["HARD_KILL_GRACE_S", "Context", "DeadlineReached", "Lost", "Results", "Work",
-           "WorkerLost", "progress_bar", "run_items", "share_cores"]
+__all__ = [
+    "HARD_KILL_GRACE_S",
+    "Context",
+    "DeadlineReached",
+    "Lost",
+    "Results",
+    "Work",
+    "WorkerLost",
+    "progress_bar",
+    "run_items",
+    "share_cores",
+]

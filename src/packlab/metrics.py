@@ -21,7 +21,9 @@ AVERAGE = "average"
 INSIDE_TOLERANCE_MM = 1.0
 
 
-def box_inside(position_mm: Sequence[float] | None, container: Container, tol_mm: float = INSIDE_TOLERANCE_MM) -> bool:
+def box_inside(
+    position_mm: Sequence[float] | None, container: Container, tol_mm: float = INSIDE_TOLERANCE_MM
+) -> bool:
     """True when a box's settled centre lies within the closed container interior (+ tolerance).
 
     ``None`` (a box set aside, never placed) is outside. The interior includes the space up to
@@ -31,7 +33,9 @@ def box_inside(position_mm: Sequence[float] | None, container: Container, tol_mm
         return False
     x, y, z = (float(v) for v in position_mm)
     sx, sy, sz = container.size_mm
-    return -tol_mm <= x <= sx + tol_mm and -tol_mm <= y <= sy + tol_mm and -tol_mm <= z <= sz + tol_mm
+    return (
+        -tol_mm <= x <= sx + tol_mm and -tol_mm <= y <= sy + tol_mm and -tol_mm <= z <= sz + tol_mm
+    )
 
 
 def inside_mask(
@@ -119,7 +123,11 @@ def planned_centres_mm(case) -> dict[InternalId, tuple[float, float, float]]:
     for p in case.gt_plan:
         box = case.box_by_id(p.internal_id)
         fx, fy = box.footprint_mm(p.rotation)
-        centres[p.internal_id] = (p.x * cell + fx / 2, p.y * cell + fy / 2, p.cell_min[2] * cell_z + box.size_mm[2] / 2)
+        centres[p.internal_id] = (
+            p.x * cell + fx / 2,
+            p.y * cell + fy / 2,
+            p.cell_min[2] * cell_z + box.size_mm[2] / 2,
+        )
     return centres
 
 

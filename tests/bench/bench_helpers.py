@@ -18,13 +18,21 @@ from packlab.core.types import Box, Case, Container, PlanStep
 CELL = 25
 
 
-def strip_case(seed: int, difficulty: str = "easy", nx: int = 8, ny: int = 6, layers=(100, 60),
-               buffer_size: int = 3) -> Case:
+def strip_case(
+    seed: int,
+    difficulty: str = "easy",
+    nx: int = 8,
+    ny: int = 6,
+    layers=(100, 60),
+    buffer_size: int = 3,
+) -> Case:
     """Each layer is 2-3 strips along x of random widths; some objects arrive rotated."""
     rng = np.random.default_rng(seed)
     objects, plan, z = [], [], 0
     for layer, h in enumerate(layers):
-        cuts = sorted(rng.choice(np.arange(2, nx - 1), size=int(rng.integers(1, 3)), replace=False).tolist())
+        cuts = sorted(
+            rng.choice(np.arange(2, nx - 1), size=int(rng.integers(1, 3)), replace=False).tolist()
+        )
         edges = [0, *cuts, nx]
         for x0, x1 in pairwise(edges):
             dx = x1 - x0
@@ -32,18 +40,30 @@ def strip_case(seed: int, difficulty: str = "easy", nx: int = 8, ny: int = 6, la
             size = (ny * CELL, dx * CELL, h) if rotation else (dx * CELL, ny * CELL, h)
             iid = len(objects)
             objects.append(Box(iid, size, gt_index=iid, type_id=iid % 5))
-            plan.append(PlanStep(iid, iid, layer, (x0, 0, z // 2), (dx, ny, h // 2), x0, 0, rotation))
+            plan.append(
+                PlanStep(iid, iid, layer, (x0, 0, z // 2), (dx, ny, h // 2), x0, 0, rotation)
+            )
         z += h
     container = Container((nx * CELL, ny * CELL, z + 40))
-    return Case(f"{difficulty}-{seed}", container, buffer_size, tuple(objects), seed=seed,
-                difficulty=difficulty, gt_plan=tuple(plan))
+    return Case(
+        f"{difficulty}-{seed}",
+        container,
+        buffer_size,
+        tuple(objects),
+        seed=seed,
+        difficulty=difficulty,
+        gt_plan=tuple(plan),
+    )
 
 
 def tiny_cases() -> list[Case]:
     """Four cases over two difficulties."""
-    return [strip_case(1, "easy"), strip_case(2, "easy"),
-            strip_case(3, "hard", nx=10, ny=8, layers=(80, 80, 60), buffer_size=4),
-            strip_case(4, "hard", nx=10, ny=8, layers=(80, 80, 60), buffer_size=4)]
+    return [
+        strip_case(1, "easy"),
+        strip_case(2, "easy"),
+        strip_case(3, "hard", nx=10, ny=8, layers=(80, 80, 60), buffer_size=4),
+        strip_case(4, "hard", nx=10, ny=8, layers=(80, 80, 60), buffer_size=4),
+    ]
 
 
 def write_tiny_suite(directory: Path) -> Path:

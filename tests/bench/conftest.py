@@ -6,7 +6,8 @@ import pytest
 from bench_helpers import write_tiny_suite
 
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
+from packlab.policies.registry import _RUNTIME as _FACTORIES
+from packlab.policies.registry import register_policy
 
 CRASH_POLICY = "test-crash"
 

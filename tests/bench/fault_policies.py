@@ -13,7 +13,8 @@ import time
 
 from packlab.core.errors import EndpointUnavailable
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
+from packlab.policies.registry import _RUNTIME as _FACTORIES
+from packlab.policies.registry import register_policy
 
 
 class Unreachable:

@@ -12,12 +12,32 @@ def test_describe_prints_the_suite_statistics(capsys):
 
 
 def test_run_a_case_file_and_resume(tiny_suite, tmp_path, capsys):
-    argv = ["bench", "--cases", str(tiny_suite), "--backend", "geometric", "--policies", "dblf,oracle",
-            "--seeds", "0-1", "--difficulty", "easy", "--out", str(tmp_path / "run"), "--workers", "1",
-            "--no-progress", "--no-figures"]
+    argv = [
+        "bench",
+        "--cases",
+        str(tiny_suite),
+        "--backend",
+        "geometric",
+        "--policies",
+        "dblf,oracle",
+        "--seeds",
+        "0-1",
+        "--difficulty",
+        "easy",
+        "--out",
+        str(tmp_path / "run"),
+        "--workers",
+        "1",
+        "--no-progress",
+        "--no-figures",
+    ]
     assert main(argv) == 0
     captured = capsys.readouterr()
-    assert "| DBLF |" in captured.out and "Easy Overall" in captured.out and "8 episodes run" in captured.err
+    assert (
+        "| DBLF |" in captured.out
+        and "Easy Overall" in captured.out
+        and "8 episodes run" in captured.err
+    )
     assert main(argv) == 0
     assert "0 episodes run" in capsys.readouterr().err
 
@@ -25,7 +45,11 @@ def test_run_a_case_file_and_resume(tiny_suite, tmp_path, capsys):
 def test_bad_flags_are_one_line_errors(tiny_suite, tmp_path, capsys):
     code = main(["bench", "--cases", str(tiny_suite), "--seeds", "x", "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err.startswith("packlab bench: error: seeds = 'x'") and len(err.splitlines()) == 1
+    assert (
+        code == 2
+        and err.startswith("packlab bench: error: seeds = 'x'")
+        and len(err.splitlines()) == 1
+    )
     code = main(["bench", "--cases", str(tmp_path / "missing.jsonl")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "missing.jsonl" in err and len(err.splitlines()) == 1

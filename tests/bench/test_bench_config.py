@@ -8,16 +8,19 @@ from packlab.bench.config import RunConfig, check_resumable, default_policies, p
 from packlab.core.errors import ConfigError
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"seeds": ()}, "seeds"),
-    ({"seeds": (0, 0)}, "repeated"),
-    ({"seeds": (-1,)}, "non-negative"),
-    ({"backend": "bullet"}, "backend = 'bullet'"),
-    ({"executor": "dask"}, "executor = .dask."),
-    ({"workers": -1}, "workers"),
-    ({"policies": ("dblf", "nope")}, "'nope' is not a registered policy"),
-    ({"policies": ("dblf", "dblf")}, "repeated"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"seeds": ()}, "seeds"),
+        ({"seeds": (0, 0)}, "repeated"),
+        ({"seeds": (-1,)}, "non-negative"),
+        ({"backend": "bullet"}, "backend = 'bullet'"),
+        ({"executor": "dask"}, "executor = .dask."),
+        ({"workers": -1}, "workers"),
+        ({"policies": ("dblf", "nope")}, "'nope' is not a registered policy"),
+        ({"policies": ("dblf", "dblf")}, "repeated"),
+    ],
+)
 def test_bad_values_are_one_line_errors(kwargs, match):
     with pytest.raises(ConfigError, match=match) as err:
         RunConfig(**kwargs)
@@ -51,10 +54,17 @@ def test_difficulty_filter_and_unknown_difficulty(tiny_suite):
 
 def test_identity_mismatch_names_the_field(tmp_path):
     with pytest.raises(ConfigError, match="field 'seeds' = \\[0\\] here, \\[0, 1\\] now"):
-        check_resumable({"format": "x", "seeds": [0]}, {"format": "x", "seeds": [0, 1]}, tmp_path / "config.json")
+        check_resumable(
+            {"format": "x", "seeds": [0]},
+            {"format": "x", "seeds": [0, 1]},
+            tmp_path / "config.json",
+        )
     with pytest.raises(ConfigError, match="'physics.impratio' = '<absent>' here, 1.0 now") as err:
-        check_resumable({"physics": {"a": 1, "b": 2}}, {"physics": {"a": 1, "b": 2, "impratio": 1.0}},
-                        tmp_path / "config.json")
+        check_resumable(
+            {"physics": {"a": 1, "b": 2}},
+            {"physics": {"a": 1, "b": 2, "impratio": 1.0}},
+            tmp_path / "config.json",
+        )
     assert "'physics.a'" not in str(err.value)
 
 
@@ -64,7 +74,9 @@ def test_physics_overrides_are_typed_checked_and_part_of_the_identity(tiny_suite
     overrides = parse_physics(["max_settle_steps=1000", "sleep=false", "friction=0.4"])
     assert overrides == (("max_settle_steps", 1000), ("sleep", False), ("friction", 0.4))
     run = resolve(RunConfig(cases=str(tiny_suite), physics_overrides=overrides))
-    assert run.to_json()["physics"]["max_settle_steps"] == 1000 and run.physics_config().sleep is False
+    assert (
+        run.to_json()["physics"]["max_settle_steps"] == 1000 and run.physics_config().sleep is False
+    )
     with pytest.raises(ConfigError, match="'nope' is not a PhysicsConfig field"):
         resolve(RunConfig(cases=str(tiny_suite), physics_overrides=(("nope", 1),)))
     with pytest.raises(ConfigError, match="only the mujoco backend"):
@@ -77,11 +89,17 @@ def test_policy_args_parse_and_must_name_a_policy_that_runs(tiny_suite):
     from packlab.bench.config import parse_policy_args
 
     assert parse_policy_args(["vlm:model=runs/x", "vlm:max_new_tokens=32"]) == (
-        ("vlm", "model", "runs/x"), ("vlm", "max_new_tokens", 32))
+        ("vlm", "model", "runs/x"),
+        ("vlm", "max_new_tokens", 32),
+    )
     with pytest.raises(ConfigError, match="POLICY:KEY=VALUE"):
         parse_policy_args(["vlm=model"])
     with pytest.raises(ConfigError, match="'vlm' is not among the policies to run"):
-        resolve(RunConfig(cases=str(tiny_suite), backend="geometric", policy_args=(("vlm", "model", "x"),)))
+        resolve(
+            RunConfig(
+                cases=str(tiny_suite), backend="geometric", policy_args=(("vlm", "model", "x"),)
+            )
+        )
 
 
 def test_cases_without_a_plan_leave_the_oracle_out_by_default(tmp_path):

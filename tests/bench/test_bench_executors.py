@@ -22,17 +22,36 @@ def without_timing(value: Any) -> Any:
     """JSON with every wall-clock field removed (``timing``, durations ``*_s`` and ``*_ms``):
     those differ from run to run; everything else must not."""
     if isinstance(value, dict):
-        return {k: without_timing(v) for k, v in value.items()
-                if k != "timing" and not k.endswith(("_s", "_ms"))}
+        return {
+            k: without_timing(v)
+            for k, v in value.items()
+            if k != "timing" and not k.endswith(("_s", "_ms"))
+        }
     if isinstance(value, (list, tuple)):
         return [without_timing(v) for v in value]
     return value
 
 
 def bench(cases, out, executor: str, workers: int) -> dict:
-    argv = ["bench", "--cases", str(cases), "--backend", "geometric", "--policies", POLICIES,
-            "--seeds", "0,1", "--executor", executor, "--workers", str(workers), "--out", str(out),
-            "--no-progress", "--no-figures"]
+    argv = [
+        "bench",
+        "--cases",
+        str(cases),
+        "--backend",
+        "geometric",
+        "--policies",
+        POLICIES,
+        "--seeds",
+        "0,1",
+        "--executor",
+        executor,
+        "--workers",
+        str(workers),
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-figures",
+    ]
     assert main(argv) == 0
     config = json.loads((out / "config.json").read_text())
     assert config["execution"]["executor"] == executor and config["execution"]["workers"] == workers
@@ -42,17 +61,21 @@ def bench(cases, out, executor: str, workers: int) -> dict:
     return by_key
 
 
-@pytest.mark.parametrize("executor, workers", [
-    ("process", 2),
-    ("process", 3),
-    pytest.param("ray", 2, marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize(
+    "executor, workers",
+    [
+        ("process", 2),
+        ("process", 3),
+        pytest.param("ray", 2, marks=pytest.mark.slow),
+    ],
+)
 def test_every_executor_gives_the_same_records(tiny_suite, tmp_path, capsys, executor, workers):
     reference = bench(tiny_suite, tmp_path / "serial", "process", 1)
     assert bench(tiny_suite, tmp_path / executor, executor, workers) == reference
     # The scores too (table.md also shows timings, which differ).
-    first, then = (json.loads((tmp_path / run / "summary.json").read_text())
-                   for run in ("serial", executor))
+    first, then = (
+        json.loads((tmp_path / run / "summary.json").read_text()) for run in ("serial", executor)
+    )
     for part in ("table", "per_case", "counts", "errors"):
         assert without_timing(first[part]) == without_timing(then[part]), part
 

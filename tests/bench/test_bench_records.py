@@ -68,9 +68,17 @@ def test_missing_file_holds_nothing(tmp_path):
 
 # -- versions and types of a whole run directory ---------------------------------------------------
 
+
 def _run(tiny_suite, out):
-    cfg = RunConfig(cases=str(tiny_suite), out=str(out), backend="geometric",
-                    policies=("dblf", "random"), seeds=(0, 1), workers=1, progress=False)
+    cfg = RunConfig(
+        cases=str(tiny_suite),
+        out=str(out),
+        backend="geometric",
+        policies=("dblf", "random"),
+        seeds=(0, 1),
+        workers=1,
+        progress=False,
+    )
     return run_bench(cfg, figures=False)
 
 
@@ -85,8 +93,12 @@ def _as_run1(run_dir):
         del rec["format"]
         m = rec["metrics"]
         m["capped_placements"] = m.pop("unsettled_steps")
-        for key in ("final_settle_steps", "at_rest", "residual_linear_mps",
-                    "residual_angular_radps"):
+        for key in (
+            "final_settle_steps",
+            "at_rest",
+            "residual_linear_mps",
+            "residual_angular_radps",
+        ):
             del m[key]
         for s in rec["steps"]:
             s["capped"] = not s.pop("settled")
@@ -106,8 +118,9 @@ def test_a_run1_directory_still_reports_the_same_numbers(tiny_suite, tmp_path):
         _run(tiny_suite, tmp_path / "run")
 
 
-def test_a_newer_record_format_is_a_one_line_error_naming_file_line_and_value(tiny_suite, tmp_path,
-                                                                              capsys):
+def test_a_newer_record_format_is_a_one_line_error_naming_file_line_and_value(
+    tiny_suite, tmp_path, capsys
+):
     _run(tiny_suite, tmp_path / "run")
     path = tmp_path / "run" / "episodes.jsonl"
     lines = path.read_text().splitlines()

@@ -18,21 +18,37 @@ def geometric_run(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("run")
     suite = write_tiny_suite(root)
-    cfg = RunConfig(cases=str(suite), out=str(root / "run"), backend="geometric",
-                    policies=("dblf", "sdf", "random", "oracle"), seeds=(0, 1), workers=1, progress=False)
+    cfg = RunConfig(
+        cases=str(suite),
+        out=str(root / "run"),
+        backend="geometric",
+        policies=("dblf", "sdf", "random", "oracle"),
+        seeds=(0, 1),
+        workers=1,
+        progress=False,
+    )
     run_bench(cfg, figures=False)
     return root / "run"
 
 
 def _is_png(path):
-    return path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 5000
+    return (
+        path.is_file()
+        and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        and path.stat().st_size > 5000
+    )
 
 
 def test_report_writes_the_three_figures(geometric_run):
     _, _, paths = build_report(geometric_run, case_id="hard-3", seed=1)
     names = {p.name for p in paths}
-    assert {"summary.json", "table.md", "overall_by_case.png", "overall_average.png",
-            "packing_hard-3_seed1.png"} <= names
+    assert {
+        "summary.json",
+        "table.md",
+        "overall_by_case.png",
+        "overall_average.png",
+        "packing_hard-3_seed1.png",
+    } <= names
     assert all(_is_png(p) for p in paths if p.suffix == ".png")
 
 
@@ -52,14 +68,38 @@ def test_replay_reproduces_the_recorded_episode(geometric_run):
 
 def test_viz_episode_cli(geometric_run, tmp_path, capsys):
     out = tmp_path / "ep.png"
-    code = main(["viz", "episode", str(geometric_run), "--case", "hard-4", "--policy", "dblf", "--seed", "1",
-                 "--out", str(out)])
+    code = main(
+        [
+            "viz",
+            "episode",
+            str(geometric_run),
+            "--case",
+            "hard-4",
+            "--policy",
+            "dblf",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0 and _is_png(out)
 
 
 def test_viz_episode_cli_unknown_case_is_one_line(geometric_run, tmp_path, capsys):
-    code = main(["viz", "episode", str(geometric_run / "episodes.jsonl"), "--case", "nope", "--policy", "dblf",
-                 "--out", str(tmp_path / "x.png")])
+    code = main(
+        [
+            "viz",
+            "episode",
+            str(geometric_run / "episodes.jsonl"),
+            "--case",
+            "nope",
+            "--policy",
+            "dblf",
+            "--out",
+            str(tmp_path / "x.png"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and "nope" in err and len(err.splitlines()) == 1
 
@@ -78,8 +118,15 @@ def test_bench_report_refuses_a_seed_the_run_did_not_play(geometric_run, capsys,
 
 @pytest.mark.physics
 def test_mujoco_replay_is_deterministic(tiny_suite, tmp_path):
-    cfg = RunConfig(cases=str(tiny_suite), out=str(tmp_path / "run"), policies=("random",), seeds=(3,),
-                    difficulties=("hard",), workers=1, progress=False)
+    cfg = RunConfig(
+        cases=str(tiny_suite),
+        out=str(tmp_path / "run"),
+        policies=("random",),
+        seeds=(3,),
+        difficulties=("hard",),
+        workers=1,
+        progress=False,
+    )
     run_bench(cfg, figures=False)
     run = load_run(tmp_path / "run")
     cases = {c.episode_id: c for c in run.cases}

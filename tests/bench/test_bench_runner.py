@@ -18,8 +18,15 @@ POLICIES = ("dblf", "ffp", "random", "oracle")
 
 
 def _cfg(cases, out, **kw):
-    base = {"cases": str(cases), "out": str(out), "backend": "geometric", "policies": POLICIES, "seeds": (0, 1),
-            "workers": 1, "progress": False}
+    base = {
+        "cases": str(cases),
+        "out": str(out),
+        "backend": "geometric",
+        "policies": POLICIES,
+        "seeds": (0, 1),
+        "workers": 1,
+        "progress": False,
+    }
     return RunConfig(**{**base, **kw})
 
 
@@ -39,8 +46,18 @@ def test_full_run_writes_every_record_and_outputs(tiny_suite, tmp_path):
     assert json.loads((tmp_path / "run" / "config.json").read_text())["policies"] == list(POLICIES)
     line = json.loads((tmp_path / "run" / "episodes.jsonl").read_text().splitlines()[0])
     assert list(line)[:2] == ["status", "format"] and line["format"] == RUN_FORMAT
-    assert {"status", "case_id", "seed", "policy", "backend", "difficulty", "metrics", "steps", "final_poses",
-            "timing"} <= set(line)
+    assert {
+        "status",
+        "case_id",
+        "seed",
+        "policy",
+        "backend",
+        "difficulty",
+        "metrics",
+        "steps",
+        "final_poses",
+        "timing",
+    } <= set(line)
     # Records stay compact: no heightmaps, no per-step history images.
     assert "heightmap" not in json.dumps(line)
     assert out.summary.table["oracle"]["average"].overall.mean == pytest.approx(1.0)
@@ -83,7 +100,9 @@ def test_pool_and_serial_give_the_same_numbers(tiny_suite, tmp_path):
 
 def test_a_crashing_policy_is_recorded_and_the_rest_goes_on(tiny_suite, tmp_path, crash_policy):
     run_dir = tmp_path / "run"
-    out = run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy), workers=2), figures=False)
+    out = run_bench(
+        _cfg(tiny_suite, run_dir, policies=("dblf", crash_policy), workers=2), figures=False
+    )
     records = read_record_file(run_dir / "episodes.jsonl").records
     failed = [r for r in records if r.status == "error"]
     assert out.failed == len(failed) == 2 * 2  # two hard cases x two seeds
@@ -92,8 +111,13 @@ def test_a_crashing_policy_is_recorded_and_the_rest_goes_on(tiny_suite, tmp_path
     assert sum(r.status == "ok" for r in records) == out.planned - 4
     assert f"| {crash_policy} * |" in out.table_md
     # A rerun does not retry recorded failures unless asked to.
-    assert run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy)), figures=False).ran == 0
-    retry = run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy), retry_errors=True), figures=False)
+    assert (
+        run_bench(_cfg(tiny_suite, run_dir, policies=("dblf", crash_policy)), figures=False).ran
+        == 0
+    )
+    retry = run_bench(
+        _cfg(tiny_suite, run_dir, policies=("dblf", crash_policy), retry_errors=True), figures=False
+    )
     assert retry.ran == 4 and retry.failed == 4
 
 
@@ -118,13 +142,17 @@ def test_a_different_configuration_cannot_reuse_a_run_directory(tiny_suite, tmp_
 def test_two_runs_cannot_write_one_directory_at_once(tiny_suite, tmp_path):
     from packlab.bench.runner import RunLock
 
-    with RunLock(tmp_path / "run"), pytest.raises(ConfigError, match="another bench run .* is writing there"):
+    with (
+        RunLock(tmp_path / "run"),
+        pytest.raises(ConfigError, match="another bench run .* is writing there"),
+    ):
         run_bench(_cfg(tiny_suite, tmp_path / "run"), figures=False)
     assert run_bench(_cfg(tiny_suite, tmp_path / "run"), figures=False).ran > 0
 
 
 def test_a_policy_that_cannot_be_built_fails_before_any_work(tiny_suite, tmp_path):
-    from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
+    from packlab.policies.registry import _RUNTIME as _FACTORIES
+    from packlab.policies.registry import register_policy
 
     def broken():
         raise ImportError("needs an extra")
@@ -148,7 +176,8 @@ def test_ray_executor_gives_the_same_numbers(tiny_suite, tmp_path):
 
 def test_policy_arguments_reach_the_factory_in_every_worker(tiny_suite, tmp_path):
     from packlab.core.types import Action
-    from packlab.policies.registry import _RUNTIME as _FACTORIES, register_policy
+    from packlab.policies.registry import _RUNTIME as _FACTORIES
+    from packlab.policies.registry import register_policy
 
     class Corner:
         name = "test-param"
@@ -164,14 +193,21 @@ def test_policy_arguments_reach_the_factory_in_every_worker(tiny_suite, tmp_path
 
     register_policy("test-param")(lambda rotation: Corner(rotation))
     try:
-        cfg = _cfg(tiny_suite, tmp_path / "run", policies=("test-param",), workers=2,
-                   policy_args=(("test-param", "rotation", 1),))
+        cfg = _cfg(
+            tiny_suite,
+            tmp_path / "run",
+            policies=("test-param",),
+            workers=2,
+            policy_args=(("test-param", "rotation", 1),),
+        )
         out = run_bench(cfg, figures=False)
     finally:
         _FACTORIES.pop("test-param", None)
     records = read_record_file(tmp_path / "run" / "episodes.jsonl").records
     assert out.failed == 0 and all(s.action.rotation == 1 for r in records for s in r.steps)
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["policy_args"] == {"test-param": {"rotation": 1}}
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["policy_args"] == {
+        "test-param": {"rotation": 1}
+    }
 
 
 @pytest.mark.slow
@@ -184,14 +220,35 @@ def test_a_killed_cli_run_resumes_to_exactly_the_planned_records(tiny_suite, tmp
     import time
 
     run_dir = tmp_path / "run"
-    argv = [sys.executable, "-m", "packlab.cli.main", "bench", "--cases", str(tiny_suite), "--backend", "geometric",
-            "--policies", "dblf,random", "--seeds", "0-199", "--workers", "2", "--out", str(run_dir),
-            "--no-progress", "--no-figures"]
+    argv = [
+        sys.executable,
+        "-m",
+        "packlab.cli.main",
+        "bench",
+        "--cases",
+        str(tiny_suite),
+        "--backend",
+        "geometric",
+        "--policies",
+        "dblf,random",
+        "--seeds",
+        "0-199",
+        "--workers",
+        "2",
+        "--out",
+        str(run_dir),
+        "--no-progress",
+        "--no-figures",
+    ]
     planned = 4 * 2 * 200
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     episodes = run_dir / "episodes.jsonl"
     deadline = time.time() + 60
-    while time.time() < deadline and (not episodes.exists() or episodes.read_bytes().count(b"\n") < 100):
+    while time.time() < deadline and (
+        not episodes.exists() or episodes.read_bytes().count(b"\n") < 100
+    ):
         time.sleep(0.02)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()

@@ -27,7 +27,11 @@ def test_bundled_suite_verifies_and_matches_its_spec():
     assert len(cases) == spec.n_cases == 60
     by_level = {d: [c for c in cases if c.difficulty == d] for d, _ in spec.counts}
     assert {d: len(v) for d, v in by_level.items()} == {"easy": 20, "medium": 20, "hard": 20}
-    assert {d: {c.buffer_size for c in v} for d, v in by_level.items()} == {"easy": {3}, "medium": {5}, "hard": {10}}
+    assert {d: {c.buffer_size for c in v} for d, v in by_level.items()} == {
+        "easy": {3},
+        "medium": {5},
+        "hard": {10},
+    }
     assert len({c.episode_id for c in cases}) == 60
     # Bench seeds live in their own domain: disjoint from every training seed by construction.
     assert {seed_domain(c.seed) for c in cases} == {"bench"}
@@ -71,9 +75,15 @@ def test_a_checksum_file_for_another_file_is_refused(tmp_path):
 
 def test_resolve_cases_takes_a_suite_name_or_a_file(tiny_suite):
     suite = resolve_cases(None)
-    assert suite.label == DEFAULT_SUITE and suite.origin == f"suite:{DEFAULT_SUITE}" and len(suite.cases) == 60
+    assert (
+        suite.label == DEFAULT_SUITE
+        and suite.origin == f"suite:{DEFAULT_SUITE}"
+        and len(suite.cases) == 60
+    )
     other = resolve_cases(str(tiny_suite))
-    assert other.label == "tiny" and len(other.cases) == 4 and other.sha256 == file_sha256(tiny_suite)
+    assert (
+        other.label == "tiny" and len(other.cases) == 4 and other.sha256 == file_sha256(tiny_suite)
+    )
     with pytest.raises(ConfigError, match="neither a registered suite"):
         resolve_cases("no-such-suite")
 

@@ -19,9 +19,12 @@ def _rec(case, difficulty, seed, overall, sr=1.0, policy="p", status="ok"):
 
 def test_per_seed_means_then_mean_and_sample_std_over_seeds():
     recs = [
-        _rec("e1", "easy", 0, 0.2), _rec("e2", "easy", 0, 0.4),  # easy seed 0 -> 0.3
-        _rec("e1", "easy", 1, 0.6), _rec("e2", "easy", 1, 0.4),  # easy seed 1 -> 0.5
-        _rec("h1", "hard", 0, 0.1), _rec("h1", "hard", 1, 0.3),  # hard -> 0.1, 0.3
+        _rec("e1", "easy", 0, 0.2),
+        _rec("e2", "easy", 0, 0.4),  # easy seed 0 -> 0.3
+        _rec("e1", "easy", 1, 0.6),
+        _rec("e2", "easy", 1, 0.4),  # easy seed 1 -> 0.5
+        _rec("h1", "hard", 0, 0.1),
+        _rec("h1", "hard", 1, 0.3),  # hard -> 0.1, 0.3
     ]
     s = summarize(recs, ["p"], [0, 1], ["easy", "hard"])
     easy = s.table["p"]["easy"].overall
@@ -44,7 +47,9 @@ def test_failed_episodes_are_counted_not_averaged_and_flagged():
 
 
 def test_order_of_records_does_not_matter():
-    recs = [_rec(f"c{i}", "easy", s, (i * 7 % 10) / 10 + 0.01 * s) for i in range(9) for s in range(3)]
+    recs = [
+        _rec(f"c{i}", "easy", s, (i * 7 % 10) / 10 + 0.01 * s) for i in range(9) for s in range(3)
+    ]
     a = summarize(recs, ["p"], [0, 1, 2], ["easy"])
     b = summarize(list(reversed(recs)), ["p"], [0, 1, 2], ["easy"])
     assert a == b

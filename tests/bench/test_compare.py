@@ -47,7 +47,10 @@ def test_rows_follow_runs_and_keep_their_numbers():
 
 @pytest.mark.parametrize(
     ("other", "field"),
-    [(_summary({"vlm": 0.1}, seeds=(0,)), "seeds"), (_summary({"vlm": 0.1}, sha="zzz"), "cases_sha256")],
+    [
+        (_summary({"vlm": 0.1}, seeds=(0,)), "seeds"),
+        (_summary({"vlm": 0.1}, sha="zzz"), "cases_sha256"),
+    ],
 )
 def test_incomparable_runs_are_refused_by_name(other, field):
     with pytest.raises(PacklabError, match=f"run 'b' has {field}"):

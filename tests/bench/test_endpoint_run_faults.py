@@ -72,11 +72,31 @@ def server(request) -> Iterator[str]:
 
 def _bench(tmp_path, capsys, base_url: str) -> tuple[int, float, list[str], list[dict]]:
     run_dir = tmp_path / "run"
-    argv = ["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--policies", "endpoint",
-            "--seeds", "0-3", "--workers", "1", "--out", str(run_dir), "--no-progress", "--no-figures",
-            "--policy-arg", f"endpoint:base_url={base_url}",
-            "--policy-arg", f"endpoint:deadline_s={DEADLINE_S}",
-            "--policy-arg", "endpoint:retries=1", "--policy-arg", "endpoint:backoff_s=0.05"]
+    argv = [
+        "bench",
+        "--cases",
+        demo_cases_path(),
+        "--backend",
+        "geometric",
+        "--policies",
+        "endpoint",
+        "--seeds",
+        "0-3",
+        "--workers",
+        "1",
+        "--out",
+        str(run_dir),
+        "--no-progress",
+        "--no-figures",
+        "--policy-arg",
+        f"endpoint:base_url={base_url}",
+        "--policy-arg",
+        f"endpoint:deadline_s={DEADLINE_S}",
+        "--policy-arg",
+        "endpoint:retries=1",
+        "--policy-arg",
+        "endpoint:backoff_s=0.05",
+    ]
     started = time.monotonic()
     code = main(argv)
     wall = time.monotonic() - started

@@ -27,8 +27,27 @@ def _modes(root) -> dict[str, int]:
 
 def test_bench_run_directory_follows_the_umask(tmp_path, umask, capsys):
     run = tmp_path / "run"
-    assert main(["bench", "--cases", demo_cases_path(), "--backend", "geometric", "--policies", "dblf",
-                 "--seeds", "0", "--workers", "2", "--out", str(run), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--cases",
+                demo_cases_path(),
+                "--backend",
+                "geometric",
+                "--policies",
+                "dblf",
+                "--seeds",
+                "0",
+                "--workers",
+                "2",
+                "--out",
+                str(run),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     modes = _modes(run)
     for name in ("cases.jsonl", "config.json", "episodes.jsonl", "summary.json", "table.md"):
         assert modes.pop(name) == 0o666 & ~umask, name
@@ -39,9 +58,27 @@ def test_bench_run_directory_follows_the_umask(tmp_path, umask, capsys):
 
 def test_generated_dataset_follows_the_umask(tmp_path, umask, capsys):
     out = tmp_path / "data"
-    assert main(["generate", "--difficulty", "easy", "--episodes", "2", "--validation", "geometric",
-                 "--workers", "1", "--image-size", "16", "--out", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "--difficulty",
+                "easy",
+                "--episodes",
+                "2",
+                "--validation",
+                "geometric",
+                "--workers",
+                "1",
+                "--image-size",
+                "16",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     modes = _modes(out)
     assert modes["meta/config.json"] == modes["meta/info.json"] == 0o666 & ~umask
     assert modes["data/steps/easy-00000.parquet"] == 0o666 & ~umask

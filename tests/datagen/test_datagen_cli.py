@@ -13,8 +13,26 @@ from packlab.datagen.format import read_info
 
 def test_generate_then_inspect(tmp_path, capsys):
     out = tmp_path / "ds"
-    rc = main(["generate", "--difficulty", "easy,hard", "--episodes", "3,1", "--seed", "2", "--out", str(out),
-               "--validation", "geometric", "--workers", "1", "--image-size", "48", "--no-progress"])
+    rc = main(
+        [
+            "generate",
+            "--difficulty",
+            "easy,hard",
+            "--episodes",
+            "3,1",
+            "--seed",
+            "2",
+            "--out",
+            str(out),
+            "--validation",
+            "geometric",
+            "--workers",
+            "1",
+            "--image-size",
+            "48",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     assert "4 episodes" in capsys.readouterr().out
     rc = main(["inspect-data", str(out), "--plots", str(tmp_path / "plots")])
@@ -49,7 +67,11 @@ def test_recipe_flag_reproduces_packdata_20k():
 
     args = build_parser().parse_args(["generate", "--recipe", "packdata-20k", "--out", "x"])
     cfg = config_from_args(args)
-    assert (cfg.difficulties, cfg.episodes, cfg.recipe) == (("easy", "medium", "hard"), (9000, 7000, 4000), "packdata-20k")
+    assert (cfg.difficulties, cfg.episodes, cfg.recipe) == (
+        ("easy", "medium", "hard"),
+        (9000, 7000, 4000),
+        "packdata-20k",
+    )
 
 
 def test_inspect_of_a_missing_dataset_fails_cleanly(tmp_path, capsys):
@@ -65,13 +87,22 @@ def test_info_json_is_a_typed_versioned_record(tiny_dataset):
     assert json.dumps(to_builtins(info), indent=1, sort_keys=True) + "\n" == text
 
 
-@pytest.mark.parametrize(("change", "message"), [
-    ({"format_version": "packdata-2"},
-     "field 'format_version' = 'packdata-2': unknown format version"),
-    ({"counts": {"episodes": "ten"}}, "field 'counts.episodes' = 'ten': Expected `int`, got `str`"),
-])
-def test_inspect_of_an_unreadable_info_json_names_file_field_and_value(tiny_dataset, tmp_path,
-                                                                       capsys, change, message):
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            {"format_version": "packdata-2"},
+            "field 'format_version' = 'packdata-2': unknown format version",
+        ),
+        (
+            {"counts": {"episodes": "ten"}},
+            "field 'counts.episodes' = 'ten': Expected `int`, got `str`",
+        ),
+    ],
+)
+def test_inspect_of_an_unreadable_info_json_names_file_field_and_value(
+    tiny_dataset, tmp_path, capsys, change, message
+):
     root = tmp_path / "copy"
     (root / "meta").mkdir(parents=True)
     info = json.loads((tiny_dataset / "meta/info.json").read_text())

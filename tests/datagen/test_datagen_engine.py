@@ -30,7 +30,11 @@ def test_counts_and_markers(tiny_dataset):
     info = json.loads((tiny_dataset / "meta/info.json").read_text())
     assert info["counts"]["episodes"] == 10
     assert info["counts"]["shards"] == len(plan_shards(tiny_config())) == 3 + 2 + 1
-    assert {d: v["episodes"] for d, v in info["counts"]["by_difficulty"].items()} == {"easy": 5, "medium": 3, "hard": 2}
+    assert {d: v["episodes"] for d, v in info["counts"]["by_difficulty"].items()} == {
+        "easy": 5,
+        "medium": 3,
+        "hard": 2,
+    }
     assert info["generator_config"]["seed"] == 7
     assert len(list((tiny_dataset / "meta/shards").glob("*.json"))) == 6
 
@@ -45,8 +49,10 @@ def test_resume_after_an_interrupted_shard(tiny_dataset, tmp_path):
         # The third shard dies half-way: its first slot's images are written, nothing else.
         calls["n"] += 1
         if calls["n"] == 3:
+
             def report_then_die(kept, rejected):
                 raise KeyboardInterrupt
+
             return real(cfg_, spec, root, report_then_die)
         return real(cfg_, spec, root, report)
 
@@ -58,14 +64,18 @@ def test_resume_after_an_interrupted_shard(tiny_dataset, tmp_path):
         engine.run_shard = real
     assert len(list((out / "meta/shards").glob("*.json"))) == 2
     assert not (out / "meta/info.json").exists()
-    assert [p.name for p in (out / "images").rglob(".*.tmp")] == [".medium-00001.tmp"]  # staged, not published
+    assert [p.name for p in (out / "images").rglob(".*.tmp")] == [
+        ".medium-00001.tmp"
+    ]  # staged, not published
     assert not (out / "images/medium/medium-00001").exists()
     # A killed writer can leave a temporary file; it is never taken for data and is cleaned up.
     (out / "data/steps/.hard-00000.parquet.x.tmp").write_bytes(b"partial")
     done_before = {p.name: p.stat().st_mtime_ns for p in (out / "data/steps").glob("*.parquet")}
 
     ran = []
-    engine.run_shard = lambda c, spec, root, report=None: ran.append(spec.name) or real(c, spec, root, report)
+    engine.run_shard = lambda c, spec, root, report=None: (
+        ran.append(spec.name) or real(c, spec, root, report)
+    )
     try:
         make_dataset(out, cfg)
     finally:
@@ -91,7 +101,9 @@ def test_rerun_of_a_finished_dataset_does_nothing(tiny_dataset, tmp_path):
 
 def test_process_pool_output_equals_serial(tiny_dataset, tmp_path):
     out = tmp_path / "pool"
-    generate_dataset(tiny_config(), RunOptions(str(out), workers=2, executor="process", progress=False))
+    generate_dataset(
+        tiny_config(), RunOptions(str(out), workers=2, executor="process", progress=False)
+    )
     assert tree_bytes(out) == tree_bytes(tiny_dataset)
 
 

@@ -20,8 +20,11 @@ from packlab.datagen import format as fmt
 def without_timing(value: Any) -> Any:
     """JSON with every wall-clock field removed (``timing``, durations ``*_s`` and ``*_ms``)."""
     if isinstance(value, dict):
-        return {k: without_timing(v) for k, v in value.items()
-                if k != "timing" and not k.endswith(("_s", "_ms"))}
+        return {
+            k: without_timing(v)
+            for k, v in value.items()
+            if k != "timing" and not k.endswith(("_s", "_ms"))
+        }
     if isinstance(value, (list, tuple)):
         return [without_timing(v) for v in value]
     return value
@@ -43,9 +46,28 @@ def contents(root: Path) -> dict[str, Any]:
 
 
 def generate(out: Path, executor: str, workers: int) -> dict[str, Any]:
-    argv = ["generate", "--difficulty", "easy,hard", "--episodes", "3,2", "--seed", "2",
-            "--shard-size", "2", "--validation", "geometric", "--image-size", "48",
-            "--executor", executor, "--workers", str(workers), "--out", str(out), "--no-progress"]
+    argv = [
+        "generate",
+        "--difficulty",
+        "easy,hard",
+        "--episodes",
+        "3,2",
+        "--seed",
+        "2",
+        "--shard-size",
+        "2",
+        "--validation",
+        "geometric",
+        "--image-size",
+        "48",
+        "--executor",
+        executor,
+        "--workers",
+        str(workers),
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     assert main(argv) == 0
     found = contents(out)
     for kind in (fmt.STEPS_DIR, fmt.EPISODES_DIR, fmt.IMAGES_DIR, fmt.SHARDS_DIR):
@@ -54,10 +76,13 @@ def generate(out: Path, executor: str, workers: int) -> dict[str, Any]:
     return found
 
 
-@pytest.mark.parametrize("executor, workers", [
-    ("process", 2),
-    pytest.param("ray", 2, marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize(
+    "executor, workers",
+    [
+        ("process", 2),
+        pytest.param("ray", 2, marks=pytest.mark.slow),
+    ],
+)
 def test_every_executor_makes_the_same_dataset(tmp_path, capsys, executor, workers):
     reference = generate(tmp_path / "serial", "process", 1)
     assert generate(tmp_path / executor, executor, workers) == reference

@@ -27,7 +27,12 @@ def test_shards_share_one_schema(tiny_dataset):
 
 
 def test_steps_replay_their_episode(tiny_dataset):
-    episodes = {r["episode_id"]: r for r in pq.read_table(sorted((tiny_dataset / "data/episodes").glob("*.parquet"))).to_pylist()}
+    episodes = {
+        r["episode_id"]: r
+        for r in pq.read_table(
+            sorted((tiny_dataset / "data/episodes").glob("*.parquet"))
+        ).to_pylist()
+    }
     rows = _steps(tiny_dataset)
     by_episode = {}
     for r in rows:
@@ -43,7 +48,11 @@ def test_steps_replay_their_episode(tiny_dataset):
             placed = s["shown"][s["action"]["object_id"]]
             assert placed["internal_id"] == s["internal_id"]
             p = plan[s["internal_id"]]
-            assert (s["action"]["x"], s["action"]["y"], s["action"]["rotation"]) == (p.x, p.y, p.rotation)
+            assert (s["action"]["x"], s["action"]["y"], s["action"]["rotation"]) == (
+                p.x,
+                p.y,
+                p.rotation,
+            )
             assert len(s["shown"]) == min(case.buffer_size, s["remaining"])
             assert s["action_text"] == json.dumps(s["action"], separators=(",", ":"))
 
@@ -90,11 +99,25 @@ def test_sft_per_episode_mode(tiny_dataset, tmp_path):
 
 def test_dataset_loads_with_hf_datasets(tiny_dataset):
     datasets = pytest.importorskip("datasets")
-    steps = datasets.load_dataset("parquet", data_files=str(tiny_dataset / "data/steps/*.parquet"), split="train",
-                                  cache_dir=str(tiny_dataset.parent / "hf-cache"))
-    assert steps.num_rows == json.loads((tiny_dataset / "meta/info.json").read_text())["counts"]["steps"]
+    steps = datasets.load_dataset(
+        "parquet",
+        data_files=str(tiny_dataset / "data/steps/*.parquet"),
+        split="train",
+        cache_dir=str(tiny_dataset.parent / "hf-cache"),
+    )
+    assert (
+        steps.num_rows
+        == json.loads((tiny_dataset / "meta/info.json").read_text())["counts"]["steps"]
+    )
     row = steps[0]
-    assert set(row["action"]) == {"object_id", "x", "y", "rotation"} and (tiny_dataset / row["image"]).is_file()
-    episodes = datasets.load_dataset(str(tiny_dataset), "episodes", split="train",
-                                     cache_dir=str(tiny_dataset.parent / "hf-cache"))
+    assert (
+        set(row["action"]) == {"object_id", "x", "y", "rotation"}
+        and (tiny_dataset / row["image"]).is_file()
+    )
+    episodes = datasets.load_dataset(
+        str(tiny_dataset),
+        "episodes",
+        split="train",
+        cache_dir=str(tiny_dataset.parent / "hf-cache"),
+    )
     assert episodes.num_rows == 10

@@ -21,7 +21,10 @@ N_DIST = 300  # cases per difficulty for the distribution checks
 
 @pytest.fixture(scope="module")
 def cases_by_difficulty() -> dict:
-    return {d: [build_case(case_seed(21, "train", d, i), d) for i in range(N_DIST)] for d in DIFFICULTIES}
+    return {
+        d: [build_case(case_seed(21, "train", d, i), d) for i in range(N_DIST)]
+        for d in DIFFICULTIES
+    }
 
 
 @pytest.mark.parametrize("family", ["layered", "stepped"])
@@ -49,13 +52,19 @@ def test_distributions_match_published_parameters(cases_by_difficulty):
         assert set(dist.buffer_sizes) == {spec.buffer_size}
         assert set(dist.base_sizes_cm) == {tuple(v / 10 for v in b) for b in spec.base_sizes_mm}
         lo, hi = spec.height_ratio
-        assert lo - 1e-9 <= s["stack_height_ratio"]["min"] and s["stack_height_ratio"]["max"] <= hi + 1e-9
+        assert (
+            lo - 1e-9 <= s["stack_height_ratio"]["min"]
+            and s["stack_height_ratio"]["max"] <= hi + 1e-9
+        )
         assert 0.21 <= s["rotated_fraction"] <= 0.29
         for case in cases:
             x, y, z = case.container.size_mm
             base = tuple(int(v * 10) for v in case.generator["base_size_cm"])
-            for v, b, (clo, chi), step in ((x, base[0], limits.clamp_xy_mm, 25), (y, base[1], limits.clamp_xy_mm, 25),
-                                           (z, base[2], limits.clamp_z_mm, 10)):
+            for v, b, (clo, chi), step in (
+                (x, base[0], limits.clamp_xy_mm, 25),
+                (y, base[1], limits.clamp_xy_mm, 25),
+                (z, base[2], limits.clamp_z_mm, 10),
+            ):
                 assert clo <= v <= chi and v % step == 0
                 assert abs(v - b) <= 100 or v in (clo, chi)
             for box in case.objects:
@@ -65,17 +74,25 @@ def test_distributions_match_published_parameters(cases_by_difficulty):
 
 
 def test_jitter_reaches_both_ends(cases_by_difficulty):
-    offsets = {(c.container.size_mm[0] - int(c.generator["base_size_cm"][0] * 10))
-               for c in cases_by_difficulty["hard"]}
+    offsets = {
+        (c.container.size_mm[0] - int(c.generator["base_size_cm"][0] * 10))
+        for c in cases_by_difficulty["hard"]
+    }
     assert {-100, 100} <= offsets and all(o % 25 == 0 for o in offsets)
 
 
 def test_seed_domains_are_disjoint():
-    bench = {case_seed(s, "bench", d, i) for s in range(3) for d in DIFFICULTIES for i in range(200)}
-    train = {case_seed(s, "train", d, i) for s in range(3) for d in DIFFICULTIES for i in range(200)}
+    bench = {
+        case_seed(s, "bench", d, i) for s in range(3) for d in DIFFICULTIES for i in range(200)
+    }
+    train = {
+        case_seed(s, "train", d, i) for s in range(3) for d in DIFFICULTIES for i in range(200)
+    }
     assert not bench & train
     assert len(bench) == len(train) == 3 * 3 * 200  # no collisions inside a domain either
-    assert {seed_domain(s) for s in bench} == {"bench"} and {seed_domain(s) for s in train} == {"train"}
+    assert {seed_domain(s) for s in bench} == {"bench"} and {seed_domain(s) for s in train} == {
+        "train"
+    }
     assert all(s < 2**53 for s in bench | train)
     assert set(DOMAINS) >= {"bench", "train"}
 
@@ -134,7 +151,9 @@ def test_generator_output_is_pinned():
     digest = hashlib.sha256()
     for layout in ("layered", "stepped"):
         for difficulty in DIFFICULTIES:
-            for case in generate_cases(difficulty, 3, seed=0, validate=False, config=CaseConfig(layout=layout)):
+            for case in generate_cases(
+                difficulty, 3, seed=0, validate=False, config=CaseConfig(layout=layout)
+            ):
                 digest.update(json.dumps(case_to_dict(case), sort_keys=True).encode())
     assert GENERATOR_VERSION == "packlab-datagen-1"
     assert digest.hexdigest() == PINNED_DIGEST

@@ -25,7 +25,7 @@ def _voxels(layout: Layout) -> np.ndarray:
     nx, ny = layout.cells
     grid = np.zeros((nx, ny, layout.height), dtype=np.int32)
     for b in layout.boxes:
-        grid[b.x:b.x + b.dx, b.y:b.y + b.dy, b.z:b.z + b.dz] += 1
+        grid[b.x : b.x + b.dx, b.y : b.y + b.dy, b.z : b.z + b.dz] += 1
     return grid
 
 
@@ -93,9 +93,13 @@ def test_guillotine_partition_counts_and_rules():
 
 
 def test_partition_problems_catches_broken_layouts():
-    good = Layout((4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 1, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered")
+    good = Layout(
+        (4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 1, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered"
+    )
     assert partition_problems(good) == []
-    overlap = Layout((4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 2, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered")
+    overlap = Layout(
+        (4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 2, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered"
+    )
     assert any("overlap" in p for p in partition_problems(overlap))
     gap = Layout((4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 1, 0),), "layered")
     assert any("volumes" in p for p in partition_problems(gap))

@@ -36,9 +36,11 @@ def test_orientation_x_columns_y_rows_origin_top_left():
     top = (224 - 20 * px) // 2
     left = (224 - 40 * px) // 2
     level = height_levels(np.array([[400]]), C.height_mm)[0, 0]
+
     # Interior pixel of cell (x=3, y=1) is the box; of cell (x=1, y=3) and (x=5, y=0) it is floor.
     def cell_px(x, y):
         return idx[top + y * px + px // 2, left + x * px + px // 2]
+
     assert cell_px(3, 1) == level and cell_px(1, 3) == 0 and cell_px(5, 0) == 0
 
 
@@ -63,7 +65,7 @@ def test_colour_scale_is_fixed_and_monotone():
     assert levels[0] == 0 and levels[1] >= 1 and np.all(np.diff(levels.astype(int)) >= 0)
     assert levels[-1] == LEVELS - 2  # the rim is the top of the ramp
     assert height_levels(np.array([[801]]), C.height_mm)[0, 0] == LEVELS - 1  # above the rim
-    brightness = PALETTE[1:LEVELS - 1].astype(int).sum(axis=1)
+    brightness = PALETTE[1 : LEVELS - 1].astype(int).sum(axis=1)
     assert np.all(np.diff(brightness) >= 0)  # higher is lighter
     assert height_colour(0, C) != height_colour(2, C)  # floor differs from any box
 
@@ -72,10 +74,16 @@ def test_grid_lines_darken_without_hiding_height():
     hm = np.full(C.cells, 400, np.int32)
     level = height_levels(np.array([[400]]), C.height_mm)[0, 0]
     # 5 px cells: interior and major lines only (thin lines would dominate so small a cell).
-    values = set(np.unique(heightmap_to_indices(hm, C, size=224)[100])) - {BACKGROUND_INDEX, FRAME_INDEX}
+    values = set(np.unique(heightmap_to_indices(hm, C, size=224)[100])) - {
+        BACKGROUND_INDEX,
+        FRAME_INDEX,
+    }
     assert values == {level, level + 2 * LEVELS}
     # 10 px cells: interior, thin line, major line.
-    values = set(np.unique(heightmap_to_indices(hm, C, size=448)[200])) - {BACKGROUND_INDEX, FRAME_INDEX}
+    values = set(np.unique(heightmap_to_indices(hm, C, size=448)[200])) - {
+        BACKGROUND_INDEX,
+        FRAME_INDEX,
+    }
     assert values == {level, level + LEVELS, level + 2 * LEVELS}
 
 

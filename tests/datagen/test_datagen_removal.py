@@ -18,7 +18,9 @@ from packlab.datagen.seeds import case_seed
 @pytest.mark.parametrize("difficulty", ["easy", "medium", "hard"])
 def test_every_object_is_fully_supported_when_placed(difficulty, family):
     for slot in range(40):
-        bp = draw_blueprint(case_seed(11, "train", difficulty, slot), difficulty, CaseConfig(layout=family))
+        bp = draw_blueprint(
+            case_seed(11, "train", difficulty, slot), difficulty, CaseConfig(layout=family)
+        )
         assert order_problems(bp.layout, bp.order.order) == []
         # Independently: everything an object rests on comes earlier in the order.
         position = {box: i for i, box in enumerate(bp.order.order)}
@@ -34,7 +36,11 @@ def test_anchor_corner_is_placed_first():
         hx, hy = CORNERS[bp.order.anchor]
         nx, ny = bp.layout.cells
         cx, cy = (nx - 1 if hx else 0), (ny - 1 if hy else 0)
-        assert first.z == 0 and first.x <= cx < first.x + first.dx and first.y <= cy < first.y + first.dy
+        assert (
+            first.z == 0
+            and first.x <= cx < first.x + first.dx
+            and first.y <= cy < first.y + first.dy
+        )
 
 
 def test_anchor_mix_follows_corner_prob():
@@ -49,14 +55,20 @@ def test_anchor_mix_follows_corner_prob():
 
 
 def test_order_is_randomised_but_deterministic():
-    layout = Layout((6, 6), 2, tuple(LayoutBox(x, y, 0, 3, 3, 2, 0) for x in (0, 3) for y in (0, 3)), "layered")
-    orders = {reverse_removal(layout, AnchorConfig(), np.random.default_rng(s)).order for s in range(30)}
+    layout = Layout(
+        (6, 6), 2, tuple(LayoutBox(x, y, 0, 3, 3, 2, 0) for x in (0, 3) for y in (0, 3)), "layered"
+    )
+    orders = {
+        reverse_removal(layout, AnchorConfig(), np.random.default_rng(s)).order for s in range(30)
+    }
     assert len(orders) > 5
     a = reverse_removal(layout, AnchorConfig(), np.random.default_rng(9))
     assert a == reverse_removal(layout, AnchorConfig(), np.random.default_rng(9))
 
 
 def test_order_problems_catches_unsupported_orders():
-    layout = Layout((4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 1, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered")
+    layout = Layout(
+        (4, 4), 2, (LayoutBox(0, 0, 0, 4, 4, 1, 0), LayoutBox(0, 0, 1, 4, 4, 1, 1)), "layered"
+    )
     assert order_problems(layout, (0, 1)) == []
     assert order_problems(layout, (1, 0))

@@ -14,7 +14,9 @@ from packlab.datagen.validate import check_case, judge, plan_problems, replay
 
 
 def _case(difficulty="medium", slot=0, layout="layered"):
-    return build_case(case_seed(12, "train", difficulty, slot), difficulty, CaseConfig(layout=layout))
+    return build_case(
+        case_seed(12, "train", difficulty, slot), difficulty, CaseConfig(layout=layout)
+    )
 
 
 def test_plan_problems_catch_broken_plans():
@@ -26,13 +28,20 @@ def test_plan_problems_catch_broken_plans():
     swapped = replace(case, gt_plan=tuple(reversed(plan)), objects=tuple(reversed(case.objects)))
     assert any("drops to" in p for p in plan_problems(swapped))  # top objects first: unsupported
     assert plan_problems(replace(case, gt_plan=None)) == ["case has no gt_plan"]
-    assert check_case(replace(case, gt_plan=(moved, *plan[1:])), ValidationConfig()).reason == "plan_check"
+    assert (
+        check_case(replace(case, gt_plan=(moved, *plan[1:])), ValidationConfig()).reason
+        == "plan_check"
+    )
 
 
 def test_judge_reasons():
     trajectory = replay(_case(), backend="geometric")
     assert judge(trajectory, 0.99) == ""
-    bad_step = replace(trajectory, valid=(False, *trajectory.valid[1:]), reasons=("out_of_bounds", *trajectory.reasons[1:]))
+    bad_step = replace(
+        trajectory,
+        valid=(False, *trajectory.valid[1:]),
+        reasons=("out_of_bounds", *trajectory.reasons[1:]),
+    )
     assert judge(bad_step, 0.99) == "invalid_step:out_of_bounds"
     low = replace(trajectory, metrics=replace(trajectory.metrics, overall=0.9))
     assert judge(low, 0.99) == "overall_below_min"
@@ -52,7 +61,9 @@ def test_replay_records_what_the_policy_saw():
 def test_mujoco_replay_accepts_generated_plans(layout):
     for difficulty in ("easy", "medium", "hard"):
         for slot in range(3):
-            verdict = check_case(_case(difficulty, slot, layout), ValidationConfig(backend="mujoco"))
+            verdict = check_case(
+                _case(difficulty, slot, layout), ValidationConfig(backend="mujoco")
+            )
             assert verdict.accepted, (difficulty, slot, verdict.reason)
             assert verdict.trajectory.metrics.overall >= 0.99
 

@@ -19,7 +19,9 @@ from packlab.cases import MAX_BUFFER_SIZE, MAX_HEIGHTMAP_CELLS, MAX_OBJECTS, loa
 from packlab.cli.main import main
 from packlab.core.errors import PacklabError
 
-REFERENCE_EASY = Path(__file__).resolve().parents[1] / "data" / "reference_bench" / "easy" / "test.parquet"
+REFERENCE_EASY = (
+    Path(__file__).resolve().parents[1] / "data" / "reference_bench" / "easy" / "test.parquet"
+)
 
 
 def _case(**overrides) -> dict:
@@ -54,6 +56,7 @@ def _parquet_rows(directory: Path, rows: list[dict], name: str = "bench.parquet"
 
 # -- the bad files ---------------------------------------------------------------------------------
 
+
 def not_utf8(d):
     good = (json.dumps(_case()) + "\n").encode()
     path = d / "latin1.jsonl"
@@ -86,18 +89,28 @@ def malformed_parquet(d):
 
 
 def extra_info_integer(d):
-    return _parquet_rows(d, [{"extra_info": 7}]), ["bench.parquet (row 1)", "'extra_info' = 7", "expected an object"]
+    return _parquet_rows(d, [{"extra_info": 7}]), [
+        "bench.parquet (row 1)",
+        "'extra_info' = 7",
+        "expected an object",
+    ]
 
 
 def extra_info_not_json(d):
-    path = _parquet_rows(d, [{"extra_info": json.dumps(_reference_row()["extra_info"])}, {"extra_info": "{oops"}])
+    path = _parquet_rows(
+        d, [{"extra_info": json.dumps(_reference_row()["extra_info"])}, {"extra_info": "{oops"}]
+    )
     return path, ["bench.parquet (row 2)", "'extra_info' = '{oops'", "not JSON"]
 
 
 def missing_interaction_kwargs(d):
     row = _reference_row()
     del row["extra_info"]["interaction_kwargs"]
-    return _parquet_rows(d, [row]), ["bench.parquet (row 1)", "'extra_info.interaction_kwargs'", "missing"]
+    return _parquet_rows(d, [row]), [
+        "bench.parquet (row 1)",
+        "'extra_info.interaction_kwargs'",
+        "missing",
+    ]
 
 
 def no_extra_info_column(d):
@@ -125,7 +138,10 @@ def reference_row_huge_container(d):
     row = _reference_row()
     row["extra_info"]["interaction_kwargs"]["container_size_cm"] = [1e300, 50.0, 35.0]
     return _parquet_rows(d, [_reference_row(), row]), [
-        "bench.parquet (row 2)", "'extra_info.interaction_kwargs.container_size_cm[0]' = 1e+300", "limit"]
+        "bench.parquet (row 2)",
+        "'extra_info.interaction_kwargs.container_size_cm[0]' = 1e+300",
+        "limit",
+    ]
 
 
 def too_many_objects(d):
@@ -140,8 +156,14 @@ def buffer_too_large(d):
 
 
 def too_many_cells(d):
-    path = _jsonl(d, _case(grid_cell_size_cm={"xy": 0.1, "z": 0.1}, container_size_cm=[500, 500, 30]))
-    return path, ["cases.jsonl:1", "'container_size_cm'", f"limit of {MAX_HEIGHTMAP_CELLS} heightmap cells"]
+    path = _jsonl(
+        d, _case(grid_cell_size_cm={"xy": 0.1, "z": 0.1}, container_size_cm=[500, 500, 30])
+    )
+    return path, [
+        "cases.jsonl:1",
+        "'container_size_cm'",
+        f"limit of {MAX_HEIGHTMAP_CELLS} heightmap cells",
+    ]
 
 
 def nan_box_side(d):
@@ -152,9 +174,16 @@ def nan_box_side(d):
 
 
 def mixed_id_types(d):
-    objects = [{"internal_id": 0, "size_cm": [25, 40, 10]}, {"internal_id": "obj_1", "size_cm": [25, 40, 10]}]
+    objects = [
+        {"internal_id": 0, "size_cm": [25, 40, 10]},
+        {"internal_id": "obj_1", "size_cm": [25, 40, 10]},
+    ]
     path = _jsonl(d, _case(object_sequence=objects))
-    return path, ["cases.jsonl:1", "'object_sequence[1].internal_id' = 'obj_1'", "must all be integers or all strings"]
+    return path, [
+        "cases.jsonl:1",
+        "'object_sequence[1].internal_id' = 'obj_1'",
+        "must all be integers or all strings",
+    ]
 
 
 def id_with_control_character(d):
@@ -172,8 +201,11 @@ def deeply_nested_line(d):
 def plan_outside_the_container(d):
     row = _reference_row()
     row["extra_info"]["gt_plan"][0]["target_box_cells"]["x"] = 1000
-    return _parquet_rows(d, [row]), ["bench.parquet (row 1)", "'extra_info.gt_plan[0].target_box_cells'",
-                                      "outside the container"]
+    return _parquet_rows(d, [row]), [
+        "bench.parquet (row 1)",
+        "'extra_info.gt_plan[0].target_box_cells'",
+        "outside the container",
+    ]
 
 
 def reference_dir_with_a_bad_level(d):
@@ -186,10 +218,27 @@ def reference_dir_with_a_bad_level(d):
 
 
 BAD_FILES = [
-    not_utf8, not_utf8_json, text_named_parquet, truncated_parquet, malformed_parquet, extra_info_integer,
-    extra_info_not_json, missing_interaction_kwargs, no_extra_info_column, a_plain_directory, huge_container,
-    huge_integer_container, reference_row_huge_container, too_many_objects, buffer_too_large, too_many_cells,
-    nan_box_side, mixed_id_types, id_with_control_character, deeply_nested_line, plan_outside_the_container,
+    not_utf8,
+    not_utf8_json,
+    text_named_parquet,
+    truncated_parquet,
+    malformed_parquet,
+    extra_info_integer,
+    extra_info_not_json,
+    missing_interaction_kwargs,
+    no_extra_info_column,
+    a_plain_directory,
+    huge_container,
+    huge_integer_container,
+    reference_row_huge_container,
+    too_many_objects,
+    buffer_too_large,
+    too_many_cells,
+    nan_box_side,
+    mixed_id_types,
+    id_with_control_character,
+    deeply_nested_line,
+    plan_outside_the_container,
     reference_dir_with_a_bad_level,
 ]
 
@@ -203,7 +252,10 @@ def bad_file(request, tmp_path):
 
 
 def _snapshot(root: Path) -> dict[str, bytes | None]:
-    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(root.rglob("*"))}
+    return {
+        str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None)
+        for p in sorted(root.rglob("*"))
+    }
 
 
 def test_load_names_file_place_field_and_value(bad_file):
@@ -220,8 +272,25 @@ def test_bench_exits_2_and_writes_nothing(bad_file, tmp_path, capsys):
     path, expected = bad_file
     before = _snapshot(tmp_path)
     run_dir = tmp_path / "run"
-    code = main(["bench", "--cases", str(path), "--backend", "geometric", "--policies", "oracle", "--seeds", "0",
-                 "--out", str(run_dir), "--workers", "1", "--no-progress", "--no-figures"])
+    code = main(
+        [
+            "bench",
+            "--cases",
+            str(path),
+            "--backend",
+            "geometric",
+            "--policies",
+            "oracle",
+            "--seeds",
+            "0",
+            "--out",
+            str(run_dir),
+            "--workers",
+            "1",
+            "--no-progress",
+            "--no-figures",
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1 and err.startswith("packlab bench: error: "), err

@@ -36,8 +36,25 @@ def reference_cases():
 
 
 def _bench(cases: str, out: Path, policies: str, seeds: str = "0") -> int:
-    return main(["bench", "--cases", cases, "--policies", policies, "--backend", "geometric", "--seeds", seeds,
-                 "--out", str(out), "--workers", "1", "--no-progress", "--no-figures"])
+    return main(
+        [
+            "bench",
+            "--cases",
+            cases,
+            "--policies",
+            policies,
+            "--backend",
+            "geometric",
+            "--seeds",
+            seeds,
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--no-progress",
+            "--no-figures",
+        ]
+    )
 
 
 def _records(run_dir: Path) -> list[dict]:
@@ -47,7 +64,11 @@ def _records(run_dir: Path) -> list[dict]:
 def _without_timings(value):
     """A record minus what measures time (keys ``timing`` and ``*_s``: wall and CPU seconds)."""
     if isinstance(value, dict):
-        return {k: _without_timings(v) for k, v in value.items() if k != "timing" and not k.endswith("_s")}
+        return {
+            k: _without_timings(v)
+            for k, v in value.items()
+            if k != "timing" and not k.endswith("_s")
+        }
     if isinstance(value, list):
         return [_without_timings(v) for v in value]
     return value
@@ -55,13 +76,20 @@ def _without_timings(value):
 
 # -- the reference's files as they are ------------------------------------------------------------
 
+
 def test_fixture_is_the_reference_layout():
     """Guard the fixture itself: columns and nesting as the reference's writer makes them."""
     table = pq.read_table(REFERENCE_DIR / "easy" / "test.parquet")
     assert table.column_names == ["data_source", "prompt_template_id", "ability", "extra_info"]
     extra = table.schema.field("extra_info").type
     assert [extra.field(i).name for i in range(extra.num_fields)] == [
-        "split", "index", "difficulty", "generator", "gt_plan", "interaction_kwargs"]
+        "split",
+        "index",
+        "difficulty",
+        "generator",
+        "gt_plan",
+        "interaction_kwargs",
+    ]
     row = table.to_pylist()[0]["extra_info"]
     assert row["interaction_kwargs"]["object_sequence"][0]["internal_id"] == "obj_00000"
     assert all(step["action"]["object_id"] is None for step in row["gt_plan"])
@@ -76,7 +104,9 @@ def test_reference_directory_loads_every_field(reference_cases):
         i = n % 20
         seed0, buffer_size = LEVELS[level]
         assert case.episode_id == f"{level}_{i:06d}"  # extra_info.interaction_kwargs.sample_id
-        assert case.difficulty == level and case.buffer_size == buffer_size and case.seed == seed0 + i
+        assert (
+            case.difficulty == level and case.buffer_size == buffer_size and case.seed == seed0 + i
+        )
         assert case.origin == CaseOrigin("test", i)
         assert case.generator == {"name": "layer_cuboid_v1_layer_random_anchor"}
         ids = [b.internal_id for b in case.objects]
@@ -106,8 +136,9 @@ def test_reference_files_round_trip_to_the_same_rows(reference_cases, tmp_path):
     ref_manifest = json.loads((REFERENCE_DIR / "metadata" / "manifest.json").read_text())
     for level in LEVELS:
         mine, theirs = manifest["difficulties"][level], ref_manifest["difficulties"][level]
-        assert {k: v for k, v in mine.items() if k != "parquet_path"} == \
-               {k: v for k, v in theirs.items() if k != "parquet_path"}
+        assert {k: v for k, v in mine.items() if k != "parquet_path"} == {
+            k: v for k, v in theirs.items() if k != "parquet_path"
+        }
 
 
 def test_oracle_scores_one_on_every_reference_case(tmp_path, capsys):
@@ -118,10 +149,13 @@ def test_oracle_scores_one_on_every_reference_case(tmp_path, capsys):
     for level in ("Easy", "Medium", "Hard"):
         assert f"{level} Overall" in header
     oracle_row = next(line for line in table.splitlines() if line.startswith("| Oracle"))
-    assert oracle_row.count("1.000") == 12  # SR, compactness, overall for three levels and the average
+    assert (
+        oracle_row.count("1.000") == 12
+    )  # SR, compactness, overall for three levels and the average
     records = _records(run_dir)
     assert sorted(r["case_id"] for r in records) == sorted(
-        f"{lvl}_{i:06d}" for lvl in LEVELS for i in range(20))
+        f"{lvl}_{i:06d}" for lvl in LEVELS for i in range(20)
+    )
     assert all(r["status"] == "ok" and r["metrics"]["overall"] == 1.0 for r in records)
     assert {r["difficulty"] for r in records} == set(LEVELS)
     # Object ids reach the records as the file gave them.
@@ -131,6 +165,7 @@ def test_oracle_scores_one_on_every_reference_case(tmp_path, capsys):
 
 
 # -- packlab cases through the reference layout --------------------------------------------------
+
 
 @pytest.mark.parametrize("target", ["dir", "file.parquet", "rows.jsonl"])
 def test_bundled_suite_round_trips_through_the_reference_layout(tmp_path, target):
@@ -163,23 +198,34 @@ def test_bench_results_are_identical_from_both_layouts(tmp_path):
     cfg_a = json.loads((tmp_path / "run-native" / "config.json").read_text())
     cfg_b = json.loads((tmp_path / "run-reference" / "config.json").read_text())
     assert cfg_a["cases_sha256"] == cfg_b["cases_sha256"] == cases_sha256(handful)
-    assert (tmp_path / "run-native" / "cases.jsonl").read_bytes() == \
-           (tmp_path / "run-reference" / "cases.jsonl").read_bytes()
+    assert (tmp_path / "run-native" / "cases.jsonl").read_bytes() == (
+        tmp_path / "run-reference" / "cases.jsonl"
+    ).read_bytes()
 
 
 def test_reference_directory_loads_levels_in_the_documented_order(reference_cases, tmp_path):
-    by_level = {"zeta": reference_cases[0], "hard": reference_cases[40], "alpha": reference_cases[20],
-                "easy": reference_cases[1]}
+    by_level = {
+        "zeta": reference_cases[0],
+        "hard": reference_cases[40],
+        "alpha": reference_cases[20],
+        "easy": reference_cases[1],
+    }
     for level, case in by_level.items():
-        relabelled = dataclasses.replace(case, difficulty=level, episode_id=f"{level}-case", origin=None)
+        relabelled = dataclasses.replace(
+            case, difficulty=level, episode_id=f"{level}-case", origin=None
+        )
         write_reference([relabelled], tmp_path / "parts" / level)
         (tmp_path / "mixed" / level).mkdir(parents=True)
-        (tmp_path / "parts" / level / level / "test.parquet").rename(tmp_path / "mixed" / level / "test.parquet")
+        (tmp_path / "parts" / level / level / "test.parquet").rename(
+            tmp_path / "mixed" / level / "test.parquet"
+        )
     loaded = load_cases(tmp_path / "mixed")
     assert [c.difficulty for c in loaded] == ["easy", "hard", "alpha", "zeta"]
 
 
-def test_a_case_on_another_grid_cannot_be_written_in_the_reference_layout(reference_cases, tmp_path):
+def test_a_case_on_another_grid_cannot_be_written_in_the_reference_layout(
+    reference_cases, tmp_path
+):
     c = reference_cases[0]
     odd = dataclasses.replace(c, container=Container(c.container.size_mm, 25, 5))
     with pytest.raises(ConfigError, match="no grid field"):
@@ -195,18 +241,50 @@ def test_export_refuses_an_existing_target(reference_cases, tmp_path):
 
 # -- the command line ------------------------------------------------------------------------------
 
+
 def test_cases_export_and_validate_commands(tmp_path, capsys):
     out = tmp_path / "bench-ref"
-    assert main(["cases", "export", "packlab-bench-v1", "--format", "reference", "--out", str(out)]) == 0
-    assert (out / "easy" / "test.parquet").is_file() and (out / "metadata" / "manifest.json").is_file()
-    assert main(["cases", "export", str(out), "--format", "jsonl", "--out", str(tmp_path / "back.jsonl")]) == 0
+    assert (
+        main(["cases", "export", "packlab-bench-v1", "--format", "reference", "--out", str(out)])
+        == 0
+    )
+    assert (out / "easy" / "test.parquet").is_file() and (
+        out / "metadata" / "manifest.json"
+    ).is_file()
+    assert (
+        main(
+            [
+                "cases",
+                "export",
+                str(out),
+                "--format",
+                "jsonl",
+                "--out",
+                str(tmp_path / "back.jsonl"),
+            ]
+        )
+        == 0
+    )
     # Back to packlab's JSONL: byte for byte the bundled suite file.
     from packlab.bench.suites import suite_files
+
     assert (tmp_path / "back.jsonl").read_bytes() == suite_files("packlab-bench-v1")[0].read_bytes()
     capsys.readouterr()
     assert main(["cases", "validate", str(REFERENCE_DIR)]) == 0
     out_text = capsys.readouterr().out
-    assert "60 cases OK" in out_text and "easy 20, medium 20, hard 20" in out_text and "internal_id str" in out_text
-    again = ["cases", "export", str(REFERENCE_DIR), "--format", "jsonl", "--out", str(tmp_path / "back.jsonl")]
+    assert (
+        "60 cases OK" in out_text
+        and "easy 20, medium 20, hard 20" in out_text
+        and "internal_id str" in out_text
+    )
+    again = [
+        "cases",
+        "export",
+        str(REFERENCE_DIR),
+        "--format",
+        "jsonl",
+        "--out",
+        str(tmp_path / "back.jsonl"),
+    ]
     assert main(again) == 2
     assert "already exists" in capsys.readouterr().err

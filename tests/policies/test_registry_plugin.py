@@ -83,10 +83,22 @@ def test_plugin_policy_is_listed_made_and_runs_an_episode(installed_plugin):
 
 def test_plugin_policy_runs_in_the_bench(installed_plugin, tmp_path):
     cases_path = tmp_path / "cases.jsonl"
-    save_cases([make_layered_case(s, cells=(12, 10), layer_heights_mm=(100, 80), pieces=3)
-                for s in range(2)], cases_path)
-    config = RunConfig(cases=str(cases_path), policies=(PLUGIN_POLICY,), seeds=(0,),
-                       backend="geometric", workers=1, progress=False, out=str(tmp_path / "run"))
+    save_cases(
+        [
+            make_layered_case(s, cells=(12, 10), layer_heights_mm=(100, 80), pieces=3)
+            for s in range(2)
+        ],
+        cases_path,
+    )
+    config = RunConfig(
+        cases=str(cases_path),
+        policies=(PLUGIN_POLICY,),
+        seeds=(0,),
+        backend="geometric",
+        workers=1,
+        progress=False,
+        out=str(tmp_path / "run"),
+    )
     outcome = run_bench(config, figures=False)
     assert outcome.ran == 2 and outcome.failed == 0
     lines = (outcome.run_dir / "episodes.jsonl").read_text().splitlines()

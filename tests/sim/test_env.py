@@ -30,7 +30,9 @@ def _masked_rollout(env, seed):
 
 
 def test_return_equals_final_success_ratio_and_masked_actions_are_valid():
-    cases = [make_layered_case(s, cells=(20, 16), layer_heights_mm=(100, 80), pieces=4) for s in range(3)]
+    cases = [
+        make_layered_case(s, cells=(20, 16), layer_heights_mm=(100, 80), pieces=4) for s in range(3)
+    ]
     env = PackEnv(cases, backend="geometric")
     total, info, _ = _masked_rollout(env, seed=4)
     assert info["valid"]
@@ -73,10 +75,14 @@ def _full_recomputation_rollout(env, case_index, seed):
 #: (case, rollout seed) pairs: small layered cases, plus one with a low rim where, on MuJoCo, a
 #: late placement knocks a box out of the container (a negative reward).
 _REWARD_ROLLOUTS = [
-    *((make_layered_case(s, cells=(12, 10), layer_heights_mm=(100, 80), pieces=3), 10 + s)
-      for s in range(3)),
-    (make_layered_case(2, cells=(12, 10), layer_heights_mm=(100, 80, 80), pieces=3, rim_mm=200),
-     10),
+    *(
+        (make_layered_case(s, cells=(12, 10), layer_heights_mm=(100, 80), pieces=3), 10 + s)
+        for s in range(3)
+    ),
+    (
+        make_layered_case(2, cells=(12, 10), layer_heights_mm=(100, 80, 80), pieces=3, rim_mm=200),
+        10,
+    ),
 ]
 
 

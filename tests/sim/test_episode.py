@@ -26,7 +26,9 @@ def test_buffer_shows_first_k_unprocessed_in_shuffled_order(layered_case):
 
 
 def test_shuffle_depends_on_case_seed_and_run_seed():
-    case = make_layered_case(2, cells=(20, 16), layer_heights_mm=(100, 100, 100), buffer_size=5, pieces=5)
+    case = make_layered_case(
+        2, cells=(20, 16), layer_heights_mm=(100, 100, 100), buffer_size=5, pieces=5
+    )
     orders = set()
     for run_seed in range(6):
         obs = Episode("geometric").reset(case, run_seed)
@@ -39,7 +41,9 @@ def test_shuffle_depends_on_case_seed_and_run_seed():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_oracle_is_exactly_perfect_on_geometric(seed):
-    case = make_layered_case(seed, cells=(24, 20), layer_heights_mm=(160, 120, 80), buffer_size=3, pieces=5)
+    case = make_layered_case(
+        seed, cells=(24, 20), layer_heights_mm=(160, 120, 80), buffer_size=3, pieces=5
+    )
     result = run_episode(case, make_policy("oracle"), seed=seed, backend="geometric")
     assert all(s.valid for s in result.steps)
     assert result.metrics.overall == 1.0
@@ -82,7 +86,9 @@ def test_invalid_action_is_recorded_and_the_episode_goes_on(action, reason):
     assert metrics.n_set_aside == 1
     assert ep.final_poses()[aside] is None
     assert metrics.n_inside == 2
-    assert metrics.success_ratio == pytest.approx(1 - _two_box_case().box_by_id(aside).volume_mm3 / ep.case.total_volume_mm3)
+    assert metrics.success_ratio == pytest.approx(
+        1 - _two_box_case().box_by_id(aside).volume_mm3 / ep.case.total_volume_mm3
+    )
 
 
 def test_out_of_bounds_sets_aside_the_chosen_object():
@@ -109,7 +115,9 @@ def test_same_seed_same_records_geometric():
     case = make_layered_case(4, cells=(20, 16), layer_heights_mm=(100, 100), pieces=5)
     a = run_episode(case, make_policy("random"), seed=11, backend="geometric")
     b = run_episode(case, make_policy("random"), seed=11, backend="geometric")
-    strip = lambda r: [{k: v for k, v in s.to_record().items() if k != "wall_time_s"} for s in r.steps]
+    strip = lambda r: [
+        {k: v for k, v in s.to_record().items() if k != "wall_time_s"} for s in r.steps
+    ]
     assert strip(a) == strip(b) and a.metrics.overall == b.metrics.overall
 
 

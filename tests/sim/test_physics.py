@@ -17,7 +17,9 @@ pytestmark = pytest.mark.physics
 
 @pytest.mark.parametrize("seed", range(4))
 def test_oracle_replay_of_perfect_layouts_stays_put(seed):
-    case = make_layered_case(seed, cells=(32, 24), layer_heights_mm=(200, 150, 100), buffer_size=3, pieces=6)
+    case = make_layered_case(
+        seed, cells=(32, 24), layer_heights_mm=(200, 150, 100), buffer_size=3, pieces=6
+    )
     result = run_episode(case, make_policy("oracle"), seed=seed, backend="mujoco")
     assert all(s.valid for s in result.steps)
     assert result.metrics.unsettled_steps == 0 and result.metrics.at_rest
@@ -32,7 +34,9 @@ def test_same_case_and_seed_give_identical_mujoco_records():
     case = make_layered_case(7, cells=(24, 20), layer_heights_mm=(150, 100), pieces=5)
     a = run_episode(case, make_policy("random"), seed=3, backend="mujoco")
     b = run_episode(case, make_policy("random"), seed=3, backend="mujoco")
-    strip = lambda r: [{k: v for k, v in s.to_record().items() if k != "wall_time_s"} for s in r.steps]
+    strip = lambda r: [
+        {k: v for k, v in s.to_record().items() if k != "wall_time_s"} for s in r.steps
+    ]
     assert strip(a) == strip(b)
     assert a.poses == b.poses
     assert a.metrics.overall == b.metrics.overall

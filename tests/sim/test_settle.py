@@ -29,8 +29,18 @@ def _toppling_slab_case() -> Case:
     Its plan (both at cell 0, 0) lets the oracle replay it through the bench's ``run_task``.
     """
     container = Container((150, 100, 200))
-    plan = (PlanStep(0, 0, 0, (0, 0, 0), (1, 4, 20), 0, 0, 0), PlanStep(1, 1, 1, (0, 0, 20), (4, 4, 10), 0, 0, 0))
-    return Case("topple", container, 1, (Box(0, (25, 100, 40)), Box(1, (100, 100, 20))), seed=0, gt_plan=plan)
+    plan = (
+        PlanStep(0, 0, 0, (0, 0, 0), (1, 4, 20), 0, 0, 0),
+        PlanStep(1, 1, 1, (0, 0, 20), (4, 4, 10), 0, 0, 0),
+    )
+    return Case(
+        "topple",
+        container,
+        1,
+        (Box(0, (25, 100, 40)), Box(1, (100, 100, 20))),
+        seed=0,
+        gt_plan=plan,
+    )
 
 
 def _play(case: Case, physics: PhysicsConfig, actions) -> Episode:
@@ -57,7 +67,9 @@ def test_a_settle_longer_than_the_step_cap_finishes_in_the_final_settle_and_is_a
     assert last.settled is False  # the topple outlasted the 20-step placement cap ...
     assert max(last.max_linear_speed / 0.01, last.max_angular_speed / 0.05) >= 1.0
     record = last.to_record()
-    assert record["settled"] is False and record["max_linear_speed_mps"] == round(last.max_linear_speed, 6)
+    assert record["settled"] is False and record["max_linear_speed_mps"] == round(
+        last.max_linear_speed, 6
+    )
     m = ep.metrics()
     # ... and the final settle, under its own cap, ran until everything was still.
     assert m.at_rest is True and m.unsettled_steps == 1
@@ -87,7 +99,9 @@ def test_a_pile_that_cannot_settle_within_tiny_caps_is_flagged_and_counted():
     assert summary.counts["oracle"].max_residual_linear_mps == flagged.metrics.residual_linear_mps
     table = render_markdown(summary)
     assert "| unsettled steps | not at rest |" in table
-    oracle_row = [line for line in table.splitlines() if line.startswith("| Oracle")][-1]  # run details
+    oracle_row = [line for line in table.splitlines() if line.startswith("| Oracle")][
+        -1
+    ]  # run details
     assert f"| {flagged.metrics.unsettled_steps} | 1 |" in oracle_row
 
 
@@ -162,7 +176,9 @@ def test_vibration_in_place_is_rest_but_a_slow_steady_slide_is_not(monkeypatch):
     backend.reset(Container((200, 200, 200)), (Box(0, (100, 100, 50)),))
     backend.place(0, 0, (0, 0, 0))
     # Solver chatter: +-5 cm/s every other step, going nowhere. Velocity alone says "moving".
-    monkeypatch.setattr(mujoco, "mj_step", _scripted_steps(backend, lambda t: 0.05 if t % 2 else -0.05))
+    monkeypatch.setattr(
+        mujoco, "mj_step", _scripted_steps(backend, lambda t: 0.05 if t % 2 else -0.05)
+    )
     vibrating = backend.finish()
     assert vibrating.settled and vibrating.max_linear_speed < 0.01
     # A steady 2 cm/s slide is motion by both measures: the final settle runs into its cap.

@@ -27,8 +27,9 @@ MUST_MATCH = ("cases_sha256", "seeds", "backend", "difficulties")
 def load_summary(run_dir: str | os.PathLike[str]) -> RunSummary:
     path = Path(run_dir) / "summary.json"
     if not path.is_file():
-        raise PacklabError(f"{path}: no summary.json "
-                           f"(run packlab bench or packlab bench report first)")
+        raise PacklabError(
+            f"{path}: no summary.json (run packlab bench or packlab bench report first)"
+        )
     try:
         return summary_from_json(path.read_bytes(), str(path))
     except NotJSON as e:
@@ -68,10 +69,18 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
             table[row] = s.table[p]
             counts[row] = s.counts[p]
         errors += [msgspec.structs.replace(e, run=label) for e in s.errors]
-    return RunSummary(format=first.format, suite=first.suite, backend=first.backend,
-                      n_cases=first.n_cases, policies=tuple(policies), seeds=first.seeds,
-                      difficulties=first.difficulties, table=table, counts=counts,
-                      errors=tuple(errors))
+    return RunSummary(
+        format=first.format,
+        suite=first.suite,
+        backend=first.backend,
+        n_cases=first.n_cases,
+        policies=tuple(policies),
+        seeds=first.seeds,
+        difficulties=first.difficulties,
+        table=table,
+        counts=counts,
+        errors=tuple(errors),
+    )
 
 
 def _show(value: object) -> str:
@@ -79,8 +88,9 @@ def _show(value: object) -> str:
     return repr(list(value)) if isinstance(value, tuple) else repr(value)
 
 
-def compare_markdown(run_dirs: Sequence[str | os.PathLike[str]],
-                     labels: Sequence[str] | None = None) -> str:
+def compare_markdown(
+    run_dirs: Sequence[str | os.PathLike[str]], labels: Sequence[str] | None = None
+) -> str:
     """The comparison as Markdown, laid out as a run's table.md."""
     names = list(labels) if labels else [Path(d).name for d in run_dirs]
     return render_markdown(merge_summaries([load_summary(d) for d in run_dirs], names))

@@ -47,8 +47,17 @@ DEFAULT_MAX_TRANSPORT_FAILURES = 3
 #: Longest --episode-timeout / --deadline accepted (30 days): longer is a typo; 0 means none.
 MAX_TIME_LIMIT_S = 30 * 24 * 3600.0
 #: config.json keys that must agree for a run directory to be resumed.
-IDENTITY_KEYS = ("format", "suite", "cases_sha256", "policies", "policy_args", "seeds", "backend", "difficulties",
-                 "physics")
+IDENTITY_KEYS = (
+    "format",
+    "suite",
+    "cases_sha256",
+    "policies",
+    "policy_args",
+    "seeds",
+    "backend",
+    "difficulties",
+    "physics",
+)
 
 
 def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
@@ -81,7 +90,9 @@ def parse_names(text: str | None, flag: str) -> tuple[str, ...]:
         return ()
     names = _split(text)
     if not names:
-        raise ConfigError(f"{flag} = {text!r}: empty list; name at least one (or leave out --{flag} for the default)")
+        raise ConfigError(
+            f"{flag} = {text!r}: empty list; name at least one (or leave out --{flag} for the default)"
+        )
     return names
 
 
@@ -91,7 +102,9 @@ def _seed_value(text: str, whole: str) -> int:
     except ValueError:
         raise ConfigError(f"seeds = {whole!r}: expected integers like 0,1,2 or 0-2") from None
     if not 0 <= value <= MAX_SEED_VALUE:
-        raise ConfigError(f"seeds = {whole!r}: {value} is out of range; run seeds are 0..{MAX_SEED_VALUE}")
+        raise ConfigError(
+            f"seeds = {whole!r}: {value} is out of range; run seeds are 0..{MAX_SEED_VALUE}"
+        )
     return value
 
 
@@ -102,7 +115,9 @@ def _seed_part(part: str, whole: str) -> range:
         value = _seed_value(part, whole)
         return range(value, value + 1)
     if not lo_text.strip():  # "-3": a negative number, not a range
-        raise ConfigError(f"seeds = {whole!r}: {part!r} is negative; run seeds are 0..{MAX_SEED_VALUE}")
+        raise ConfigError(
+            f"seeds = {whole!r}: {part!r} is negative; run seeds are 0..{MAX_SEED_VALUE}"
+        )
     lo, hi = _seed_value(lo_text, whole), _seed_value(hi_text, whole)
     if hi < lo:
         raise ConfigError(f"seeds = {whole!r}: range {part!r} runs backwards; write {hi}-{lo}")
@@ -125,10 +140,16 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 def _check_time_limit(flag: str, value: float | None) -> None:
     if value is None:
         return
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0 < value <= MAX_TIME_LIMIT_S:
-        raise ConfigError(f"{flag} = {value!r}: must be a number of seconds in (0, {MAX_TIME_LIMIT_S:.0f}] "
-                          f"(0 on the command line means no limit)")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not 0 < value <= MAX_TIME_LIMIT_S
+    ):
+        raise ConfigError(
+            f"{flag} = {value!r}: must be a number of seconds in (0, {MAX_TIME_LIMIT_S:.0f}] "
+            f"(0 on the command line means no limit)"
+        )
 
 
 def time_limit_arg(value: float | None) -> float | None:
@@ -179,28 +200,40 @@ class RunConfig:
         require_choice(self.backend, PhysicsBackend, "backend")
         require_choice(self.executor, Executor, "executor")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
-            raise ConfigError(f"workers = {self.workers!r}: must be a whole number >= 0 (0 = all cores)")
+            raise ConfigError(
+                f"workers = {self.workers!r}: must be a whole number >= 0 (0 = all cores)"
+            )
         if self.workers > MAX_WORKERS:
             raise ConfigError(f"workers = {self.workers}: at most {MAX_WORKERS}")
         _check_time_limit("episode-timeout", self.episode_timeout_s)
         _check_time_limit("deadline", self.deadline_s)
         n = self.max_transport_failures
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-            raise ConfigError(f"max-transport-failures = {n!r}: must be a whole number >= 0 (0 = never stop)")
+            raise ConfigError(
+                f"max-transport-failures = {n!r}: must be a whole number >= 0 (0 = never stop)"
+            )
         if len(set(self.policies)) != len(self.policies):
             raise ConfigError(f"policies = {','.join(self.policies)}: a policy is repeated")
         if self.policies:
             known = available_policies()
             for name in self.policies:
                 if name not in known:
-                    raise ConfigError(f"policies: {name!r} is not a registered policy; available: {', '.join(known)}")
+                    raise ConfigError(
+                        f"policies: {name!r} is not a registered policy; available: {', '.join(known)}"
+                    )
         if len(set(self.difficulties)) != len(self.difficulties):
-            raise ConfigError(f"difficulty = {','.join(self.difficulties)}: a difficulty is repeated")
+            raise ConfigError(
+                f"difficulty = {','.join(self.difficulties)}: a difficulty is repeated"
+            )
         for name, key, _ in self.policy_args:
             if self.policies and name not in self.policies:
-                raise ConfigError(f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run")
+                raise ConfigError(
+                    f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run"
+                )
         if self.physics_overrides and self.backend != "mujoco":
-            raise ConfigError(f"physics = {dict(self.physics_overrides)!r}: only the mujoco backend has physics settings")
+            raise ConfigError(
+                f"physics = {dict(self.physics_overrides)!r}: only the mujoco backend has physics settings"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,10 +263,13 @@ class ResolvedRun:
             "backend": self.config.backend,
             "difficulties": list(self.difficulties),
             "physics": self.physics,
-            "execution": {"workers": self.workers, "executor": self.config.executor,
-                          "episode_timeout_s": self.config.episode_timeout_s,
-                          "max_transport_failures": self.config.max_transport_failures,
-                          "deadline_s": self.config.deadline_s},
+            "execution": {
+                "workers": self.workers,
+                "executor": self.config.executor,
+                "episode_timeout_s": self.config.episode_timeout_s,
+                "max_transport_failures": self.config.max_transport_failures,
+                "deadline_s": self.config.deadline_s,
+            },
         }
 
     def policy_kwargs(self) -> dict[str, dict[str, Any]]:
@@ -253,7 +289,9 @@ def physics_from_json(fields: dict[str, Any] | None) -> Any:
     if not fields:
         return None
     try:
-        return PhysicsConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+        return PhysicsConfig(
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+        )
     except TypeError as exc:  # a field this version of the engine does not know
         raise ConfigError(f"config.json: field 'physics' = {fields!r}: {exc}") from None
 
@@ -289,18 +327,24 @@ def parse_policy_args(items: list[str] | tuple[str, ...]) -> tuple[tuple[str, st
         name, sep, rest = item.partition(":")
         key, sep2, text = rest.partition("=")
         if not (sep and sep2 and name.strip() and key.strip()):
-            raise ConfigError(f"policy-arg = {item!r}: expected POLICY:KEY=VALUE, e.g. vlm:model=runs/sft/final")
+            raise ConfigError(
+                f"policy-arg = {item!r}: expected POLICY:KEY=VALUE, e.g. vlm:model=runs/sft/final"
+            )
         out.append((name.strip(), key.strip(), _typed(text)))
     return tuple(out)
 
 
-def _physics_fields(backend: str, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any] | None:
+def _physics_fields(
+    backend: str, overrides: tuple[tuple[str, Any], ...] = ()
+) -> dict[str, Any] | None:
     if backend != "mujoco":
         return None
     known = {f.name for f in dataclasses.fields(PhysicsConfig)}
     for key, _ in overrides:
         if key not in known:
-            raise ConfigError(f"physics: {key!r} is not a PhysicsConfig field; known: {', '.join(sorted(known))}")
+            raise ConfigError(
+                f"physics: {key!r} is not a PhysicsConfig field; known: {', '.join(sorted(known))}"
+            )
     try:
         cfg = PhysicsConfig(**dict(overrides))
     except TypeError as exc:
@@ -316,7 +360,9 @@ def resolve(config: RunConfig) -> ResolvedRun:
     if config.difficulties:
         for d in config.difficulties:
             if d not in present:
-                raise ConfigError(f"difficulty = {d!r}: no such cases in {source.label}; present: {', '.join(present)}")
+                raise ConfigError(
+                    f"difficulty = {d!r}: no such cases in {source.label}; present: {', '.join(present)}"
+                )
         difficulties = tuple(d for d in present if d in config.difficulties)
     else:
         difficulties = tuple(present)
@@ -324,27 +370,41 @@ def resolve(config: RunConfig) -> ResolvedRun:
     policies = config.policies or default_policies(cases)
     for name, key, _ in config.policy_args:
         if name not in policies:
-            raise ConfigError(f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run "
-                              f"({', '.join(policies)})")
+            raise ConfigError(
+                f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run "
+                f"({', '.join(policies)})"
+            )
     out = Path(config.out) if config.out else Path("runs") / f"bench-{source.label}"
     check_out_dir(out)
     workers = config.workers or local_cores()
-    return ResolvedRun(config, source, cases, tuple(policies), difficulties, out, workers,
-                       _physics_fields(config.backend, config.physics_overrides))
+    return ResolvedRun(
+        config,
+        source,
+        cases,
+        tuple(policies),
+        difficulties,
+        out,
+        workers,
+        _physics_fields(config.backend, config.physics_overrides),
+    )
 
 
 def check_out_dir(out: Path) -> None:
     """ConfigError unless ``out`` is a directory or can be created as one (checked before
     anything is written, so a bad --out leaves no half-made run behind)."""
     if out.exists() and not out.is_dir():
-        raise ConfigError(f"out = {str(out)!r}: exists and is not a directory; give a directory "
-                          f"(an existing run directory is resumed)")
+        raise ConfigError(
+            f"out = {str(out)!r}: exists and is not a directory; give a directory "
+            f"(an existing run directory is resumed)"
+        )
     for parent in out.parents:
         if parent.exists():
             if not parent.is_dir():
                 raise ConfigError(f"out = {str(out)!r}: {str(parent)!r} is a file, not a directory")
             if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
-                raise ConfigError(f"out = {str(out)!r}: cannot create it, {str(parent)!r} is not writable")
+                raise ConfigError(
+                    f"out = {str(out)!r}: cannot create it, {str(parent)!r} is not writable"
+                )
             return
 
 
@@ -356,8 +416,11 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
             continue
         if isinstance(old, dict) and isinstance(new, dict):
             # Name the differing entries, not two whole dicts (physics has ~20 fields).
-            diffs = [f"'{key}.{k}' = {old.get(k, '<absent>')!r} here, {new.get(k, '<absent>')!r} now"
-                     for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+            diffs = [
+                f"'{key}.{k}' = {old.get(k, '<absent>')!r} here, {new.get(k, '<absent>')!r} now"
+                for k in sorted(set(old) | set(new))
+                if old.get(k) != new.get(k)
+            ]
             what = "; ".join(diffs[:3]) + (f"; and {len(diffs) - 3} more" if len(diffs) > 3 else "")
         else:
             what = f"'{key}' = {old!r} here, {new!r} now"

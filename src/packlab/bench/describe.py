@@ -37,7 +37,11 @@ class Range:
         return Range(min(values), sum(values) / len(values), max(values))
 
     def text(self, digits: int = 1) -> str:
-        fmt = (lambda v: f"{v:g}") if digits == 0 else (lambda v: f"{v:.{digits}f}".rstrip("0").rstrip("."))
+        fmt = (
+            (lambda v: f"{v:g}")
+            if digits == 0
+            else (lambda v: f"{v:.{digits}f}".rstrip("0").rstrip("."))
+        )
         return f"{fmt(self.low)}-{fmt(self.high)} (mean {self.mean:.{max(digits, 1)}f})"
 
 
@@ -59,9 +63,13 @@ class GroupStats:
             return None if x is None else {"min": x.low, "mean": x.mean, "max": x.high}
 
         return {
-            "cases": self.n_cases, "buffer_sizes": list(self.buffer_sizes), "objects": r(self.objects),
-            "layers": r(self.layers), "steps": self.steps,
-            "container_cm": [list(c) for c in self.container_cm], "fill_ratio": r(self.fill_ratio),
+            "cases": self.n_cases,
+            "buffer_sizes": list(self.buffer_sizes),
+            "objects": r(self.objects),
+            "layers": r(self.layers),
+            "steps": self.steps,
+            "container_cm": [list(c) for c in self.container_cm],
+            "fill_ratio": r(self.fill_ratio),
         }
 
 
@@ -115,4 +123,11 @@ def format_description(label: str, stats: Sequence[GroupStats]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["GroupStats", "Range", "describe_cases", "difficulty_order", "format_description", "group_stats"]
+__all__ = [
+    "GroupStats",
+    "Range",
+    "describe_cases",
+    "difficulty_order",
+    "format_description",
+    "group_stats",
+]

@@ -37,10 +37,14 @@ class Replay:
 def replay_record(case: Case, record: EpisodeRecord, physics: Any = None) -> Replay:
     """Step a record's actions through a fresh episode on the record's backend."""
     if not isinstance(record, EpisodeOk):
-        raise ConfigError(f"record {record.case_id}/{record.policy}/seed {record.seed}: "
-                          f"status {record.status!r} has no actions to replay")
+        raise ConfigError(
+            f"record {record.case_id}/{record.policy}/seed {record.seed}: "
+            f"status {record.status!r} has no actions to replay"
+        )
     if record.case_id != case.episode_id:
-        raise ConfigError(f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}")
+        raise ConfigError(
+            f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}"
+        )
     episode = Episode(record.backend, physics)
     episode.reset(case, record.seed)
     heightmaps, same_objects = [], True
@@ -50,9 +54,17 @@ def replay_record(case: Case, record: EpisodeRecord, physics: Any = None) -> Rep
         same_objects &= result.internal_id == step.internal_id and result.valid == step.valid
     m = episode.metrics()
     rec = record.metrics
-    same_scores = all(abs(getattr(m, k) - float(getattr(rec, k))) <= 1e-6
-                      for k in ("overall", "success_ratio", "compactness"))
-    return Replay(tuple(heightmaps), m.overall, m.success_ratio, m.compactness, bool(same_objects and same_scores))
+    same_scores = all(
+        abs(getattr(m, k) - float(getattr(rec, k))) <= 1e-6
+        for k in ("overall", "success_ratio", "compactness")
+    )
+    return Replay(
+        tuple(heightmaps),
+        m.overall,
+        m.success_ratio,
+        m.compactness,
+        bool(same_objects and same_scores),
+    )
 
 
 __all__ = ["Replay", "action_from_record", "replay_record"]

@@ -72,8 +72,9 @@ def config_head(config: RunConfigHead | Mapping[str, object]) -> RunConfigHead:
     return convert(dict(config), RunConfigHead, CONFIG_FILE)
 
 
-def summary_of(config: RunConfigHead | Mapping[str, object],
-               records: Sequence[EpisodeRecord]) -> RunSummary:
+def summary_of(
+    config: RunConfigHead | Mapping[str, object], records: Sequence[EpisodeRecord]
+) -> RunSummary:
     """The run's summary with the configuration's order of methods, seeds and difficulties."""
     head = config_head(config)
     return summarize(records, head.policies, head.seeds, head.difficulties, meta=head)
@@ -102,8 +103,11 @@ def pick_showcase_case(summary: RunSummary, cases: Sequence[Case]) -> str | None
     for case in cases:
         if case.difficulty != level:
             continue
-        vals = [summary.per_case[p][case.episode_id].overall.mean for p in summary.policies
-                if p != "oracle" and case.episode_id in summary.per_case.get(p, {})]
+        vals = [
+            summary.per_case[p][case.episode_id].overall.mean
+            for p in summary.policies
+            if p != "oracle" and case.episode_id in summary.per_case.get(p, {})
+        ]
         vals = [v for v in vals if v is not None]
         if vals:
             scored.append((sum(vals) / len(vals), case.episode_id))
@@ -113,20 +117,30 @@ def pick_showcase_case(summary: RunSummary, cases: Sequence[Case]) -> str | None
     return scored[len(scored) // 2][1]
 
 
-def write_figures(run_dir: Path, summary: RunSummary, records: Sequence[EpisodeRecord],
-                  cases: Sequence[Case], case_id: str | None = None,
-                  seed: int | None = None) -> list[Path]:
+def write_figures(
+    run_dir: Path,
+    summary: RunSummary,
+    records: Sequence[EpisodeRecord],
+    cases: Sequence[Case],
+    case_id: str | None = None,
+    seed: int | None = None,
+) -> list[Path]:
     """The distribution box plot, the average bar chart and one case's side-by-side packings."""
-    paths = [save_figure(overall_distribution_figure(summary), run_dir / FIGURE_BOX),
-             save_figure(average_overall_figure(summary), run_dir / FIGURE_BARS)]
+    paths = [
+        save_figure(overall_distribution_figure(summary), run_dir / FIGURE_BOX),
+        save_figure(average_overall_figure(summary), run_dir / FIGURE_BARS),
+    ]
     case_id = case_id or pick_showcase_case(summary, cases)
     by_id = {c.episode_id: c for c in cases}
     if case_id is not None:
         if case_id not in by_id:
             raise ConfigError(f"case = {case_id!r}: not in this run's {CASES_FILE}")
         seed = summary.seeds[0] if seed is None else seed
-        chosen = {r.policy: r for r in records
-                  if isinstance(r, EpisodeOk) and r.case_id == case_id and r.seed == seed}
+        chosen = {
+            r.policy: r
+            for r in records
+            if isinstance(r, EpisodeOk) and r.case_id == case_id and r.seed == seed
+        }
         entries = [(p, chosen[p]) for p in summary.policies if p in chosen]
         if entries:
             fig = packing_comparison_figure(by_id[case_id], entries, seed)
@@ -134,10 +148,15 @@ def write_figures(run_dir: Path, summary: RunSummary, records: Sequence[EpisodeR
     return paths
 
 
-def write_outputs(run_dir: str | os.PathLike[str], config: RunConfigHead | Mapping[str, object],
-                  records: Sequence[EpisodeRecord], cases: Sequence[Case], figures: bool = True,
-                  case_id: str | None = None,
-                  seed: int | None = None) -> tuple[RunSummary, str, list[Path]]:
+def write_outputs(
+    run_dir: str | os.PathLike[str],
+    config: RunConfigHead | Mapping[str, object],
+    records: Sequence[EpisodeRecord],
+    cases: Sequence[Case],
+    figures: bool = True,
+    case_id: str | None = None,
+    seed: int | None = None,
+) -> tuple[RunSummary, str, list[Path]]:
     """Write summary.json, table.md and (optionally) the figures; return (summary, table, paths)."""
     root = Path(run_dir)
     summary = summary_of(config, records)
@@ -150,17 +169,31 @@ def write_outputs(run_dir: str | os.PathLike[str], config: RunConfigHead | Mappi
     return summary, table_md, paths
 
 
-def build_report(run_dir: str | os.PathLike[str], figures: bool = True, case_id: str | None = None,
-                 seed: int | None = None) -> tuple[RunSummary, str, list[Path]]:
+def build_report(
+    run_dir: str | os.PathLike[str],
+    figures: bool = True,
+    case_id: str | None = None,
+    seed: int | None = None,
+) -> tuple[RunSummary, str, list[Path]]:
     """Rebuild summary, table and figures of a run directory from its files."""
     run = load_run(run_dir)
     if not run.records:
         raise ConfigError(f"{run.run_dir / EPISODES_FILE}: no records; nothing to report")
     if seed is not None and seed not in run.config.seeds:
-        raise ConfigError(f"seed = {seed!r}: not a seed of this run "
-                          f"(seeds {list(run.config.seeds)})")
+        raise ConfigError(
+            f"seed = {seed!r}: not a seed of this run (seeds {list(run.config.seeds)})"
+        )
     return write_outputs(run.run_dir, run.config, run.records, run.cases, figures, case_id, seed)
 
 
-__all__ = ["RunFiles", "build_report", "config_head", "load_run", "pick_showcase_case",
-           "summary_json", "summary_of", "write_figures", "write_outputs"]
+__all__ = [
+    "RunFiles",
+    "build_report",
+    "config_head",
+    "load_run",
+    "pick_showcase_case",
+    "summary_json",
+    "summary_of",
+    "write_figures",
+    "write_outputs",
+]

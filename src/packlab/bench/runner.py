@@ -93,25 +93,41 @@ class EpisodeWork:
 
     def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
         # ctx.deadline is set only in this process: there the episode's alarm is the only stop.
-        return run_task(self.cases[task.case_index], task.policy, task.seed, self.backend,
-                        self.physics, self.policy_kwargs.get(task.policy), timeout_s=self.timeout_s,
-                        deadline=ctx.deadline)
+        return run_task(
+            self.cases[task.case_index],
+            task.policy,
+            task.seed,
+            self.backend,
+            self.physics,
+            self.policy_kwargs.get(task.policy),
+            timeout_s=self.timeout_s,
+            deadline=ctx.deadline,
+        )
 
     def lost(self, task: Task, lost: Lost) -> EpisodeError:
         """The error record of an episode whose worker died or was killed (silent too long)."""
         if lost.kind == "overdue":
             kind = "timeout"
-            message = (f"EpisodeTimeout: no result {lost.elapsed_s:.0f} s after the start, past "
-                       f"the {self.timeout_s:g} s limit (--episode-timeout) and the alarm; worker "
-                       f"process killed")
+            message = (
+                f"EpisodeTimeout: no result {lost.elapsed_s:.0f} s after the start, past "
+                f"the {self.timeout_s:g} s limit (--episode-timeout) and the alarm; worker "
+                f"process killed"
+            )
         elif lost.executor == "ray":
             kind, message = "exception", lost.detail
         else:
             kind = "exception"
             message = f"WorkerDied: the worker process running this episode died ({lost.detail})"
         timing = Timing() if lost.elapsed_s is None else Timing(episode_s=round(lost.elapsed_s, 6))
-        return error_record(self.cases[task.case_index], task.policy, task.seed, self.backend, kind,
-                            message, timing=timing)
+        return error_record(
+            self.cases[task.case_index],
+            task.policy,
+            task.seed,
+            self.backend,
+            kind,
+            message,
+            timing=timing,
+        )
 
 
 def is_timeout(record: EpisodeRecord) -> bool:
@@ -121,15 +137,28 @@ def is_timeout(record: EpisodeRecord) -> bool:
     return error_kind(record) == "timeout"
 
 
-def execute(run: ResolvedRun, tasks: list[Task],
-            deadline: float | None = None) -> Results[EpisodeRecord]:
+def execute(
+    run: ResolvedRun, tasks: list[Task], deadline: float | None = None
+) -> Results[EpisodeRecord]:
     """Records of ``tasks`` as they finish, on the run's executor and workers."""
     config = run.config
-    work = EpisodeWork(run.cases, config.backend, run.physics_config(), run.policy_kwargs(),
-                       config.episode_timeout_s)
-    return run_items(work, tasks, executor=config.executor, workers=run.workers,
-                     timeout_s=config.episode_timeout_s, deadline=deadline, on_lost=work.lost,
-                     recycle=is_timeout)
+    work = EpisodeWork(
+        run.cases,
+        config.backend,
+        run.physics_config(),
+        run.policy_kwargs(),
+        config.episode_timeout_s,
+    )
+    return run_items(
+        work,
+        tasks,
+        executor=config.executor,
+        workers=run.workers,
+        timeout_s=config.episode_timeout_s,
+        deadline=deadline,
+        on_lost=work.lost,
+        recycle=is_timeout,
+    )
 
 
 def longest_first(tasks: list[Task], run: ResolvedRun) -> list[Task]:
@@ -148,10 +177,14 @@ def _check_or_write_config(run: ResolvedRun) -> None:
         try:
             saved = json.loads(path.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
-            raise ConfigError(f"{path}: unreadable ({exc.msg}); not a bench run directory?") from None
+            raise ConfigError(
+                f"{path}: unreadable ({exc.msg}); not a bench run directory?"
+            ) from None
         check_resumable(saved, current, path)
     elif (run.out / EPISODES_FILE).exists():
-        raise ConfigError(f"{run.out}: has {EPISODES_FILE} but no {CONFIG_FILE}; cannot tell what it ran")
+        raise ConfigError(
+            f"{run.out}: has {EPISODES_FILE} but no {CONFIG_FILE}; cannot tell what it ran"
+        )
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(current, indent=1) + "\n", encoding="utf-8")
     tmp.replace(path)
@@ -166,22 +199,30 @@ def prepare_run_dir(run: ResolvedRun) -> list[EpisodeRecord]:
     return [r for r in read_records(run.out / EPISODES_FILE) if record_key(r) in planned]
 
 
-def preflight_policies(names: tuple[str, ...], kwargs: dict[str, dict[str, Any]] | None = None) -> None:
+def preflight_policies(
+    names: tuple[str, ...], kwargs: dict[str, dict[str, Any]] | None = None
+) -> None:
     """Build each policy once here, so a policy that cannot even be created (missing extra,
     broken import) is one clear error now instead of a failed record for every episode."""
     for name in names:
         try:
             make_policy(name, **(kwargs or {}).get(name, {}))
         except Exception as exc:
-            raise ConfigError(f"policy = {name!r}: cannot be created ({type(exc).__name__}: {exc})") from exc
+            raise ConfigError(
+                f"policy = {name!r}: cannot be created ({type(exc).__name__}: {exc})"
+            ) from exc
 
 
-def _log_invocation(run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int,
-                    aborted: str = "") -> None:
+def _log_invocation(
+    run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int, aborted: str = ""
+) -> None:
     entry = {
         "started": datetime.fromtimestamp(started, UTC).isoformat(timespec="seconds"),
-        "wall_s": round(wall_s, 3), "ran": ran, "failed": failed,
-        "workers": run.workers, "executor": run.config.executor,
+        "wall_s": round(wall_s, 3),
+        "ran": ran,
+        "failed": failed,
+        "workers": run.workers,
+        "executor": run.config.executor,
     }
     if aborted:
         entry["aborted"] = aborted
@@ -222,9 +263,15 @@ class TransportBreaker:
 
     def reason(self) -> str:
         last = self.last
-        where = "" if last is None else f"last: {last.policy} on {last.case_id} seed {last.seed}: {last.error}"
-        return (f"stopped after {self.count} consecutive transport errors (--max-transport-failures {self.limit}); "
-                f"{where}")
+        where = (
+            ""
+            if last is None
+            else f"last: {last.policy} on {last.case_id} seed {last.seed}: {last.error}"
+        )
+        return (
+            f"stopped after {self.count} consecutive transport errors (--max-transport-failures {self.limit}); "
+            f"{where}"
+        )
 
 
 class RunLock:
@@ -245,8 +292,10 @@ class RunLock:
             self._fh.seek(0)
             holder = self._fh.read().strip() or "?"
             self._fh.close()
-            raise ConfigError(f"{self.path.parent}: another bench run (pid {holder}) is writing there; "
-                              f"wait for it or use another --out") from None
+            raise ConfigError(
+                f"{self.path.parent}: another bench run (pid {holder}) is writing there; "
+                f"wait for it or use another --out"
+            ) from None
         self._fh.seek(0)
         self._fh.truncate()
         self._fh.write(str(os.getpid()))
@@ -257,8 +306,12 @@ class RunLock:
         self._fh.close()  # closing releases the flock
 
 
-def run_bench(config: RunConfig, *, on_record: Callable[[EpisodeRecord], None] | None = None,
-              figures: bool = True) -> BenchOutcome:
+def run_bench(
+    config: RunConfig,
+    *,
+    on_record: Callable[[EpisodeRecord], None] | None = None,
+    figures: bool = True,
+) -> BenchOutcome:
     """Run (or resume) a bench configuration and write its records, summary, table and figures.
 
     ``on_record`` is called after each new record is safely written (tests use it to interrupt
@@ -273,8 +326,12 @@ def run_bench(config: RunConfig, *, on_record: Callable[[EpisodeRecord], None] |
         return _run_locked(run, on_record, figures, deadline)
 
 
-def _run_locked(run: ResolvedRun, on_record: Callable[[EpisodeRecord], None] | None,
-                figures: bool, deadline: float | None) -> BenchOutcome:
+def _run_locked(
+    run: ResolvedRun,
+    on_record: Callable[[EpisodeRecord], None] | None,
+    figures: bool,
+    deadline: float | None,
+) -> BenchOutcome:
     config = run.config
     # Every record of this configuration by key, as a report would read the file: a new record
     # replaces the old one of its key; old failures not rerun (yet) stay in the tables' counts.
@@ -316,11 +373,36 @@ def _run_locked(run: ResolvedRun, on_record: Callable[[EpisodeRecord], None] | N
             _log_invocation(run, started_wall, wall_s, ran, failed, aborted)
     wall_s = time.perf_counter() - started
     records = list(latest.values())
-    summary, table_md, outputs = write_outputs(run.out, run.to_json(), records, run.cases, figures=figures)
+    summary, table_md, outputs = write_outputs(
+        run.out, run.to_json(), records, run.cases, figures=figures
+    )
     errors = sum(1 for r in records if isinstance(r, EpisodeError))
-    return BenchOutcome(run.out, summary, table_md, len(planned), len(done_keys), ran, failed,
-                        wall_s, tuple(outputs), len(records), errors, aborted)
+    return BenchOutcome(
+        run.out,
+        summary,
+        table_md,
+        len(planned),
+        len(done_keys),
+        ran,
+        failed,
+        wall_s,
+        tuple(outputs),
+        len(records),
+        errors,
+        aborted,
+    )
 
 
-__all__ = ["BenchOutcome", "EpisodeWork", "RunLock", "TransportBreaker", "execute", "is_timeout",
-           "longest_first", "needs_rerun", "prepare_run_dir", "run_bench", "task_keys"]
+__all__ = [
+    "BenchOutcome",
+    "EpisodeWork",
+    "RunLock",
+    "TransportBreaker",
+    "execute",
+    "is_timeout",
+    "longest_first",
+    "needs_rerun",
+    "prepare_run_dir",
+    "run_bench",
+    "task_keys",
+]

@@ -46,7 +46,9 @@ class SuiteSpec:
 
     def __post_init__(self) -> None:
         if not self.counts or any(n < 1 for _, n in self.counts):
-            raise ConfigError(f"suite {self.name!r}: counts = {self.counts!r}: need at least one case per difficulty")
+            raise ConfigError(
+                f"suite {self.name!r}: counts = {self.counts!r}: need at least one case per difficulty"
+            )
 
     @property
     def n_cases(self) -> int:
@@ -95,7 +97,9 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
 def read_checksum(path: Path, expected_name: str) -> str:
     """The digest recorded in a ``sha256sum``-format file for ``expected_name``."""
     if not path.is_file():
-        raise SuiteIntegrityError(f"{path}: checksum file missing; a suite without one cannot be verified")
+        raise SuiteIntegrityError(
+            f"{path}: checksum file missing; a suite without one cannot be verified"
+        )
     for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         parts = line.split()
         if len(parts) == 2 and parts[1].lstrip("*") == expected_name:
@@ -127,10 +131,14 @@ def _check_counts(spec: SuiteSpec, cases: Sequence[Case], source: Path) -> None:
     have = Counter(c.difficulty for c in cases)
     want = dict(spec.counts)
     if dict(have) != want:
-        raise SuiteIntegrityError(f"{source}: cases per difficulty {dict(have)} differ from the spec {want}")
+        raise SuiteIntegrityError(
+            f"{source}: cases per difficulty {dict(have)} differ from the spec {want}"
+        )
 
 
-def load_suite(name: str = DEFAULT_SUITE, directory: str | os.PathLike[str] | None = None) -> list[Case]:
+def load_suite(
+    name: str = DEFAULT_SUITE, directory: str | os.PathLike[str] | None = None
+) -> list[Case]:
     """The verified cases of a registered suite (``SuiteIntegrityError`` if the file changed)."""
     spec = suite_spec(name)
     cases_path, checksum_path = suite_files(name, directory)
@@ -156,7 +164,9 @@ def build_suite(spec: SuiteSpec, progress: bool = False) -> list[Case]:
     return cases
 
 
-def write_suite(spec: SuiteSpec, cases: Sequence[Case], directory: str | os.PathLike[str]) -> tuple[Path, str]:
+def write_suite(
+    spec: SuiteSpec, cases: Sequence[Case], directory: str | os.PathLike[str]
+) -> tuple[Path, str]:
     """Write ``NAME.jsonl`` and ``NAME.sha256`` into ``directory``; returns (case file, digest)."""
     cases_path, checksum_path = suite_files(spec.name, directory)
     _check_counts(spec, cases, cases_path)
@@ -193,12 +203,16 @@ def resolve_cases(cases: str | None = None) -> CaseSource:
         return CaseSource(name, f"suite:{name}", suite_digest(name), tuple(loaded))
     path = Path(cases)
     if not path.exists():
-        raise ConfigError(f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing "
-                          f"file or directory")
+        raise ConfigError(
+            f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing "
+            f"file or directory"
+        )
     loaded = load_cases(path)
     if not loaded:
         raise ConfigError(f"cases = {cases!r}: the file holds no cases")
-    return CaseSource(path.stem or path.resolve().name, str(path), cases_sha256(loaded), tuple(loaded))
+    return CaseSource(
+        path.stem or path.resolve().name, str(path), cases_sha256(loaded), tuple(loaded)
+    )
 
 
 __all__ = [

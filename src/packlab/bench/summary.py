@@ -47,8 +47,9 @@ from packlab.core.records import (
 )
 from packlab.metrics import AVERAGE, METRICS
 
-AGGREGATION = ("per-seed mean over cases (average: mean of difficulties); "
-               "mean and sample std over seeds")
+AGGREGATION = (
+    "per-seed mean over cases (average: mean of difficulties); mean and sample std over seeds"
+)
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -96,17 +97,22 @@ def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
         unsettled_steps=sum(r.metrics.unsettled_steps for r in mine),
         not_at_rest=sum(1 for r in mine if r.metrics.at_rest is False),
         max_residual_linear_mps=max((r.metrics.residual_linear_mps for r in mine), default=0.0),
-        max_residual_angular_radps=max((r.metrics.residual_angular_radps for r in mine),
-                                       default=0.0),
+        max_residual_angular_radps=max(
+            (r.metrics.residual_angular_radps for r in mine), default=0.0
+        ),
         decision_ms=1000.0 * policy_s / decisions if decisions else None,
         step_ms=1000.0 * env_s / decisions if decisions else None,
         episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
     )
 
 
-def summarize(records: Iterable[EpisodeRecord], policies: Sequence[str] | None = None,
-              seeds: Sequence[int] | None = None, difficulties: Sequence[str] | None = None,
-              meta: RunConfigHead | None = None) -> RunSummary:
+def summarize(
+    records: Iterable[EpisodeRecord],
+    policies: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    difficulties: Sequence[str] | None = None,
+    meta: RunConfigHead | None = None,
+) -> RunSummary:
     """The summary of a run's records; see the module docstring for the rules.
 
     ``policies`` / ``seeds`` / ``difficulties`` fix the order (and selection) of rows and
@@ -122,17 +128,20 @@ def summarize(records: Iterable[EpisodeRecord], policies: Sequence[str] | None =
         difficulties = difficulty_order([r.difficulty for r in recs])
     policies, seeds, difficulties = list(policies), [int(s) for s in seeds], list(difficulties)
     wanted = set(policies)
-    recs = [r for r in recs
-            if r.policy in wanted and r.seed in seeds and r.difficulty in difficulties]
+    recs = [
+        r for r in recs if r.policy in wanted and r.seed in seeds and r.difficulty in difficulties
+    ]
     ok = [r for r in recs if isinstance(r, EpisodeOk)]
     errors = [r for r in recs if isinstance(r, EpisodeError)]
 
     # metric value by (policy, difficulty, case, seed)
     value: dict[tuple[str, str], dict[str, dict[int, dict[str, float]]]] = defaultdict(
-        lambda: defaultdict(dict))
+        lambda: defaultdict(dict)
+    )
     for r in ok:
         value[(r.policy, r.difficulty)][r.case_id][r.seed] = {
-            m: float(getattr(r.metrics, m)) for m in METRICS}
+            m: float(getattr(r.metrics, m)) for m in METRICS
+        }
 
     table: dict[str, dict[str, MetricCells]] = {}
     per_case: dict[str, dict[str, CaseCells]] = {}
@@ -150,8 +159,9 @@ def summarize(records: Iterable[EpisodeRecord], policies: Sequence[str] | None =
                         by_group[d][m][str(s)] = _mean(scores)
             for c in sorted(cases):
                 seeds_of_case = [s for s in seeds if s in cases[c]]
-                per_case[p][c] = CaseCells(d, *(
-                    _cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS))
+                per_case[p][c] = CaseCells(
+                    d, *(_cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS)
+                )
         by_group[AVERAGE] = {}
         for m in METRICS:
             by_group[AVERAGE][m] = {}
@@ -162,10 +172,20 @@ def summarize(records: Iterable[EpisodeRecord], policies: Sequence[str] | None =
         for g, metrics in by_group.items():
             table[p][g] = _metric_cells(metrics)
 
-    counts = {p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))
-              for p in policies}
-    run = {} if meta is None else {"suite": meta.suite, "backend": meta.backend,
-                                   "n_cases": meta.n_cases, "cases_sha256": meta.cases_sha256}
+    counts = {
+        p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))
+        for p in policies
+    }
+    run = (
+        {}
+        if meta is None
+        else {
+            "suite": meta.suite,
+            "backend": meta.backend,
+            "n_cases": meta.n_cases,
+            "cases_sha256": meta.cases_sha256,
+        }
+    )
     return RunSummary(
         format=SUMMARY_FORMAT,
         **run,

@@ -48,8 +48,18 @@ def details_table(summary: RunSummary) -> str:
     before these counts existed show their ``capped_placements`` (migrated to
     ``unsettled_steps``) and ``-``.
     """
-    header = ["Method", "episodes", "errors", "invalid steps", "set aside", "unsettled steps",
-              "not at rest", "ms / decision", "ms / env step", "s / episode"]
+    header = [
+        "Method",
+        "episodes",
+        "errors",
+        "invalid steps",
+        "set aside",
+        "unsettled steps",
+        "not at rest",
+        "ms / decision",
+        "ms / env step",
+        "s / episode",
+    ]
     lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
 
     def num(v: float | None, fmt: str) -> str:
@@ -57,10 +67,22 @@ def details_table(summary: RunSummary) -> str:
 
     for p in summary.policies:
         c = summary.counts[p]
-        lines.append(_row([display_name(p), str(c.episodes), str(c.errors), str(c.invalid_steps),
-                           str(c.set_aside), num(c.unsettled_steps, "d"), num(c.not_at_rest, "d"),
-                           num(c.decision_ms, ".2f"), num(c.step_ms, ".2f"),
-                           num(c.episode_s, ".3f")]))
+        lines.append(
+            _row(
+                [
+                    display_name(p),
+                    str(c.episodes),
+                    str(c.errors),
+                    str(c.invalid_steps),
+                    str(c.set_aside),
+                    num(c.unsettled_steps, "d"),
+                    num(c.not_at_rest, "d"),
+                    num(c.decision_ms, ".2f"),
+                    num(c.step_ms, ".2f"),
+                    num(c.episode_s, ".3f"),
+                ]
+            )
+        )
     return "\n".join(lines)
 
 
@@ -71,8 +93,10 @@ def headline(summary: RunSummary) -> str:
     # An absent suite or backend reads as a default; a null one prints as None (as it always has).
     suite = "bench" if summary.suite is UNSET else summary.suite
     backend = "?" if summary.backend is UNSET else summary.backend
-    return (f"{suite}: backend {backend}, seeds {seeds}{cases}; "
-            f"mean over seeds ± sample std across seeds")
+    return (
+        f"{suite}: backend {backend}, seeds {seeds}{cases}; "
+        f"mean over seeds ± sample std across seeds"
+    )
 
 
 def render_markdown(summary: RunSummary) -> str:
@@ -80,8 +104,13 @@ def render_markdown(summary: RunSummary) -> str:
     parts = [f"## {headline(summary)}", "", results_table(summary), ""]
     if summary.errors:
         n = len(summary.errors)
-        parts += [(f"\\* {n} episode(s) failed and are left out of the means; "
-                   "see summary.json 'errors' and the tracebacks in episodes.jsonl."), ""]
+        parts += [
+            (
+                f"\\* {n} episode(s) failed and are left out of the means; "
+                "see summary.json 'errors' and the tracebacks in episodes.jsonl."
+            ),
+            "",
+        ]
     parts += ["### Run details", "", details_table(summary), ""]
     return "\n".join(parts)
 

@@ -123,17 +123,38 @@ def one_line(exc: BaseException) -> str:
     return text[:500]
 
 
-def error_record(case: Case, policy: str, seed: int, backend: str, kind: ErrorKind, message: str,
-                 trace: str = "", timing: Timing | None = None) -> EpisodeError:
+def error_record(
+    case: Case,
+    policy: str,
+    seed: int,
+    backend: str,
+    kind: ErrorKind,
+    message: str,
+    trace: str = "",
+    timing: Timing | None = None,
+) -> EpisodeError:
     """A failed episode's record (also built by the runner, e.g. for a worker that died)."""
     assert kind in ERROR_KINDS, kind
-    return EpisodeError(**_header(case, policy, seed, backend), error_kind=kind, error=message[:500],
-                        traceback=trace, timing=timing or Timing())
+    return EpisodeError(
+        **_header(case, policy, seed, backend),
+        error_kind=kind,
+        error=message[:500],
+        traceback=trace,
+        timing=timing or Timing(),
+    )
 
 
-def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = None,
-             policy_kwargs: dict[str, Any] | None = None, *, timeout_s: float | None = None,
-             deadline: float | None = None) -> EpisodeRecord:
+def run_task(
+    case: Case,
+    policy: str,
+    seed: int,
+    backend: str,
+    physics: Any = None,
+    policy_kwargs: dict[str, Any] | None = None,
+    *,
+    timeout_s: float | None = None,
+    deadline: float | None = None,
+) -> EpisodeRecord:
     """The record of one episode (``EpisodeOk``), or of its failure (``EpisodeError``).
 
     A fresh policy per episode (``make_policy(policy, **policy_kwargs)``), so no state leaks
@@ -147,31 +168,61 @@ def run_task(case: Case, policy: str, seed: int, backend: str, physics: Any = No
     record: EpisodeRecord
     try:
         with time_limit(timeout_s, deadline):
-            result = run_episode(case, make_policy(policy, **(policy_kwargs or {})), seed, backend=backend,
-                                 physics=physics)
+            result = run_episode(
+                case,
+                make_policy(policy, **(policy_kwargs or {})),
+                seed,
+                backend=backend,
+                physics=physics,
+            )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).
         body["policy"] = policy
         # Typed (and checked) here, from the one dict layout the engine writes.
-        record = convert({**head, **body, "timing": {}}, EpisodeOk,
-                         f"record of {case.episode_id}/{policy}/seed {seed}")
+        record = convert(
+            {**head, **body, "timing": {}},
+            EpisodeOk,
+            f"record of {case.episode_id}/{policy}/seed {seed}",
+        )
         step_s = sum(s.wall_time_s for s in result.steps)
-        timing = {"policy_s": round(result.policy_time_s, 6), "env_s": round(step_s, 6),
-                  "decisions": len(result.steps)}
+        timing = {
+            "policy_s": round(result.policy_time_s, 6),
+            "env_s": round(step_s, 6),
+            "decisions": len(result.steps),
+        }
     except _DeadlineAlarm:
         raise DeadlineReached("the run deadline (--deadline) was reached") from None
     except EpisodeTimeout as exc:
-        record = error_record(case, policy, seed, backend, "timeout", one_line(exc), traceback.format_exc())
+        record = error_record(
+            case, policy, seed, backend, "timeout", one_line(exc), traceback.format_exc()
+        )
         timing = {"timeout_s": timeout_s}
     except Exception as exc:  # noqa: BLE001 - any failure of a policy or engine is data here
         kind = "transport" if is_transport_error(exc) else "exception"
-        record = error_record(case, policy, seed, backend, kind, one_line(exc), traceback.format_exc())
+        record = error_record(
+            case, policy, seed, backend, kind, one_line(exc), traceback.format_exc()
+        )
     # cpu_s beside the wall time: on a shared machine the wall time also counts time spent
     # waiting for a core, the CPU time only the episode's own work.
-    return msgspec.structs.replace(record, timing=Timing(
-        episode_s=round(time.perf_counter() - started, 6), cpu_s=round(time.process_time() - started_cpu, 6),
-        **timing, pid=os.getpid()))
+    return msgspec.structs.replace(
+        record,
+        timing=Timing(
+            episode_s=round(time.perf_counter() - started, 6),
+            cpu_s=round(time.process_time() - started_cpu, 6),
+            **timing,
+            pid=os.getpid(),
+        ),
+    )
 
 
-__all__ = ["ERROR_KINDS", "DeadlineReached", "EpisodeTimeout", "Task", "error_record", "is_transport_error",
-           "one_line", "run_task", "time_limit"]
+__all__ = [
+    "ERROR_KINDS",
+    "DeadlineReached",
+    "EpisodeTimeout",
+    "Task",
+    "error_record",
+    "is_transport_error",
+    "one_line",
+    "run_task",
+    "time_limit",
+]

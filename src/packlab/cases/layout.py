@@ -20,8 +20,11 @@ REFERENCE_LEVEL_ORDER = choices(Difficulty)  # easy, medium, hard
 #: The per-level file inside a reference benchmark directory.
 REFERENCE_FILE = "test.parquet"
 #: What the reference's ``episode_to_eval_row`` puts beside ``extra_info`` in each row.
-REFERENCE_ROW_HEAD = {"data_source": "packing_eval", "prompt_template_id": "packing_sft",
-                      "ability": "spatial_packing"}
+REFERENCE_ROW_HEAD = {
+    "data_source": "packing_eval",
+    "prompt_template_id": "packing_sft",
+    "ability": "spatial_packing",
+}
 REFERENCE_SPLIT = "test"
 REFERENCE_MANIFEST = Path("metadata") / "manifest.json"
 #: A difficulty that can name a level directory: no separators, no leading dot.

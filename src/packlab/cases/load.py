@@ -48,22 +48,28 @@ def _check_unique_ids(cases: list[Case], source: str) -> None:
     seen: set[str] = set()
     for case in cases:
         if case.episode_id in seen:
-            raise CaseFormatError(source, None, "episode_id", case.episode_id,
-                                  "episode_id is not unique in the suite")
+            raise CaseFormatError(
+                source, None, "episode_id", case.episode_id, "episode_id is not unique in the suite"
+            )
         seen.add(case.episode_id)
 
 
 # -- JSON and JSONL -----------------------------------------------------------------------------
+
 
 def _decode(raw: bytes, source: str, line: int, offset: int) -> str:
     """UTF-8 text of one line; a clear error with the byte offset (in the file) otherwise."""
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        bad = raw[exc.start:exc.start + 4]
-        raise CaseFormatError(source, line, "<encoding>", bad,
-                              f"not UTF-8 (byte offset {offset + exc.start} in the file); "
-                              f"save the file as UTF-8") from None
+        bad = raw[exc.start : exc.start + 4]
+        raise CaseFormatError(
+            source,
+            line,
+            "<encoding>",
+            bad,
+            f"not UTF-8 (byte offset {offset + exc.start} in the file); save the file as UTF-8",
+        ) from None
 
 
 def _parse_json(text: str, source: str, line: int | None) -> Any:
@@ -73,12 +79,14 @@ def _parse_json(text: str, source: str, line: int | None) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         where = line if line is not None else exc.lineno
-        raise CaseFormatError(source, where, "<json>", shorten(text.strip()[:60]),
-                              f"{what} ({exc.msg})") from None
+        raise CaseFormatError(
+            source, where, "<json>", shorten(text.strip()[:60]), f"{what} ({exc.msg})"
+        ) from None
     except (ValueError, RecursionError) as exc:  # an int past Python's digit limit; deep nesting
         problem = "nested too deeply" if isinstance(exc, RecursionError) else str(exc).split(";")[0]
-        raise CaseFormatError(source, line, "<json>", shorten(text.strip()[:60]),
-                              f"{what} ({problem})") from None
+        raise CaseFormatError(
+            source, line, "<json>", shorten(text.strip()[:60]), f"{what} ({problem})"
+        ) from None
 
 
 def _read_jsonl(path: Path, source: str, id_prefix: str) -> list[Case]:
@@ -94,8 +102,7 @@ def _read_jsonl(path: Path, source: str, id_prefix: str) -> list[Case]:
             if not text.strip():
                 continue
             record = _parse_json(text, source, lineno)
-            cases.append(case_from_dict(record, source, lineno,
-                                        default_id=f"{id_prefix}-{lineno}"))
+            cases.append(case_from_dict(record, source, lineno, default_id=f"{id_prefix}-{lineno}"))
     return cases
 
 
@@ -107,51 +114,78 @@ def _read_json(path: Path, source: str, id_prefix: str) -> list[Case]:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
-        raise CaseFormatError(source, line, "<encoding>", data[exc.start:exc.start + 4],
-                              f"not UTF-8 (byte offset {exc.start} in the file); "
-                              f"save the file as UTF-8") from None
+        raise CaseFormatError(
+            source,
+            line,
+            "<encoding>",
+            data[exc.start : exc.start + 4],
+            f"not UTF-8 (byte offset {exc.start} in the file); save the file as UTF-8",
+        ) from None
     records = _parse_json(text, source, None)
     records = records if isinstance(records, list) else [records]
     many = len(records) > 1
-    return [case_from_dict(rec, source, i + 1 if many else None,
-                           default_id=f"{id_prefix}-{i + 1 if many else 0}")
-            for i, rec in enumerate(records)]
+    return [
+        case_from_dict(
+            rec, source, i + 1 if many else None, default_id=f"{id_prefix}-{i + 1 if many else 0}"
+        )
+        for i, rec in enumerate(records)
+    ]
 
 
 # -- the reference's parquet files --------------------------------------------------------------
 
-def _read_parquet(path: Path, source: str, id_prefix: str,
-                  default_difficulty: str = "") -> list[Case]:
+
+def _read_parquet(
+    path: Path, source: str, id_prefix: str, default_difficulty: str = ""
+) -> list[Case]:
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as exc:
         reason = " ".join(str(exc).split())[:240]
-        raise CaseFormatError(source, None, "<parquet>", None,
-                              f"not a readable parquet file ({type(exc).__name__}: {reason}); "
-                              f"is it truncated, or not parquet at all?") from None
+        raise CaseFormatError(
+            source,
+            None,
+            "<parquet>",
+            None,
+            f"not a readable parquet file ({type(exc).__name__}: {reason}); "
+            f"is it truncated, or not parquet at all?",
+        ) from None
     if "extra_info" not in table.column_names:
-        raise CaseFormatError(source, None, "extra_info", None,
-                              f"parquet has no 'extra_info' column "
-                              f"(columns: {', '.join(table.column_names)}); "
-                              f"expected the reference benchmark layout")
+        raise CaseFormatError(
+            source,
+            None,
+            "extra_info",
+            None,
+            f"parquet has no 'extra_info' column "
+            f"(columns: {', '.join(table.column_names)}); "
+            f"expected the reference benchmark layout",
+        )
     cases = []
     for row, extra in enumerate(table.column("extra_info").to_pylist(), start=1):
         # Errors say "FILE (row N)": a parquet file has rows, not lines.
         where = f"{source} (row {row})"
         if extra is None:
             raise CaseFormatError(where, None, "extra_info", None, "missing required field")
-        cases.append(case_from_dict({"extra_info": extra}, where, None,
-                                    default_id=f"{id_prefix}-{row}",
-                                    default_difficulty=default_difficulty))
+        cases.append(
+            case_from_dict(
+                {"extra_info": extra},
+                where,
+                None,
+                default_id=f"{id_prefix}-{row}",
+                default_difficulty=default_difficulty,
+            )
+        )
     return cases
 
 
 def _read_reference_dir(path: Path) -> list[Case]:
     files = reference_level_files(path)
     if not files:
-        raise ConfigError(f"{path}: is a directory; pass a case file (.jsonl, .json or .parquet) "
-                          f"or a reference benchmark directory (<dir>/<difficulty>/"
-                          f"{REFERENCE_FILE}, e.g. easy/{REFERENCE_FILE})")
+        raise ConfigError(
+            f"{path}: is a directory; pass a case file (.jsonl, .json or .parquet) "
+            f"or a reference benchmark directory (<dir>/<difficulty>/"
+            f"{REFERENCE_FILE}, e.g. easy/{REFERENCE_FILE})"
+        )
     cases: list[Case] = []
     for level, file in files:
         # Rows without a sample_id are called <level>-<row>: every level's file is test.parquet.

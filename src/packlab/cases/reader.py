@@ -30,7 +30,7 @@ class Reader:
 
     def path(self, field: str) -> str:
         top = re.split(r"[.\[]", field, maxsplit=1)[0]
-        return self.aliases.get(top, top) + field[len(top):]
+        return self.aliases.get(top, top) + field[len(top) :]
 
     def fail(self, field: str, value: object, problem: str) -> CaseFormatError:
         return CaseFormatError(self.source, self.line, self.path(field), shorten(value), problem)
@@ -42,8 +42,7 @@ class Reader:
             raise self.fail(field, None, "missing required field")
         return record[key]
 
-    def mm(self, value: Any, field: str, *, multiple_of: int = 1,
-           max_mm: int | None = None) -> int:
+    def mm(self, value: Any, field: str, *, multiple_of: int = 1, max_mm: int | None = None) -> int:
         """A positive length in cm -> integer mm, on the grid and within ``max_mm``."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(field, value, "expected a number of centimetres")
@@ -66,8 +65,9 @@ class Reader:
             raise self.fail(field, value, f"not a multiple of the {multiple_of / 10:g} cm grid")
         return mm
 
-    def integer(self, value: Any, field: str, *, minimum: int | None = None,
-                bound: int = INT64_BOUND) -> int:
+    def integer(
+        self, value: Any, field: str, *, minimum: int | None = None, bound: int = INT64_BOUND
+    ) -> int:
         """An integer (or a float with no fraction) in ``[minimum or -bound, bound)``."""
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():

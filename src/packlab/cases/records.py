@@ -28,8 +28,14 @@ from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM, Case, Case
 _EXTRA_CASE_FIELDS = ("difficulty", "generator", "gt_plan")
 
 
-def case_from_dict(record: Mapping[str, Any], source: str = "<dict>", line: int | None = None, *,
-                   default_id: str | None = None, default_difficulty: str = "") -> Case:
+def case_from_dict(
+    record: Mapping[str, Any],
+    source: str = "<dict>",
+    line: int | None = None,
+    *,
+    default_id: str | None = None,
+    default_difficulty: str = "",
+) -> Case:
     """Validate one case record and convert it to a ``Case``.
 
     ``record`` is packlab's own record or a reference benchmark row (recognised by its
@@ -50,6 +56,7 @@ def case_from_dict(record: Mapping[str, Any], source: str = "<dict>", line: int 
 
 # -- the reference's row -> packlab's record ---------------------------------------------------
 
+
 def _json_object(value: Any, field: str, r: Reader) -> Mapping[str, Any]:
     """A mapping, or the JSON text of one (parquet files may hold either)."""
     if isinstance(value, str):
@@ -63,28 +70,36 @@ def _json_object(value: Any, field: str, r: Reader) -> Mapping[str, Any]:
     return value
 
 
-def _flatten_reference_row(row: Mapping[str, Any], source: str, line: int | None
-                           ) -> tuple[dict[str, Any], dict[str, str], CaseOrigin | None]:
+def _flatten_reference_row(
+    row: Mapping[str, Any], source: str, line: int | None
+) -> tuple[dict[str, Any], dict[str, str], CaseOrigin | None]:
     """A reference row -> (packlab record, where each field sits in the row, its origin)."""
     r = Reader(source, line)
     extra = _json_object(row["extra_info"], "extra_info", r)
-    kwargs = _json_object(r.get(extra, "interaction_kwargs", "extra_info.interaction_kwargs"),
-                          "extra_info.interaction_kwargs", r)
+    kwargs = _json_object(
+        r.get(extra, "interaction_kwargs", "extra_info.interaction_kwargs"),
+        "extra_info.interaction_kwargs",
+        r,
+    )
     record = dict(kwargs)
     aliases = {key: f"extra_info.interaction_kwargs.{key}" for key in kwargs}
     if kwargs.get("sample_id") is not None:
         sample_id = kwargs["sample_id"]
         if kwargs.get("episode_id") is not None and kwargs["episode_id"] != sample_id:
-            raise r.fail("extra_info.interaction_kwargs.episode_id", kwargs["episode_id"],
-                         f"differs from sample_id {sample_id!r}")
+            raise r.fail(
+                "extra_info.interaction_kwargs.episode_id",
+                kwargs["episode_id"],
+                f"differs from sample_id {sample_id!r}",
+            )
         record["episode_id"] = sample_id
         aliases["episode_id"] = "extra_info.interaction_kwargs.sample_id"
     for key in _EXTRA_CASE_FIELDS:
         if extra.get(key) is None:
             continue
         if kwargs.get(key) is not None and kwargs[key] != extra[key]:
-            raise r.fail(f"extra_info.{key}", extra[key],
-                         f"differs from extra_info.interaction_kwargs.{key}")
+            raise r.fail(
+                f"extra_info.{key}", extra[key], f"differs from extra_info.interaction_kwargs.{key}"
+            )
         record[key] = extra[key]
         aliases[key] = f"extra_info.{key}"
     return record, aliases, _origin(extra, r)
@@ -103,13 +118,22 @@ def _origin(extra: Mapping[str, Any], r: Reader) -> CaseOrigin | None:
 
 # -- packlab's record -> Case ------------------------------------------------------------------
 
-def _case_from_record(record: Mapping[str, Any], r: Reader, default_id: str,
-                      default_difficulty: str, origin: CaseOrigin | None) -> Case:
+
+def _case_from_record(
+    record: Mapping[str, Any],
+    r: Reader,
+    default_id: str,
+    default_difficulty: str,
+    origin: CaseOrigin | None,
+) -> Case:
     container = _container(record, r)
     buffer_size = r.integer(r.get(record, "buffer_size", "buffer_size"), "buffer_size", minimum=1)
     if buffer_size > MAX_BUFFER_SIZE:
-        raise r.fail("buffer_size", buffer_size, f"larger than the limit of {MAX_BUFFER_SIZE} "
-                                                 "(packlab.cases.MAX_BUFFER_SIZE)")
+        raise r.fail(
+            "buffer_size",
+            buffer_size,
+            f"larger than the limit of {MAX_BUFFER_SIZE} (packlab.cases.MAX_BUFFER_SIZE)",
+        )
     objects = objects_from_record(record, r, container)
     ids = {b.internal_id for b in objects}
     plan = record.get("gt_plan")
@@ -139,10 +163,13 @@ def _container(record: Mapping[str, Any], r: Reader) -> Container:
     cy = r.mm(size[1], "container_size_cm[1]", multiple_of=cell_xy, max_mm=side_mm)
     cz = r.mm(size[2], "container_size_cm[2]", max_mm=side_mm)
     if (cx // cell_xy) * (cy // cell_xy) > MAX_HEIGHTMAP_CELLS:
-        raise r.fail("container_size_cm", size,
-                     f"{cx // cell_xy} x {cy // cell_xy} cells of {cell_xy / 10:g} cm is more "
-                     f"than the limit of {MAX_HEIGHTMAP_CELLS} heightmap cells "
-                     "(packlab.cases.MAX_HEIGHTMAP_CELLS)")
+        raise r.fail(
+            "container_size_cm",
+            size,
+            f"{cx // cell_xy} x {cy // cell_xy} cells of {cell_xy / 10:g} cm is more "
+            f"than the limit of {MAX_HEIGHTMAP_CELLS} heightmap cells "
+            "(packlab.cases.MAX_HEIGHTMAP_CELLS)",
+        )
     return Container((cx, cy, cz), cell_xy, cell_z)
 
 

@@ -35,8 +35,12 @@ def case_to_dict(case: Case) -> dict[str, Any]:
         "grid_cell_size_cm": {"xy": cm(c.cell_xy_mm), "z": cm(c.cell_z_mm)},
         "buffer_size": case.buffer_size,
         "object_sequence": [
-            {"internal_id": b.internal_id, "gt_index": b.gt_index, "type_id": b.type_id,
-             "size_cm": [cm(v) for v in b.size_mm]}
+            {
+                "internal_id": b.internal_id,
+                "gt_index": b.gt_index,
+                "type_id": b.type_id,
+                "size_cm": [cm(v) for v in b.size_mm],
+            }
             for b in case.objects
         ],
     }
@@ -81,9 +85,11 @@ def case_to_reference_row(case: Case, index: int) -> dict[str, Any]:
     """
     c = case.container
     if (c.cell_xy_mm, c.cell_z_mm) != (DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM):
-        raise ConfigError(f"case {case.episode_id!r}: grid {cm(c.cell_xy_mm)} cm / "
-                          f"{cm(c.cell_z_mm)} cm; the reference layout has no grid field "
-                          f"(always 2.5 cm / 0.2 cm): export it as jsonl")
+        raise ConfigError(
+            f"case {case.episode_id!r}: grid {cm(c.cell_xy_mm)} cm / "
+            f"{cm(c.cell_z_mm)} cm; the reference layout has no grid field "
+            f"(always 2.5 cm / 0.2 cm): export it as jsonl"
+        )
     origin = case.origin
     split = origin.split if origin is not None and origin.split is not None else REFERENCE_SPLIT
     row_index = origin.index if origin is not None and origin.index is not None else index
@@ -110,8 +116,12 @@ def _interaction_kwargs(case: Case) -> dict[str, Any]:
         "container_size_cm": [v / 10.0 for v in case.container.size_mm],
         "buffer_size": case.buffer_size,
         "object_sequence": [
-            {"internal_id": b.internal_id, "gt_index": b.gt_index, "type_id": b.type_id,
-             "size_cm": [v / 10.0 for v in b.size_mm]}
+            {
+                "internal_id": b.internal_id,
+                "gt_index": b.gt_index,
+                "type_id": b.type_id,
+                "size_cm": [v / 10.0 for v in b.size_mm],
+            }
             for b in case.objects
         ],
         "seed": case.seed,
@@ -137,5 +147,4 @@ def cases_sha256(cases: Iterable[Case]) -> str:
     return digest.hexdigest()
 
 
-__all__ = ["case_lines", "case_to_dict", "case_to_reference_row", "cases_sha256",
-           "generator_text"]
+__all__ = ["case_lines", "case_to_dict", "case_to_reference_row", "cases_sha256", "generator_text"]

@@ -32,6 +32,7 @@ from packlab.core.types import Case
 
 def save_cases(cases: Iterable[Case], path: str | os.PathLike[str]) -> Path:
     """Write cases as packlab JSONL atomically (no half-written suite), with the user's umask."""
+
     def write(fh: IO[bytes]) -> None:
         for line in case_lines(cases):
             fh.write(line)
@@ -69,13 +70,16 @@ def _reference_rows(cases: Sequence[Case]) -> list[dict[str, Any]]:
 
 # -- row writers ---------------------------------------------------------------------------------
 
+
 def _reference_table(rows: list[dict[str, Any]]) -> pa.Table:
     try:
         # Types inferred from the rows, as the reference's pandas ``to_parquet`` does.
         return pa.Table.from_pylist(rows)
     except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
-        raise ConfigError(f"cannot write these cases as one parquet table ({exc}); integer and "
-                          f"string internal_ids cannot share a column: export as jsonl") from None
+        raise ConfigError(
+            f"cannot write these cases as one parquet table ({exc}); integer and "
+            f"string internal_ids cannot share a column: export as jsonl"
+        ) from None
 
 
 def _parquet_writer(rows: list[dict[str, Any]]) -> Callable[[IO[bytes]], None]:
@@ -88,10 +92,12 @@ def _reference_jsonl_writer(rows: list[dict[str, Any]]) -> Callable[[IO[bytes]],
     def write(fh: IO[bytes]) -> None:
         for row in rows:
             fh.write((json.dumps(row, separators=(",", ":")) + "\n").encode("utf-8"))
+
     return write
 
 
 # -- a reference benchmark directory ----------------------------------------------------------
+
 
 def _level_groups(cases: Sequence[Case]) -> list[tuple[str, list[Case]]]:
     """Cases by difficulty, in load order; each difficulty must be able to name a directory."""
@@ -99,9 +105,11 @@ def _level_groups(cases: Sequence[Case]) -> list[tuple[str, list[Case]]]:
     for case in cases:
         level = case.difficulty
         if not LEVEL_NAME.fullmatch(level or ""):
-            raise ConfigError(f"case {case.episode_id!r}: difficulty {level!r} cannot name a "
-                              f"directory of a reference benchmark; export to a single .parquet "
-                              f"file instead")
+            raise ConfigError(
+                f"case {case.episode_id!r}: difficulty {level!r} cannot name a "
+                f"directory of a reference benchmark; export to a single .parquet "
+                f"file instead"
+            )
         groups.setdefault(level, []).append(case)
     return [(lvl, groups[lvl]) for lvl in ordered_levels(groups)]
 
@@ -113,15 +121,21 @@ def _manifest_entry(cases: Sequence[Case], parquet_path: str) -> dict[str, Any]:
     for c in cases:
         levels[c.difficulty] = levels.get(c.difficulty, 0) + 1
         buffers[str(c.buffer_size)] = buffers.get(str(c.buffer_size), 0) + 1
-    return {"mode": "eval", "split": REFERENCE_SPLIT, "num_episodes": len(cases),
-            "parquet_path": parquet_path, "difficulty_counts": levels,
-            "buffer_size_counts": buffers,
-            "seed_min": min((c.seed for c in cases), default=None),
-            "seed_max": max((c.seed for c in cases), default=None)}
+    return {
+        "mode": "eval",
+        "split": REFERENCE_SPLIT,
+        "num_episodes": len(cases),
+        "parquet_path": parquet_path,
+        "difficulty_counts": levels,
+        "buffer_size_counts": buffers,
+        "seed_min": min((c.seed for c in cases), default=None),
+        "seed_max": max((c.seed for c in cases), default=None),
+    }
 
 
-def _manifest(groups: list[tuple[str, list[Case]]], cases: Sequence[Case],
-              out: Path) -> dict[str, Any]:
+def _manifest(
+    groups: list[tuple[str, list[Case]]], cases: Sequence[Case], out: Path
+) -> dict[str, Any]:
     """The reference's metadata/manifest.json: one entry per level and a summary."""
     manifest: dict[str, Any] = {"mode": "eval", "split": REFERENCE_SPLIT, "difficulties": {}}
     for lvl, group in groups:

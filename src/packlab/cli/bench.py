@@ -33,66 +33,152 @@ from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, Conf
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "bench", help="run PackLab-Bench (or any case file) and print a Table-2-style table",
+        "bench",
+        help="run PackLab-Bench (or any case file) and print a Table-2-style table",
         description="Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
-                    "write summary.json, table.md and figures. Rerun the same command to resume.",
+        "write summary.json, table.md and figures. Rerun the same command to resume.",
     )
-    add_field(p, RunConfig, "cases", "--cases",
-              help="a bundled suite name, a case file (JSON, JSONL, reference parquet) or a "
-                   "reference benchmark directory (<dir>/<difficulty>/test.parquet); "
-                   "default {default}")
-    add_field(p, RunConfig, "policies", "--policies", parse=partial(parse_names, flag="policies"),
-              help="comma-separated policy names (default: every heuristic, random, oracle)")
-    add_field(p, RunConfig, "seeds", "--seeds", parse=parse_seeds,
-              help=f"run seeds, e.g. 0,1,2 or 0-4 (default {{default}}; at most {MAX_SEEDS})")
+    add_field(
+        p,
+        RunConfig,
+        "cases",
+        "--cases",
+        help="a bundled suite name, a case file (JSON, JSONL, reference parquet) or a "
+        "reference benchmark directory (<dir>/<difficulty>/test.parquet); "
+        "default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "policies",
+        "--policies",
+        parse=partial(parse_names, flag="policies"),
+        help="comma-separated policy names (default: every heuristic, random, oracle)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "seeds",
+        "--seeds",
+        parse=parse_seeds,
+        help=f"run seeds, e.g. 0,1,2 or 0-4 (default {{default}}; at most {MAX_SEEDS})",
+    )
     add_field(p, RunConfig, "backend", "--backend", help="transition backend; default {default}")
-    add_field(p, RunConfig, "difficulties", "--difficulty",
-              parse=partial(parse_names, flag="difficulty"),
-              help="comma-separated difficulties to run (default: all)")
-    add_field(p, RunConfig, "out", "--out",
-              help="run directory (default runs/bench-<suite>); an existing one is resumed")
-    add_field(p, RunConfig, "workers", "--workers",
-              help="parallel workers (0 = all local cores; 1 = in this process); default {default}")
-    add_field(p, RunConfig, "executor", "--executor",
-              help="where episodes run: a local process pool or Ray (needs the ray extra); "
-                   "default {default}")
-    add_field(p, RunConfig, "policy_args", "--policy-arg", parse=parse_policy_args, action="append",
-              metavar="POLICY:KEY=VALUE",
-              help="a policy factory argument, e.g. vlm:model=runs/sft/final (repeatable)")
-    add_field(p, RunConfig, "physics_overrides", "--physics", parse=parse_physics, action="append",
-              metavar="KEY=VALUE",
-              help="change a mujoco PhysicsConfig field for this run (repeatable; part of the "
-                   "run's identity)")
-    add_field(p, RunConfig, "retry_errors", "--retry-errors",
-              help="rerun episodes recorded as failed (transport errors are rerun anyway)")
-    add_field(p, RunConfig, "episode_timeout_s", "--episode-timeout", type=float,
-              parse=time_limit_arg, metavar="SECONDS",
-              help="wall-clock limit of one episode, recorded as an error of kind timeout "
-                   "(default {default}; 0 = none)")
-    add_field(p, RunConfig, "max_transport_failures", "--max-transport-failures", metavar="N",
-              help="stop the run after N consecutive episodes whose model server was unreachable "
-                   "(default {default}; 0 = never)")
-    add_field(p, RunConfig, "deadline_s", "--deadline", type=float, parse=time_limit_arg,
-              metavar="SECONDS",
-              help="stop this invocation after SECONDS (records kept, exit code 3; rerun to "
-                   "resume); default {default}")
+    add_field(
+        p,
+        RunConfig,
+        "difficulties",
+        "--difficulty",
+        parse=partial(parse_names, flag="difficulty"),
+        help="comma-separated difficulties to run (default: all)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "out",
+        "--out",
+        help="run directory (default runs/bench-<suite>); an existing one is resumed",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "workers",
+        "--workers",
+        help="parallel workers (0 = all local cores; 1 = in this process); default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "executor",
+        "--executor",
+        help="where episodes run: a local process pool or Ray (needs the ray extra); "
+        "default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "policy_args",
+        "--policy-arg",
+        parse=parse_policy_args,
+        action="append",
+        metavar="POLICY:KEY=VALUE",
+        help="a policy factory argument, e.g. vlm:model=runs/sft/final (repeatable)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "physics_overrides",
+        "--physics",
+        parse=parse_physics,
+        action="append",
+        metavar="KEY=VALUE",
+        help="change a mujoco PhysicsConfig field for this run (repeatable; part of the "
+        "run's identity)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "retry_errors",
+        "--retry-errors",
+        help="rerun episodes recorded as failed (transport errors are rerun anyway)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "episode_timeout_s",
+        "--episode-timeout",
+        type=float,
+        parse=time_limit_arg,
+        metavar="SECONDS",
+        help="wall-clock limit of one episode, recorded as an error of kind timeout "
+        "(default {default}; 0 = none)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "max_transport_failures",
+        "--max-transport-failures",
+        metavar="N",
+        help="stop the run after N consecutive episodes whose model server was unreachable "
+        "(default {default}; 0 = never)",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "deadline_s",
+        "--deadline",
+        type=float,
+        parse=time_limit_arg,
+        metavar="SECONDS",
+        help="stop this invocation after SECONDS (records kept, exit code 3; rerun to "
+        "resume); default {default}",
+    )
     add_field(p, RunConfig, "progress", "--no-progress", help="no progress bar on stderr")
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=run)
 
     sub = p.add_subparsers(dest="bench_command", metavar="{report,compare}")
-    r = sub.add_parser("report", help="rebuild summary, table and figures of a run from its records",
-                       description="Rebuild summary.json, table.md and the figures of a run directory from "
-                                   "its files alone (config.json, cases.jsonl, episodes.jsonl).")
+    r = sub.add_parser(
+        "report",
+        help="rebuild summary, table and figures of a run from its records",
+        description="Rebuild summary.json, table.md and the figures of a run directory from "
+        "its files alone (config.json, cases.jsonl, episodes.jsonl).",
+    )
     r.add_argument("dir", help="a bench run directory")
-    r.add_argument("--case", help="episode id for the side-by-side packing figure (default: a typical hard case)")
+    r.add_argument(
+        "--case",
+        help="episode id for the side-by-side packing figure (default: a typical hard case)",
+    )
     r.add_argument("--seed", type=int, help="run seed of that figure (default: the first seed)")
     r.add_argument("--no-figures", action="store_true", help="tables only")
     r.set_defaults(func=run_report)
-    c = sub.add_parser("compare", help="one table over several runs (ablations, checkpoints)",
-                       description="Put the results of several run directories (same cases, seeds and "
-                                   "backend) in one table; rows are named by run.")
+    c = sub.add_parser(
+        "compare",
+        help="one table over several runs (ablations, checkpoints)",
+        description="Put the results of several run directories (same cases, seeds and "
+        "backend) in one table; rows are named by run.",
+    )
     c.add_argument("dirs", nargs="+", help="bench run directories")
     c.add_argument("--labels", help="comma-separated row labels (default: the directory names)")
     c.add_argument("--out", help="also write the Markdown to this file")
@@ -106,8 +192,12 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
 
 def describe(cases: str) -> int:
     source = resolve_cases(cases)
-    print(format_description(f"{source.label} ({source.origin}, sha256 {source.sha256[:12]}...)",
-                             describe_cases(source.cases)))
+    print(
+        format_description(
+            f"{source.label} ({source.origin}, sha256 {source.sha256[:12]}...)",
+            describe_cases(source.cases),
+        )
+    )
     return 0
 
 
@@ -119,8 +209,11 @@ def run(args: argparse.Namespace) -> int:
     print(outcome.table_md)
     resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
     failed = f", {outcome.failed} failed" if outcome.failed else ""
-    print(f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s{resumed}{failed}; "
-          f"{len(outcome.outputs)} outputs written", file=sys.stderr)
+    print(
+        f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s{resumed}{failed}; "
+        f"{len(outcome.outputs)} outputs written",
+        file=sys.stderr,
+    )
     code, last_line = exit_status(outcome)
     if last_line:
         print(last_line, file=sys.stderr)
@@ -131,19 +224,27 @@ def exit_status(outcome: BenchOutcome) -> tuple[int, str]:
     """The exit code of a finished bench invocation and the line that explains it ("" for 0)."""
     episodes = outcome.run_dir / "episodes.jsonl"
     if outcome.aborted:
-        return EXIT_ABORTED, (f"packlab bench: error: {outcome.aborted}; {outcome.recorded} of {outcome.planned} "
-                              f"episodes recorded (kept in {episodes}); rerun the same command to resume")
+        return EXIT_ABORTED, (
+            f"packlab bench: error: {outcome.aborted}; {outcome.recorded} of {outcome.planned} "
+            f"episodes recorded (kept in {episodes}); rerun the same command to resume"
+        )
     if outcome.recorded < outcome.planned:  # cannot happen unless an executor stopped silently
-        return EXIT_ABORTED, (f"packlab bench: error: {outcome.planned - outcome.recorded} of {outcome.planned} "
-                              f"episodes have no record; rerun the same command to resume")
+        return EXIT_ABORTED, (
+            f"packlab bench: error: {outcome.planned - outcome.recorded} of {outcome.planned} "
+            f"episodes have no record; rerun the same command to resume"
+        )
     if outcome.errors:
-        return EXIT_EPISODE_ERRORS, (f"packlab bench: {outcome.errors} of {outcome.planned} episodes ended in error "
-                                     f"(see {episodes}; rerun with --retry-errors)")
+        return EXIT_EPISODE_ERRORS, (
+            f"packlab bench: {outcome.errors} of {outcome.planned} episodes ended in error "
+            f"(see {episodes}; rerun with --retry-errors)"
+        )
     return EXIT_OK, ""
 
 
 def run_report(args: argparse.Namespace) -> int:
-    _, table_md, paths = build_report(args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed)
+    _, table_md, paths = build_report(
+        args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed
+    )
     print(table_md)
     for path in paths:
         print(f"wrote {path}", file=sys.stderr)

@@ -25,48 +25,114 @@ def _counts(text: str) -> tuple[int, ...]:
     try:
         return tuple(int(t) for t in text.split(","))
     except ValueError:
-        raise ConfigError(f"episodes = {text!r}: expected whole numbers separated by commas") \
-            from None
+        raise ConfigError(
+            f"episodes = {text!r}: expected whole numbers separated by commas"
+        ) from None
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "generate", help="generate a PackData dataset",
+        "generate",
+        help="generate a PackData dataset",
         description="Generate validated packing trajectories into a dataset directory. Rerun the "
-                    "same command to resume an interrupted run.",
+        "same command to resume an interrupted run.",
     )
-    add_field(p, DatasetConfig, "recipe", "--recipe", choices=sorted(RECIPES),
-              help="a named dataset (e.g. packdata-20k); sets difficulties, episodes and seed "
-                   "unless given")
-    add_field(p, DatasetConfig, "difficulties", "--difficulty", parse=_names,
-              help="comma-separated difficulties, e.g. easy,medium,hard")
-    add_field(p, DatasetConfig, "episodes", "--episodes", parse=_counts,
-              help="comma-separated episode counts, one per difficulty")
-    add_field(p, DatasetConfig, "seed", "--seed",
-              help="user seed (training seed space; see datagen/seeds.py); default: the "
-                   "recipe's, else 0")
-    add_field(p, RunOptions, "out", "--out", required=True,
-              help="dataset directory (created; an existing one is resumed)")
+    add_field(
+        p,
+        DatasetConfig,
+        "recipe",
+        "--recipe",
+        choices=sorted(RECIPES),
+        help="a named dataset (e.g. packdata-20k); sets difficulties, episodes and seed "
+        "unless given",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "difficulties",
+        "--difficulty",
+        parse=_names,
+        help="comma-separated difficulties, e.g. easy,medium,hard",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "episodes",
+        "--episodes",
+        parse=_counts,
+        help="comma-separated episode counts, one per difficulty",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "seed",
+        "--seed",
+        help="user seed (training seed space; see datagen/seeds.py); default: the recipe's, else 0",
+    )
+    add_field(
+        p,
+        RunOptions,
+        "out",
+        "--out",
+        required=True,
+        help="dataset directory (created; an existing one is resumed)",
+    )
     add_field(p, CaseConfig, "layout", "--layout", help="layout family; default {default}")
-    add_field(p, AnchorConfig, "corner_prob", "--corner-prob",
-              help="chance that the first placement is anchored at a corner; default {default}")
-    add_field(p, ValidationConfig, "backend", "--validation",
-              help="replay backend; default {default}")
-    add_field(p, ValidationConfig, "min_overall", "--min-overall",
-              help="keep replays scoring at least this; default {default}")
-    add_field(p, ValidationConfig, "max_attempts", "--max-attempts",
-              help="case seeds tried per episode slot; default {default}")
-    add_field(p, DatasetConfig, "shard_size", "--shard-size",
-              help="episodes per shard (unit of resume); default {default}")
-    add_field(p, DatasetConfig, "image_size", "--image-size",
-              help="heightmap image side in pixels; default {default}")
+    add_field(
+        p,
+        AnchorConfig,
+        "corner_prob",
+        "--corner-prob",
+        help="chance that the first placement is anchored at a corner; default {default}",
+    )
+    add_field(
+        p, ValidationConfig, "backend", "--validation", help="replay backend; default {default}"
+    )
+    add_field(
+        p,
+        ValidationConfig,
+        "min_overall",
+        "--min-overall",
+        help="keep replays scoring at least this; default {default}",
+    )
+    add_field(
+        p,
+        ValidationConfig,
+        "max_attempts",
+        "--max-attempts",
+        help="case seeds tried per episode slot; default {default}",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "shard_size",
+        "--shard-size",
+        help="episodes per shard (unit of resume); default {default}",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "image_size",
+        "--image-size",
+        help="heightmap image side in pixels; default {default}",
+    )
     add_field(p, DatasetConfig, "sft", "--sft", help="SFT export granularity; default {default}")
-    add_field(p, RunOptions, "workers", "--workers",
-              help="parallel workers (0 = one per core; 1 = in this process); default {default}")
-    add_field(p, RunOptions, "executor", "--executor",
-              help="where shards run: a local process pool or Ray (needs the ray extra; the "
-                   "output directory must be on storage every Ray node can write); "
-                   "default {default}")
+    add_field(
+        p,
+        RunOptions,
+        "workers",
+        "--workers",
+        help="parallel workers (0 = one per core; 1 = in this process); default {default}",
+    )
+    add_field(
+        p,
+        RunOptions,
+        "executor",
+        "--executor",
+        help="where shards run: a local process pool or Ray (needs the ray extra; the "
+        "output directory must be on storage every Ray node can write); "
+        "default {default}",
+    )
     add_field(p, RunOptions, "progress", "--no-progress", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
@@ -80,8 +146,11 @@ def config_from_args(args: argparse.Namespace) -> DatasetConfig:
     recipe = fields.pop("recipe", None)
     if recipe:
         return DatasetConfig.from_recipe(recipe, **fields)
-    missing = [flag for flag, key in (("--difficulty", "difficulties"), ("--episodes", "episodes"))
-               if key not in fields]
+    missing = [
+        flag
+        for flag, key in (("--difficulty", "difficulties"), ("--episodes", "episodes"))
+        if key not in fields
+    ]
     if missing:
         raise ConfigError(f"give {' and '.join(missing)} (or --recipe)")
     return DatasetConfig(**fields)
@@ -103,8 +172,10 @@ def run(args: argparse.Namespace) -> int:
     for name, d in counts.by_difficulty.items():
         rej = ", ".join(f"{k}={v}" for k, v in d.rejections.items()) or "none"
         failed = f", {len(d.failed_slots)} slots failed" if d.failed_slots else ""
-        print(f"  {name:<7} {d.episodes}/{d.requested} episodes, {d.steps} steps, "
-              f"rejections: {rej}{failed}")
+        print(
+            f"  {name:<7} {d.episodes}/{d.requested} episodes, {d.steps} steps, "
+            f"rejections: {rej}{failed}"
+        )
     return 0 if not any(d.failed_slots for d in counts.by_difficulty.values()) else 1
 
 

@@ -29,7 +29,12 @@ def run(args: argparse.Namespace) -> int:
     dists = collect(dataset_cases(root))
     if args.json:
         as_json = json.loads(json.dumps(to_builtins(info), sort_keys=True))  # the file's key order
-        print(json.dumps({"info": as_json, "distributions": {k: d.summary() for k, d in dists.items()}}, indent=1))
+        print(
+            json.dumps(
+                {"info": as_json, "distributions": {k: d.summary() for k, d in dists.items()}},
+                indent=1,
+            )
+        )
     else:
         print(format_report(info, dists))
     if args.plots:

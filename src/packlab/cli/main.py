@@ -19,7 +19,9 @@ from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, Pack
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])  # the first line
+    parser = argparse.ArgumentParser(
+        prog="packlab", description=__doc__.splitlines()[0]
+    )  # the first line
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         module_name = f"packlab.cli.{name}"
@@ -48,12 +50,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"packlab {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as exc:
-        if exc.filename is None:  # not about a path the user gave (e.g. a full disk): a real failure
+        if (
+            exc.filename is None
+        ):  # not about a path the user gave (e.g. a full disk): a real failure
             raise
         print(f"packlab {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print(f"packlab {args.command}: interrupted; rerun the same command to resume", file=sys.stderr)
+        print(
+            f"packlab {args.command}: interrupted; rerun the same command to resume",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
 
 

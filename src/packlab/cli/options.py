@@ -114,8 +114,14 @@ def _cli_default(config: type, name: str, append: bool) -> Any:
     return list(default) if append else default  # argparse appends to a copy of a list default
 
 
-def _argparse_kwargs(config: type, name: str, flags: tuple[str, ...], default: Any,
-                     parse: Callable[[Any], Any] | None, kwargs: dict[str, Any]) -> dict[str, Any]:
+def _argparse_kwargs(
+    config: type,
+    name: str,
+    flags: tuple[str, ...],
+    default: Any,
+    parse: Callable[[Any], Any] | None,
+    kwargs: dict[str, Any],
+) -> dict[str, Any]:
     hint = field_type(config, name)
     allowed = field_choices(config, name)
     if allowed is not None:
@@ -125,8 +131,10 @@ def _argparse_kwargs(config: type, name: str, flags: tuple[str, ...], default: A
     elif hint is bool and parse is None:
         negated = flags[0].startswith("--no-")
         if default is not negated:  # --x sets True (default False); --no-x sets False
-            raise TypeError(f"{config.__name__}.{name} defaults to {default}: name the switch "
-                            f"{'--no-' if default else '--'}...")
+            raise TypeError(
+                f"{config.__name__}.{name} defaults to {default}: name the switch "
+                f"{'--no-' if default else '--'}..."
+            )
         kwargs.setdefault("action", "store_false" if default else "store_true")
         kwargs.setdefault("dest", name)
     elif hint in (int, float) and parse is None:
@@ -136,9 +144,15 @@ def _argparse_kwargs(config: type, name: str, flags: tuple[str, ...], default: A
     return kwargs
 
 
-def add_field(parser: argparse.ArgumentParser, config: type, name: str, *flags: str,
-              parse: Callable[[Any], Any] | None = None, help: str | None = None,
-              **kwargs: Any) -> argparse.Action:
+def add_field(
+    parser: argparse.ArgumentParser,
+    config: type,
+    name: str,
+    *flags: str,
+    parse: Callable[[Any], Any] | None = None,
+    help: str | None = None,
+    **kwargs: Any,
+) -> argparse.Action:
     """Add an option setting ``config.<name>``; default, choices and type come from the field.
 
     ``help`` may hold ``{default}``, replaced by the field's default as typed on the command line.
@@ -157,8 +171,11 @@ def add_field(parser: argparse.ArgumentParser, config: type, name: str, *flags: 
 
 def command_options(command: str, config: type | None = None) -> list[FieldOption]:
     """The options of a command (optionally only those setting fields of ``config``)."""
-    return [o for (cmd, _), o in FIELD_OPTIONS.items()
-            if cmd == command and (config is None or o.config is config)]
+    return [
+        o
+        for (cmd, _), o in FIELD_OPTIONS.items()
+        if cmd == command and (config is None or o.config is config)
+    ]
 
 
 def config_kwargs(args: argparse.Namespace, command: str, config: type) -> dict[str, Any]:

@@ -36,24 +36,39 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "-m packlab.cli.main train sft ...",
     )
     field = partial(add_field, s, SFTConfig)
-    field("data", "--data", required=True,
-          help="dataset directory (reads sft/*.jsonl) or one .jsonl")
-    field("model", "--model",
-          help="local checkpoint directory, or tiny:<family>:<size> for a random-weight model "
-               "(families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, small, base); "
-               "default {default}")
-    field("out", "--out", required=True,
-          help="run directory (config, loss log, curve, checkpoints)")
+    field(
+        "data", "--data", required=True, help="dataset directory (reads sft/*.jsonl) or one .jsonl"
+    )
+    field(
+        "model",
+        "--model",
+        help="local checkpoint directory, or tiny:<family>:<size> for a random-weight model "
+        "(families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, small, base); "
+        "default {default}",
+    )
+    field(
+        "out", "--out", required=True, help="run directory (config, loss log, curve, checkpoints)"
+    )
     field("epochs", "--epochs", help="default {default}")
-    field("lr", "--lr", help=f"default {LR_PRETRAINED:g} for checkpoints, {LR_TINY:g} for tiny "
-                             f"models")
-    field("micro_batch", "--micro-batch",
-          help="examples per forward pass per device; default {default}")
-    field("grad_accum", "--grad-accum",
-          help="global batch = micro-batch x grad-accum x devices; default {default}")
-    field("max_length", "--max-length",
-          help="token limit; the oldest past steps are dropped until an example fits; "
-               "default {default}")
+    field(
+        "lr", "--lr", help=f"default {LR_PRETRAINED:g} for checkpoints, {LR_TINY:g} for tiny models"
+    )
+    field(
+        "micro_batch",
+        "--micro-batch",
+        help="examples per forward pass per device; default {default}",
+    )
+    field(
+        "grad_accum",
+        "--grad-accum",
+        help="global batch = micro-batch x grad-accum x devices; default {default}",
+    )
+    field(
+        "max_length",
+        "--max-length",
+        help="token limit; the oldest past steps are dropped until an example fits; "
+        "default {default}",
+    )
     field("max_steps", "--max-steps", help="stop after this many optimizer steps")
     field("warmup_ratio", "--warmup-ratio", help="default {default}")
     field("weight_decay", "--weight-decay", help="default {default}")
@@ -64,11 +79,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     field("history", "--history", help="default {default}")
     field("image", "--image", help="default {default}")
     field("recipe", "--recipe", choices=tuple(RECIPES), help="default {default}")
-    field("data_fraction", "--data-fraction",
-          help="fraction of episodes kept (seeded); default {default}")
+    field(
+        "data_fraction",
+        "--data-fraction",
+        help="fraction of episodes kept (seeded); default {default}",
+    )
     field("seed", "--seed", help="default {default}")
-    field("template_kwargs", "--template-kwargs", parse=_template_kwargs,
-          help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'")
+    field(
+        "template_kwargs",
+        "--template-kwargs",
+        parse=_template_kwargs,
+        help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'",
+    )
     s.set_defaults(func=run_sft)
 
 

@@ -29,17 +29,26 @@ MAX_STEPS = inspect.signature(episode_figure).parameters["max_steps"].default
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("viz", help="draw recorded episodes")
     sub = p.add_subparsers(dest="viz_command", required=True)
-    e = sub.add_parser("episode", help="one packing and its step-by-step heightmaps",
-                       description="Draw one recorded episode: the final packing in 3D and the heightmap "
-                                   "after each step, replayed from the recorded actions.")
+    e = sub.add_parser(
+        "episode",
+        help="one packing and its step-by-step heightmaps",
+        description="Draw one recorded episode: the final packing in 3D and the heightmap "
+        "after each step, replayed from the recorded actions.",
+    )
     e.add_argument("records", help="a bench run directory or its episodes.jsonl")
     e.add_argument("--case", required=True, help="episode id of the case")
     e.add_argument("--policy", required=True, help="policy name as recorded")
     e.add_argument("--seed", type=int, help="run seed (default: the smallest recorded)")
-    e.add_argument("--cases", help="case file holding the case (default: cases.jsonl beside the records)")
+    e.add_argument(
+        "--cases", help="case file holding the case (default: cases.jsonl beside the records)"
+    )
     e.add_argument("--out", required=True, help="PNG file to write")
-    e.add_argument("--max-steps", type=int, default=MAX_STEPS,
-                   help="heightmap tiles at most (default %(default)s)")
+    e.add_argument(
+        "--max-steps",
+        type=int,
+        default=MAX_STEPS,
+        help="heightmap tiles at most (default %(default)s)",
+    )
     e.set_defaults(func=run_episode_figure)
 
 
@@ -54,12 +63,18 @@ def run_episode_figure(args: argparse.Namespace) -> int:
     episodes, run_dir = _paths(args.records)
     if not episodes.is_file():
         raise ConfigError(f"records = {args.records!r}: no {episodes.name} there")
-    mine = [r for r in iter_ok(read_records(episodes)) if r.case_id == args.case and r.policy == args.policy]
+    mine = [
+        r
+        for r in iter_ok(read_records(episodes))
+        if r.case_id == args.case and r.policy == args.policy
+    ]
     if args.seed is not None:
         mine = [r for r in mine if r.seed == args.seed]
     if not mine:
-        raise ConfigError(f"{episodes}: no finished record of case {args.case!r}, policy {args.policy!r}"
-                          + (f", seed {args.seed}" if args.seed is not None else ""))
+        raise ConfigError(
+            f"{episodes}: no finished record of case {args.case!r}, policy {args.policy!r}"
+            + (f", seed {args.seed}" if args.seed is not None else "")
+        )
     record = min(mine, key=lambda r: r.seed)
     cases_path = Path(args.cases) if args.cases else run_dir / CASES_FILE
     case = next((c for c in load_cases(cases_path) if c.episode_id == args.case), None)
@@ -72,9 +87,11 @@ def run_episode_figure(args: argparse.Namespace) -> int:
         physics = physics_from_json(json.loads(cfg_path.read_text(encoding="utf-8")).get("physics"))
     replay = replay_record(case, record, physics)
     if not replay.matches_record:
-        print(f"packlab viz: warning: the replay scored Overall {replay.overall:.4f}, the record "
-              f"{record.metrics.overall:.4f}; the engine or its settings differ from the run's",
-              file=sys.stderr)
+        print(
+            f"packlab viz: warning: the replay scored Overall {replay.overall:.4f}, the record "
+            f"{record.metrics.overall:.4f}; the engine or its settings differ from the run's",
+            file=sys.stderr,
+        )
     path = save_figure(episode_figure(case, record, replay.heightmaps, args.max_steps), args.out)
     print(f"wrote {path}")
     return 0

@@ -13,7 +13,13 @@ class CaseFormatError(PacklabError, ValueError):
     def __init__(self, source: str, line: int | None, field: str, value: object, problem: str):
         where = f"{source}:{line}" if line is not None else source
         super().__init__(f"{where}: field '{field}' = {value!r}: {problem}")
-        self.source, self.line, self.field, self.value, self.problem = source, line, field, value, problem
+        self.source, self.line, self.field, self.value, self.problem = (
+            source,
+            line,
+            field,
+            value,
+            problem,
+        )
 
 
 class RecordFormatError(PacklabError, ValueError):
@@ -21,12 +27,26 @@ class RecordFormatError(PacklabError, ValueError):
     its typed record: an unknown format version, or a field missing or of the wrong type. The
     message names file, line (JSONL only), field and value (see ``packlab.core.records``)."""
 
-    def __init__(self, source: str, line: int | None, field: str, value: object, problem: str, *,
-                 show_value: bool = True):
+    def __init__(
+        self,
+        source: str,
+        line: int | None,
+        field: str,
+        value: object,
+        problem: str,
+        *,
+        show_value: bool = True,
+    ):
         where = f"{source}:{line}" if line is not None else source
         shown = f" = {value!r}" if show_value else ""
         super().__init__(f"{where}: field '{field}'{shown}: {problem}")
-        self.source, self.line, self.field, self.value, self.problem = source, line, field, value, problem
+        self.source, self.line, self.field, self.value, self.problem = (
+            source,
+            line,
+            field,
+            value,
+            problem,
+        )
 
 
 class ConfigError(PacklabError, ValueError):
@@ -48,7 +68,9 @@ class RunAborted(PacklabError):
 
 #: Process exit codes of the ``packlab`` commands (documented in docs/robustness.md).
 EXIT_OK = 0  # everything asked for ran
-EXIT_EPISODE_ERRORS = 1  # the run finished, but some episodes ended in error (count on the last line)
+EXIT_EPISODE_ERRORS = (
+    1  # the run finished, but some episodes ended in error (count on the last line)
+)
 EXIT_USAGE = 2  # bad input or configuration: nothing was run or written half-way
 EXIT_ABORTED = 3  # the run stopped early (circuit breaker, run deadline); finished records are kept
 EXIT_INTERRUPTED = 130  # Ctrl-C; rerun the same command to resume

@@ -86,6 +86,7 @@ RecordId = int | str
 
 # -- episode records (episodes.jsonl) ---------------------------------------------------------
 
+
 class ActionRecord(Struct, frozen=True):
     """A step's action: a placement ``{object_id, x, y, rotation}`` or, for model output that
     did not parse, ``{unparsable, error}``; exactly one of the two forms."""
@@ -102,7 +103,8 @@ class ActionRecord(Struct, frozen=True):
         text = [v is UNSET for v in (self.unparsable, self.error)]
         if not ((not any(placement) and all(text)) or (all(placement) and not any(text))):
             raise ValueError(
-                "an action is either {object_id, x, y, rotation} or {unparsable, error}")
+                "an action is either {object_id, x, y, rotation} or {unparsable, error}"
+            )
 
     @classmethod
     def of(cls, action: Action | Unparsable) -> ActionRecord:
@@ -220,6 +222,7 @@ EpisodeRecord = EpisodeOk | EpisodeError
 
 # -- the run summary (summary.json) -----------------------------------------------------------
 
+
 class Cell(Struct, frozen=True):
     """One table cell: mean over seeds and sample std across seeds (None: nothing finished)."""
 
@@ -317,6 +320,7 @@ class RunConfigHead(Struct, frozen=True, kw_only=True):
 
 # -- the dataset info (PackData meta/info.json) -----------------------------------------------
 
+
 class GeneratorInfo(Struct, frozen=True):
     name: str
     version: str
@@ -408,8 +412,9 @@ def _lookup(obj: object, path: str) -> object:
     return current
 
 
-def field_error(exc: msgspec.ValidationError, obj: object, source: str,
-                line: int | None) -> RecordFormatError:
+def field_error(
+    exc: msgspec.ValidationError, obj: object, source: str, line: int | None
+) -> RecordFormatError:
     """A msgspec validation error as a RecordFormatError: file, line, field path and value."""
     problem, _, at = str(exc).partition(" - at `")
     path = at.rstrip("`") if at else "$"
@@ -419,8 +424,9 @@ def field_error(exc: msgspec.ValidationError, obj: object, source: str,
         problem = "missing (a required field)"
     field = path[2:] if path.startswith("$.") else path.lstrip("$") or "<record>"
     value = _lookup(obj, path[1:])
-    return RecordFormatError(source, line, field, value, problem,
-                             show_value=value is not _UNRESOLVED)
+    return RecordFormatError(
+        source, line, field, value, problem, show_value=value is not _UNRESOLVED
+    )
 
 
 def loads(data: bytes | str, source: str, line: int | None = None) -> object:
@@ -446,21 +452,27 @@ def _object(obj: object, source: str, line: int | None) -> dict[str, object]:
     return obj
 
 
-def check_version(obj: dict[str, object], field: str, known: tuple[str, ...], source: str,
-                  line: int | None = None) -> str | None:
+def check_version(
+    obj: dict[str, object], field: str, known: tuple[str, ...], source: str, line: int | None = None
+) -> str | None:
     """The record's version (None when the field is absent); RecordFormatError when unknown."""
     if field not in obj:
         return None
     version = obj[field]
     if version not in known:
         raise RecordFormatError(
-            source, line, field, version,
+            source,
+            line,
+            field,
+            version,
             f"unknown format version; this packlab reads {', '.join(known)} (a newer packlab "
-            "wrote it? update packlab to read it)")
+            "wrote it? update packlab to read it)",
+        )
     return str(version)
 
 
 # -- migrations --------------------------------------------------------------------------------
+
 
 def migrate_episode(obj: dict[str, object]) -> dict[str, object]:
     """An episode record written before records carried ``format`` (run-1, early run-2), in the
@@ -486,8 +498,12 @@ def migrate_episode(obj: dict[str, object]) -> dict[str, object]:
         m = dict(metrics)
         capped = m.pop("capped_placements", 0)
         m.setdefault("unsettled_steps", capped)
-        for name, default in (("final_settle_steps", 0), ("at_rest", True),
-                              ("residual_linear_mps", 0.0), ("residual_angular_radps", 0.0)):
+        for name, default in (
+            ("final_settle_steps", 0),
+            ("at_rest", True),
+            ("residual_linear_mps", 0.0),
+            ("residual_angular_radps", 0.0),
+        ):
             m.setdefault(name, default)
         out["metrics"] = m
     steps = out.get("steps")
@@ -527,6 +543,7 @@ def migrate_summary(obj: dict[str, object]) -> dict[str, object]:
 
 # -- readers -----------------------------------------------------------------------------------
 
+
 def decode_episode(raw: bytes, source: str, line: int | None = None) -> EpisodeRecord:
     """One episodes.jsonl line as a typed record, its version checked (migrated when older).
 
@@ -562,9 +579,14 @@ def run_config_from_json(data: bytes | str, source: str) -> RunConfigHead:
     """The part of config.json a report needs; its ``format`` must be one of RUN_FORMATS."""
     obj = _object(loads(data, source), source, None)
     if check_version(obj, "format", RUN_FORMATS, source) is None:
-        raise RecordFormatError(source, None, "format", ABSENT,
-                                f"no format version; not a packlab bench run directory's config "
-                                f"(expected one of {', '.join(RUN_FORMATS)})")
+        raise RecordFormatError(
+            source,
+            None,
+            "format",
+            ABSENT,
+            f"no format version; not a packlab bench run directory's config "
+            f"(expected one of {', '.join(RUN_FORMATS)})",
+        )
     return convert(obj, RunConfigHead, source)
 
 
@@ -572,13 +594,18 @@ def dataset_info_from_json(data: bytes | str, source: str) -> DatasetInfo:
     """meta/info.json as a DatasetInfo; its ``format_version`` must be PACKDATA_FORMAT."""
     obj = _object(loads(data, source), source, None)
     if check_version(obj, "format_version", (PACKDATA_FORMAT,), source) is None:
-        raise RecordFormatError(source, None, "format_version", ABSENT,
-                                f"no format version; not a PackData info file "
-                                f"(expected {PACKDATA_FORMAT})")
+        raise RecordFormatError(
+            source,
+            None,
+            "format_version",
+            ABSENT,
+            f"no format version; not a PackData info file (expected {PACKDATA_FORMAT})",
+        )
     return convert(obj, DatasetInfo, source)
 
 
 # -- writers -----------------------------------------------------------------------------------
+
 
 def to_builtins(record: Struct) -> dict[str, object]:
     """A record as plain JSON-able Python (field order kept; absent optional fields left out)."""

@@ -6,13 +6,20 @@ from a case seed) and ``packlab.datagen.engine.generate_dataset`` (PackData on d
 """
 
 from packlab.datagen.config import (
-           DIFFICULTIES,
-           RECIPES,
-           CaseConfig,
-           DatasetConfig,
-           ValidationConfig,
+    DIFFICULTIES,
+    RECIPES,
+    CaseConfig,
+    DatasetConfig,
+    ValidationConfig,
 )
 from packlab.datagen.generator import build_case, generate_cases
 
-__all__ = ["DIFFICULTIES", "RECIPES", "CaseConfig", "DatasetConfig", "ValidationConfig", "build_case",
-           "generate_cases"]
+__all__ = [
+    "DIFFICULTIES",
+    "RECIPES",
+    "CaseConfig",
+    "DatasetConfig",
+    "ValidationConfig",
+    "build_case",
+    "generate_cases",
+]

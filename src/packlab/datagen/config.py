@@ -42,10 +42,14 @@ class DifficultySpec:
             if not 1 <= lo <= hi:
                 raise ConfigError(f"{where}: {label} = {(lo, hi)}: need 1 <= low <= high")
         if self.n_objects[0] < self.n_layers[1]:
-            raise ConfigError(f"{where}: fewer objects {self.n_objects} than layers {self.n_layers}")
+            raise ConfigError(
+                f"{where}: fewer objects {self.n_objects} than layers {self.n_layers}"
+            )
         lo, hi = self.height_ratio
         if not 0.0 < lo <= hi <= 1.0:
-            raise ConfigError(f"{where}: height_ratio = {self.height_ratio}: need 0 < low <= high <= 1")
+            raise ConfigError(
+                f"{where}: height_ratio = {self.height_ratio}: need 0 < low <= high <= 1"
+            )
         if not self.base_sizes_mm:
             raise ConfigError(f"{where}: base_sizes_mm is empty")
 
@@ -57,16 +61,33 @@ def _cm3(x: float, y: float, z: float) -> tuple[int, int, int]:
 #: The paper's three levels. Container sizes are given in cm there.
 DIFFICULTIES: dict[str, DifficultySpec] = {
     "easy": DifficultySpec(
-        "easy", buffer_size=3, n_objects=(4, 8), n_layers=(1, 2), height_ratio=(0.45, 0.70),
+        "easy",
+        buffer_size=3,
+        n_objects=(4, 8),
+        n_layers=(1, 2),
+        height_ratio=(0.45, 0.70),
         base_sizes_mm=(_cm3(50, 50, 40), _cm3(60, 50, 45), _cm3(60, 60, 50), _cm3(80, 60, 55)),
     ),
     "medium": DifficultySpec(
-        "medium", buffer_size=5, n_objects=(9, 18), n_layers=(2, 3), height_ratio=(0.45, 0.70),
+        "medium",
+        buffer_size=5,
+        n_objects=(9, 18),
+        n_layers=(2, 3),
+        height_ratio=(0.45, 0.70),
         base_sizes_mm=(_cm3(80, 80, 60), _cm3(100, 80, 70), _cm3(100, 100, 80), _cm3(120, 100, 90)),
     ),
     "hard": DifficultySpec(
-        "hard", buffer_size=10, n_objects=(19, 32), n_layers=(3, 4), height_ratio=(0.84, 0.96),
-        base_sizes_mm=(_cm3(120, 120, 90), _cm3(140, 120, 100), _cm3(140, 140, 100), _cm3(160, 120, 110)),
+        "hard",
+        buffer_size=10,
+        n_objects=(19, 32),
+        n_layers=(3, 4),
+        height_ratio=(0.84, 0.96),
+        base_sizes_mm=(
+            _cm3(120, 120, 90),
+            _cm3(140, 120, 100),
+            _cm3(140, 140, 100),
+            _cm3(160, 120, 110),
+        ),
     ),
 }
 
@@ -124,7 +145,9 @@ class AnchorConfig:
             raise ConfigError(f"anchor.corner_prob = {self.corner_prob!r}: must be in [0, 1]")
         bad = [c for c in self.corners if c not in CORNERS]
         if bad or not self.corners:
-            raise ConfigError(f"anchor.corners = {self.corners!r}: choose from {', '.join(CORNERS)}")
+            raise ConfigError(
+                f"anchor.corners = {self.corners!r}: choose from {', '.join(CORNERS)}"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,7 +172,9 @@ class CaseConfig:
         if not 0.0 <= self.step_prob <= 1.0:
             raise ConfigError(f"step_prob = {self.step_prob!r}: must be in [0, 1]")
         if self.objects.min_side_mm % self.cell_xy_mm:
-            raise ConfigError(f"objects.min_side_mm = {self.objects.min_side_mm}: not a multiple of the grid")
+            raise ConfigError(
+                f"objects.min_side_mm = {self.objects.min_side_mm}: not a multiple of the grid"
+            )
         if self.n_types < 1:
             raise ConfigError(f"n_types = {self.n_types}: must be at least 1")
 
@@ -190,11 +215,17 @@ class Recipe:
 #: Named datasets; ``packlab generate --recipe NAME`` reproduces one in one flag.
 RECIPES: dict[str, Recipe] = {
     "packdata-20k": Recipe(
-        "packdata-20k", ("easy", "medium", "hard"), (9000, 7000, 4000), seed=20250,
+        "packdata-20k",
+        ("easy", "medium", "hard"),
+        (9000, 7000, 4000),
+        seed=20250,
         description="PackData-20K: 9000 easy, 7000 medium, 4000 hard validated trajectories",
     ),
     "packdata-mini": Recipe(
-        "packdata-mini", ("easy", "medium", "hard"), (18, 14, 8), seed=20250,
+        "packdata-mini",
+        ("easy", "medium", "hard"),
+        (18, 14, 8),
+        seed=20250,
         description="A 40-episode slice with the 20K mix, for a quick try",
     ),
 }
@@ -236,25 +267,41 @@ class DatasetConfig:
         for name in self.difficulties:
             difficulty_spec(name)
         if len(set(self.difficulties)) != len(self.difficulties):
-            raise ConfigError(f"difficulty = {','.join(self.difficulties)}: a difficulty is repeated")
+            raise ConfigError(
+                f"difficulty = {','.join(self.difficulties)}: a difficulty is repeated"
+            )
         if len(self.episodes) != len(self.difficulties):
             raise ConfigError(
                 f"episodes = {','.join(map(str, self.episodes))}: give one count per difficulty "
                 f"({len(self.difficulties)})"
             )
         for name, n in zip(self.difficulties, self.episodes):
-            if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_EPISODES_PER_DIFFICULTY:
-                raise ConfigError(f"episodes for {name} = {n!r}: must be a whole number >= 0 "
-                                  f"and <= {MAX_EPISODES_PER_DIFFICULTY}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_USER_SEED:
-            raise ConfigError(f"seed = {self.seed!r}: must be a whole number >= 0 and <= {MAX_USER_SEED}")
+            if (
+                isinstance(n, bool)
+                or not isinstance(n, int)
+                or not 0 <= n <= MAX_EPISODES_PER_DIFFICULTY
+            ):
+                raise ConfigError(
+                    f"episodes for {name} = {n!r}: must be a whole number >= 0 "
+                    f"and <= {MAX_EPISODES_PER_DIFFICULTY}"
+                )
+        if (
+            isinstance(self.seed, bool)
+            or not isinstance(self.seed, int)
+            or not 0 <= self.seed <= MAX_USER_SEED
+        ):
+            raise ConfigError(
+                f"seed = {self.seed!r}: must be a whole number >= 0 and <= {MAX_USER_SEED}"
+            )
         if self.shard_size < 1:
             raise ConfigError(f"shard_size = {self.shard_size}: must be at least 1")
         if not 16 <= self.image_size <= 4096:
             raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
         require_choice(self.sft, SFTExport, "sft")
         if self.recipe is not None and self.recipe not in RECIPES:
-            raise ConfigError(f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}")
+            raise ConfigError(
+                f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}"
+            )
 
     @property
     def total_episodes(self) -> int:
@@ -269,7 +316,11 @@ class DatasetConfig:
         if name not in RECIPES:
             raise ConfigError(f"recipe = {name!r}: unknown; choose from {', '.join(RECIPES)}")
         r = RECIPES[name]
-        fields: dict[str, Any] = {"difficulties": r.difficulties, "episodes": r.episodes, "seed": r.seed,
-                                  "recipe": name}
+        fields: dict[str, Any] = {
+            "difficulties": r.difficulties,
+            "episodes": r.episodes,
+            "seed": r.seed,
+            "recipe": name,
+        }
         fields.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**fields)

@@ -114,12 +114,17 @@ def plan_shards(cfg: DatasetConfig) -> list[ShardSpec]:
 
 # -- one slot, one shard ----------------------------------------------------------------------
 
+
 def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
     """The slot's first validated case in the training seed space, with its replay."""
-    return fill_slot(cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-")
+    return fill_slot(
+        cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-"
+    )
 
 
-def run_shard(cfg: DatasetConfig, spec: ShardSpec, root: Path, report: Report | None = None) -> ShardStats:
+def run_shard(
+    cfg: DatasetConfig, spec: ShardSpec, root: Path, report: Report | None = None
+) -> ShardStats:
     """Produce one shard's files under ``root`` and, last, its marker; returns its stats."""
     root = Path(root)
     step_rows: list[dict[str, Any]] = []
@@ -139,23 +144,38 @@ def run_shard(cfg: DatasetConfig, spec: ShardSpec, root: Path, report: Report | 
             rows = fmt.step_rows(trajectory, spec.name)
             container = trajectory.case.container
             for row, seen in zip(rows, trajectory.steps):
-                images.write(row["image"], fmt.encode_png(seen.heightmap, container, cfg.image_size))
+                images.write(
+                    row["image"], fmt.encode_png(seen.heightmap, container, cfg.image_size)
+                )
             step_rows += rows
             episode_rows.append(fmt.episode_row(trajectory))
         if report is not None:
             report(trajectory is not None, len(rejected))
     images.commit()
     fmt.write_parquet(root / fmt.STEPS_DIR / f"{spec.name}.parquet", fmt.steps_table(step_rows))
-    fmt.write_parquet(root / fmt.EPISODES_DIR / f"{spec.name}.parquet", fmt.episodes_table(episode_rows))
+    fmt.write_parquet(
+        root / fmt.EPISODES_DIR / f"{spec.name}.parquet", fmt.episodes_table(episode_rows)
+    )
     if cfg.sft != "none":
-        fmt.atomic_write_bytes(root / fmt.SFT_DIR / f"{spec.name}.jsonl", fmt.sft_jsonl(step_rows, cfg.sft))
-    stats = ShardStats(spec.name, spec.difficulty, spec.count, len(episode_rows), len(step_rows), attempts,
-                       dict(sorted(rejections.items())), tuple(failed))
+        fmt.atomic_write_bytes(
+            root / fmt.SFT_DIR / f"{spec.name}.jsonl", fmt.sft_jsonl(step_rows, cfg.sft)
+        )
+    stats = ShardStats(
+        spec.name,
+        spec.difficulty,
+        spec.count,
+        len(episode_rows),
+        len(step_rows),
+        attempts,
+        dict(sorted(rejections.items())),
+        tuple(failed),
+    )
     fmt.atomic_write_json(root / fmt.SHARDS_DIR / f"{spec.name}.json", stats.to_dict())
     return stats
 
 
 # -- the output directory ---------------------------------------------------------------------
+
 
 def _config_json(cfg: DatasetConfig) -> dict[str, Any]:
     # A JSON round trip turns tuples into lists, so stored and fresh configs compare equal.
@@ -166,15 +186,19 @@ def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
     """Create or reopen the dataset directory; fail with one line before any work starts."""
     root = Path(out)
     if root.exists() and not root.is_dir():
-        raise ConfigError(f"out = {str(root)!r}: exists and is not a directory; give a directory "
-                          "(an existing dataset directory is resumed)")
+        raise ConfigError(
+            f"out = {str(root)!r}: exists and is not a directory; give a directory "
+            "(an existing dataset directory is resumed)"
+        )
     try:
         root.mkdir(parents=True, exist_ok=True)
         probe = root / ".packlab-write-probe.tmp"
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
-        raise ConfigError(f"out = {str(root)!r}: cannot write there ({exc.strerror or exc})") from None
+        raise ConfigError(
+            f"out = {str(root)!r}: cannot write there ({exc.strerror or exc})"
+        ) from None
     config_path = root / fmt.META_DIR / "config.json"
     wanted = _config_json(cfg)
     if config_path.exists():
@@ -186,7 +210,9 @@ def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
                 "differ); rerun with the same options to resume, or choose another --out"
             )
     elif any(p.name != ".packlab-write-probe.tmp" for p in root.iterdir()):
-        raise ConfigError(f"out = {str(root)!r}: exists and is not an empty directory or a packlab dataset")
+        raise ConfigError(
+            f"out = {str(root)!r}: exists and is not an empty directory or a packlab dataset"
+        )
     else:
         fmt.atomic_write_json(config_path, wanted)
     fmt.remove_stale_temporaries(root)
@@ -227,7 +253,9 @@ def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> DatasetInfo:
     return DatasetInfo(
         format_version=PACKDATA_FORMAT,
         name=cfg.recipe or "packdata-custom",
-        generator=GeneratorInfo(name=GENERATOR_NAME, version=GENERATOR_VERSION, seed_domain=TRAIN_DOMAIN),
+        generator=GeneratorInfo(
+            name=GENERATOR_NAME, version=GENERATOR_VERSION, seed_domain=TRAIN_DOMAIN
+        ),
         generator_config=_config_json(cfg),
         validation_backend=cfg.validation.backend,
         prompt_version=PROMPT_VERSION,
@@ -238,12 +266,20 @@ def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> DatasetInfo:
             by_difficulty=per,
         ),
         rejections=dict(sorted(total_rej.items())),
-        image=ImageInfo(size=cfg.image_size, format="png", mode="P",
-                        axes="x=columns left->right, y=rows top->bottom, cell (0,0) top-left",
-                        colour="absolute height, floor to rim"),
-        files=FilesInfo(steps=f"{fmt.STEPS_DIR}/*.parquet", episodes=f"{fmt.EPISODES_DIR}/*.parquet",
-                        sft=f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None, sft_mode=cfg.sft,
-                        images=f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png"),
+        image=ImageInfo(
+            size=cfg.image_size,
+            format="png",
+            mode="P",
+            axes="x=columns left->right, y=rows top->bottom, cell (0,0) top-left",
+            colour="absolute height, floor to rim",
+        ),
+        files=FilesInfo(
+            steps=f"{fmt.STEPS_DIR}/*.parquet",
+            episodes=f"{fmt.EPISODES_DIR}/*.parquet",
+            sft=f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None,
+            sft_mode=cfg.sft,
+            images=f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png",
+        ),
     )
 
 
@@ -257,6 +293,7 @@ def write_info(cfg: DatasetConfig, root: Path) -> DatasetInfo:
 
 
 # -- running shards ---------------------------------------------------------------------------
+
 
 @dataclass(frozen=True, slots=True)
 class ShardWork:
@@ -274,8 +311,10 @@ class ShardWork:
 
 
 def _lost_shard(spec: ShardSpec, lost: Lost) -> ShardStats:
-    raise WorkerLost(f"the worker making shard {spec.name} was lost ({lost.kind}: {lost.detail}); "
-                     "finished shards are kept: rerun the same command to resume")
+    raise WorkerLost(
+        f"the worker making shard {spec.name} was lost ({lost.kind}: {lost.detail}); "
+        "finished shards are kept: rerun the same command to resume"
+    )
 
 
 class _Progress:
@@ -317,8 +356,14 @@ def generate_dataset(cfg: DatasetConfig, options: RunOptions) -> DatasetInfo:
     progress = _Progress()
     # Interrupted or failed: leaving the block stops the workers. Shards in flight have no marker
     # and are redone by the next run; their staged files are removed then.
-    with run_items(ShardWork(cfg, root), pending, executor=options.executor, workers=workers,
-                   on_report=progress, on_lost=_lost_shard) as results:
+    with run_items(
+        ShardWork(cfg, root),
+        pending,
+        executor=options.executor,
+        workers=workers,
+        on_report=progress,
+        on_lost=_lost_shard,
+    ) as results:
         progress.open(total, total - sum(s.count for s in pending), options.progress)
         try:
             for _ in results:

@@ -58,58 +58,75 @@ META_DIR = "meta"
 SHARDS_DIR = "meta/shards"
 INFO_FILE = "meta/info.json"
 
-_SHOWN = pa.struct([
-    ("object_id", pa.int32()),  # index in the shown buffer (what an action's object_id refers to)
-    ("internal_id", pa.int32()),
-    ("size_cm", pa.list_(pa.float64())),  # object's own (l, w, h) at rotation 0
-    ("size_cells", pa.list_(pa.int32())),  # (l, w) xy cells, h z cells
-    ("type_id", pa.int32()),
-])
-_ACTION = pa.struct([("object_id", pa.int32()), ("x", pa.int32()), ("y", pa.int32()), ("rotation", pa.int32())])
+_SHOWN = pa.struct(
+    [
+        (
+            "object_id",
+            pa.int32(),
+        ),  # index in the shown buffer (what an action's object_id refers to)
+        ("internal_id", pa.int32()),
+        ("size_cm", pa.list_(pa.float64())),  # object's own (l, w, h) at rotation 0
+        ("size_cells", pa.list_(pa.int32())),  # (l, w) xy cells, h z cells
+        ("type_id", pa.int32()),
+    ]
+)
+_ACTION = pa.struct(
+    [("object_id", pa.int32()), ("x", pa.int32()), ("y", pa.int32()), ("rotation", pa.int32())]
+)
 
-STEP_SCHEMA = pa.schema([
-    ("episode_id", pa.string()),
-    ("difficulty", pa.string()),
-    ("step_index", pa.int32()),
-    ("n_steps", pa.int32()),
-    ("remaining", pa.int32()),  # objects not yet processed, shown ones included
-    ("container_size_cm", pa.list_(pa.float64())),
-    ("grid_cell_size_cm", pa.list_(pa.float64())),  # (xy, z)
-    ("heightmap_mm", pa.list_(pa.list_(pa.int32()))),  # [x][y], the observed surface before the step
-    ("image", pa.string()),  # PNG of heightmap_mm, relative to the dataset root
-    ("shown", pa.list_(_SHOWN)),  # the buffer in the order shown at this step
-    ("action", _ACTION),
-    ("action_text", pa.string()),  # the exact assistant target (vlm.prompt.render.action_text)
-    ("internal_id", pa.int32()),  # the object placed
-    ("drop_mm", pa.list_(pa.int32())),  # footprint min corner (x, y) and Eq. 2 height z, mm
-])
+STEP_SCHEMA = pa.schema(
+    [
+        ("episode_id", pa.string()),
+        ("difficulty", pa.string()),
+        ("step_index", pa.int32()),
+        ("n_steps", pa.int32()),
+        ("remaining", pa.int32()),  # objects not yet processed, shown ones included
+        ("container_size_cm", pa.list_(pa.float64())),
+        ("grid_cell_size_cm", pa.list_(pa.float64())),  # (xy, z)
+        (
+            "heightmap_mm",
+            pa.list_(pa.list_(pa.int32())),
+        ),  # [x][y], the observed surface before the step
+        ("image", pa.string()),  # PNG of heightmap_mm, relative to the dataset root
+        ("shown", pa.list_(_SHOWN)),  # the buffer in the order shown at this step
+        ("action", _ACTION),
+        ("action_text", pa.string()),  # the exact assistant target (vlm.prompt.render.action_text)
+        ("internal_id", pa.int32()),  # the object placed
+        ("drop_mm", pa.list_(pa.int32())),  # footprint min corner (x, y) and Eq. 2 height z, mm
+    ]
+)
 
-EPISODE_SCHEMA = pa.schema([
-    ("episode_id", pa.string()),
-    ("difficulty", pa.string()),
-    ("case_seed", pa.int64()),
-    ("user_seed", pa.int64()),
-    ("slot", pa.int32()),
-    ("attempt", pa.int32()),
-    ("layout", pa.string()),
-    ("anchor", pa.string()),
-    ("first_cell", pa.list_(pa.int32())),
-    ("container_size_cm", pa.list_(pa.float64())),
-    ("buffer_size", pa.int32()),
-    ("n_objects", pa.int32()),
-    ("n_layers", pa.int32()),
-    ("stack_height_cm", pa.float64()),
-    ("layer_heights_cm", pa.list_(pa.float64())),
-    ("n_rotated", pa.int32()),
-    ("backend", pa.string()),
-    ("run_seed", pa.int64()),
-    ("success_ratio", pa.float64()),
-    ("compactness", pa.float64()),
-    ("overall", pa.float64()),
-    ("max_height_mm", pa.int32()),
-    ("settle_steps", pa.int64()),
-    ("case_json", pa.string()),  # the case in the reference format (packlab.cases.case_from_dict)
-])
+EPISODE_SCHEMA = pa.schema(
+    [
+        ("episode_id", pa.string()),
+        ("difficulty", pa.string()),
+        ("case_seed", pa.int64()),
+        ("user_seed", pa.int64()),
+        ("slot", pa.int32()),
+        ("attempt", pa.int32()),
+        ("layout", pa.string()),
+        ("anchor", pa.string()),
+        ("first_cell", pa.list_(pa.int32())),
+        ("container_size_cm", pa.list_(pa.float64())),
+        ("buffer_size", pa.int32()),
+        ("n_objects", pa.int32()),
+        ("n_layers", pa.int32()),
+        ("stack_height_cm", pa.float64()),
+        ("layer_heights_cm", pa.list_(pa.float64())),
+        ("n_rotated", pa.int32()),
+        ("backend", pa.string()),
+        ("run_seed", pa.int64()),
+        ("success_ratio", pa.float64()),
+        ("compactness", pa.float64()),
+        ("overall", pa.float64()),
+        ("max_height_mm", pa.int32()),
+        ("settle_steps", pa.int64()),
+        (
+            "case_json",
+            pa.string(),
+        ),  # the case in the reference format (packlab.cases.case_from_dict)
+    ]
+)
 
 
 def shard_name(difficulty: str, index: int) -> str:
@@ -117,6 +134,7 @@ def shard_name(difficulty: str, index: int) -> str:
 
 
 # -- atomic files -----------------------------------------------------------------------------
+
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically, with the mode a plain ``open`` gives (see fileio)."""
@@ -185,13 +203,16 @@ class ShardImages:
         target.write_bytes(data)
 
     def commit(self) -> None:
-        self.stage.mkdir(parents=True, exist_ok=True)  # an all-rejected shard still gets its directory
+        self.stage.mkdir(
+            parents=True, exist_ok=True
+        )  # an all-rejected shard still gets its directory
         if self.final.exists():  # left by a run killed after this rename but before the marker
             shutil.rmtree(self.final)
         os.replace(self.stage, self.final)
 
 
 # -- rows -------------------------------------------------------------------------------------
+
 
 def _cm(mm: float) -> float:
     return float(mm) / 10.0
@@ -215,8 +236,13 @@ def encode_png(heightmap: Any, container: Container, size: int) -> bytes:
 
 
 def _shown_row(s: ShownItem) -> dict[str, Any]:
-    return {"object_id": s.shown_index, "internal_id": s.internal_id, "size_cm": [_cm(v) for v in s.size_mm],
-            "size_cells": list(s.size_cells), "type_id": s.type_id}
+    return {
+        "object_id": s.shown_index,
+        "internal_id": s.internal_id,
+        "size_cm": [_cm(v) for v in s.size_mm],
+        "size_cells": list(s.size_cells),
+        "type_id": s.type_id,
+    }
 
 
 def step_rows(trajectory: Trajectory, shard: str) -> list[dict[str, Any]]:
@@ -228,22 +254,24 @@ def step_rows(trajectory: Trajectory, shard: str) -> list[dict[str, Any]]:
     for step, drop in zip(trajectory.steps, drops):
         action = step.action
         assert isinstance(action, Action), "kept trajectories hold only parsed actions"
-        rows.append({
-            "episode_id": case.episode_id,
-            "difficulty": case.difficulty,
-            "step_index": step.step_index,
-            "n_steps": len(trajectory.steps),
-            "remaining": step.remaining,
-            "container_size_cm": [_cm(v) for v in c.size_mm],
-            "grid_cell_size_cm": [_cm(c.cell_xy_mm), _cm(c.cell_z_mm)],
-            "heightmap_mm": step.heightmap,  # numpy; see steps_table
-            "image": image_path(case.difficulty, shard, case.episode_id, step.step_index),
-            "shown": [_shown_row(s) for s in step.shown],
-            "action": action.to_dict(),
-            "action_text": action_text(action),
-            "internal_id": step.shown[action.object_id].internal_id,
-            "drop_mm": list(drop) if drop is not None else None,
-        })
+        rows.append(
+            {
+                "episode_id": case.episode_id,
+                "difficulty": case.difficulty,
+                "step_index": step.step_index,
+                "n_steps": len(trajectory.steps),
+                "remaining": step.remaining,
+                "container_size_cm": [_cm(v) for v in c.size_mm],
+                "grid_cell_size_cm": [_cm(c.cell_xy_mm), _cm(c.cell_z_mm)],
+                "heightmap_mm": step.heightmap,  # numpy; see steps_table
+                "image": image_path(case.difficulty, shard, case.episode_id, step.step_index),
+                "shown": [_shown_row(s) for s in step.shown],
+                "action": action.to_dict(),
+                "action_text": action_text(action),
+                "internal_id": step.shown[action.object_id].internal_id,
+                "drop_mm": list(drop) if drop is not None else None,
+            }
+        )
     return rows
 
 
@@ -252,12 +280,16 @@ def steps_table(rows: list[dict[str, Any]]) -> pa.Table:
     every cell would cost more memory and time than everything else in a shard."""
     index = STEP_SCHEMA.get_field_index("heightmap_mm")
     plain = STEP_SCHEMA.remove(index)
-    table = pa.Table.from_pylist([{k: v for k, v in r.items() if k != "heightmap_mm"} for r in rows], schema=plain)
+    table = pa.Table.from_pylist(
+        [{k: v for k, v in r.items() if k != "heightmap_mm"} for r in rows], schema=plain
+    )
     maps = [np.asarray(r["heightmap_mm"], dtype=np.int32) for r in rows]
     nx = np.array([m.shape[0] for m in maps], dtype=np.int64)
     ny = np.repeat(np.array([m.shape[1] for m in maps], dtype=np.int64), nx)
     values = np.concatenate([m.ravel() for m in maps]) if maps else np.zeros(0, np.int32)
-    inner = pa.ListArray.from_arrays(pa.array(np.r_[0, np.cumsum(ny)].astype(np.int32)), pa.array(values))
+    inner = pa.ListArray.from_arrays(
+        pa.array(np.r_[0, np.cumsum(ny)].astype(np.int32)), pa.array(values)
+    )
     outer = pa.ListArray.from_arrays(pa.array(np.r_[0, np.cumsum(nx)].astype(np.int32)), inner)
     return table.add_column(index, STEP_SCHEMA.field(index), outer)
 
@@ -300,11 +332,16 @@ def episode_row(trajectory: Trajectory) -> dict[str, Any]:
 
 # -- SFT export -------------------------------------------------------------------------------
 
+
 def _shown_items(row_shown: Sequence[dict[str, Any]]) -> tuple[ShownItem, ...]:
     return tuple(
-        ShownItem(shown_index=s["object_id"], internal_id=s["internal_id"],
-                  size_mm=tuple(round(v * 10) for v in s["size_cm"]),  # type: ignore[arg-type]
-                  size_cells=tuple(s["size_cells"]), type_id=s["type_id"])  # type: ignore[arg-type]
+        ShownItem(
+            shown_index=s["object_id"],
+            internal_id=s["internal_id"],
+            size_mm=tuple(round(v * 10) for v in s["size_cm"]),  # type: ignore[arg-type]
+            size_cells=tuple(s["size_cells"]),
+            type_id=s["type_id"],
+        )  # type: ignore[arg-type]
         for s in row_shown
     )
 
@@ -325,8 +362,15 @@ def sft_records(rows: Sequence[dict[str, Any]], mode: str) -> Iterable[dict[str,
     if not rows:
         return
     container = _container_of(rows[0])
-    turns = [TurnState(image=r["image"], shown=_shown_items(r["shown"]), step_index=r["step_index"],
-                       remaining=r["remaining"]) for r in rows]
+    turns = [
+        TurnState(
+            image=r["image"],
+            shown=_shown_items(r["shown"]),
+            step_index=r["step_index"],
+            remaining=r["remaining"],
+        )
+        for r in rows
+    ]
     actions = [Action(**r["action"]) for r in rows]
     last = len(rows) - 1
     targets = range(len(rows)) if mode == "per_step" else [last]
@@ -349,7 +393,9 @@ def sft_jsonl(rows: Sequence[dict[str, Any]], mode: str) -> bytes:
     start = 0
     for i in range(1, len(rows) + 1):
         if i == len(rows) or rows[i]["episode_id"] != rows[start]["episode_id"]:
-            lines += [json.dumps(r, separators=(",", ":")) for r in sft_records(rows[start:i], mode)]
+            lines += [
+                json.dumps(r, separators=(",", ":")) for r in sft_records(rows[start:i], mode)
+            ]
             start = i
     return "".join(line + "\n" for line in lines).encode()
 
@@ -368,6 +414,7 @@ def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> l
 
 # -- dataset card -----------------------------------------------------------------------------
 
+
 def dataset_card(info: DatasetInfo) -> str:
     """README.md of a dataset: the YAML header lets ``datasets.load_dataset(DIR, name)`` work."""
     counts = info.counts
@@ -376,9 +423,9 @@ def dataset_card(info: DatasetInfo) -> str:
         "configs:\n"
         "- config_name: steps\n"
         "  default: true\n"
-        f"  data_files: \"{STEPS_DIR}/*.parquet\"\n"
+        f'  data_files: "{STEPS_DIR}/*.parquet"\n'
         "- config_name: episodes\n"
-        f"  data_files: \"{EPISODES_DIR}/*.parquet\"\n"
+        f'  data_files: "{EPISODES_DIR}/*.parquet"\n'
         "---\n\n"
         f"# {info.name}\n\n"
         "Closed-loop bin-packing trajectories made by packlab's layout-first data engine: perfect\n"
@@ -388,7 +435,7 @@ def dataset_card(info: DatasetInfo) -> str:
         f"Episodes: {counts.episodes}; steps: {counts.steps}. Format {info.format_version}.\n\n"
         "```python\n"
         "import datasets\n"
-        f"steps = datasets.load_dataset(\"parquet\", data_files=\"{STEPS_DIR}/*.parquet\", split=\"train\")\n"
+        f'steps = datasets.load_dataset("parquet", data_files="{STEPS_DIR}/*.parquet", split="train")\n'
         "```\n\n"
         "Images (`image` column) and SFT messages reference PNGs relative to this directory.\n"
         "Heightmap images: x along columns (left to right), y along rows (top to bottom), cell (0, 0)\n"

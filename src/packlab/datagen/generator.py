@@ -55,8 +55,13 @@ def _cm(mm: int) -> float | int:
     return int(cm) if cm.is_integer() else cm
 
 
-def case_from_blueprint(bp: Blueprint, seed: int, difficulty: str, episode_id: str,
-                        provenance: dict[str, Any] | None = None) -> Case:
+def case_from_blueprint(
+    bp: Blueprint,
+    seed: int,
+    difficulty: str,
+    episode_id: str,
+    provenance: dict[str, Any] | None = None,
+) -> Case:
     """The case of a blueprint: arrival order = placement order, and the plan that replays it.
 
     ``internal_id`` is the object's index in the layout and ``gt_index`` its position in the
@@ -72,9 +77,18 @@ def case_from_blueprint(bp: Blueprint, seed: int, difficulty: str, episode_id: s
         fx, fy, h = b.dx * c.cell_xy_mm, b.dy * c.cell_xy_mm, b.dz * c.cell_z_mm
         size = (fy, fx, h) if rotation else (fx, fy, h)
         objects.append(Box(internal_id=i, size_mm=size, gt_index=gt_index, type_id=bp.type_ids[i]))
-        plan.append(PlanStep(internal_id=i, gt_index=gt_index, layer_index=b.layer_index,
-                             cell_min=(b.x, b.y, b.z), cell_size=(b.dx, b.dy, b.dz),
-                             x=b.x, y=b.y, rotation=rotation))
+        plan.append(
+            PlanStep(
+                internal_id=i,
+                gt_index=gt_index,
+                layer_index=b.layer_index,
+                cell_min=(b.x, b.y, b.z),
+                cell_size=(b.dx, b.dy, b.dz),
+                x=b.x,
+                y=b.y,
+                rotation=rotation,
+            )
+        )
     first = bp.layout.boxes[bp.order.order[0]]
     generator = {
         "name": GENERATOR_NAME,
@@ -88,23 +102,50 @@ def case_from_blueprint(bp: Blueprint, seed: int, difficulty: str, episode_id: s
         "base_size_cm": [_cm(v) for v in bp.scenario.base_size_mm],
         **(provenance or {}),
     }
-    return Case(episode_id=episode_id, container=c, buffer_size=spec.buffer_size, objects=tuple(objects),
-                seed=seed, difficulty=difficulty, gt_plan=tuple(plan), generator=generator)
+    return Case(
+        episode_id=episode_id,
+        container=c,
+        buffer_size=spec.buffer_size,
+        objects=tuple(objects),
+        seed=seed,
+        difficulty=difficulty,
+        gt_plan=tuple(plan),
+        generator=generator,
+    )
 
 
-def build_case(seed: int, difficulty: str, cfg: CaseConfig | None = None, episode_id: str | None = None,
-               provenance: dict[str, Any] | None = None) -> Case:
+def build_case(
+    seed: int,
+    difficulty: str,
+    cfg: CaseConfig | None = None,
+    episode_id: str | None = None,
+    provenance: dict[str, Any] | None = None,
+) -> Case:
     """The case of a case seed (pure and deterministic)."""
     cfg = cfg or CaseConfig()
     bp = draw_blueprint(seed, difficulty, cfg)
-    return case_from_blueprint(bp, seed, difficulty, episode_id or f"{difficulty}-{seed}", provenance)
+    return case_from_blueprint(
+        bp, seed, difficulty, episode_id or f"{difficulty}-{seed}", provenance
+    )
 
 
-def slot_case(user_seed: int, domain: str, difficulty: str, slot: int, attempt: int, cfg: CaseConfig,
-              id_prefix: str) -> Case:
+def slot_case(
+    user_seed: int,
+    domain: str,
+    difficulty: str,
+    slot: int,
+    attempt: int,
+    cfg: CaseConfig,
+    id_prefix: str,
+) -> Case:
     """The case tried for one slot of a suite or dataset at one attempt."""
     seed = case_seed(user_seed, domain, difficulty, slot, attempt)
-    provenance = {"domain": domain, "user_seed": int(user_seed), "slot": int(slot), "attempt": int(attempt)}
+    provenance = {
+        "domain": domain,
+        "user_seed": int(user_seed),
+        "slot": int(slot),
+        "attempt": int(attempt),
+    }
     return build_case(seed, difficulty, cfg, f"{id_prefix}{difficulty}-{slot:05d}", provenance)
 
 
@@ -117,8 +158,16 @@ class SlotOutcome:
     rejected: tuple[str, ...]  # reasons of the rejected attempts, in order
 
 
-def fill_slot(user_seed: int, domain: str, difficulty: str, slot: int, cfg: CaseConfig,
-              validation: ValidationConfig, id_prefix: str, replay_plan: bool = True) -> SlotOutcome:
+def fill_slot(
+    user_seed: int,
+    domain: str,
+    difficulty: str,
+    slot: int,
+    cfg: CaseConfig,
+    validation: ValidationConfig,
+    id_prefix: str,
+    replay_plan: bool = True,
+) -> SlotOutcome:
     """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out)."""
     rejected = []
     for attempt in range(validation.max_attempts):
@@ -130,9 +179,18 @@ def fill_slot(user_seed: int, domain: str, difficulty: str, slot: int, cfg: Case
     return SlotOutcome(None, None, tuple(rejected))
 
 
-def generate_cases(difficulty: str, n: int, seed: int, validate: bool = True, *,
-                   config: CaseConfig | None = None, validation: ValidationConfig | None = None,
-                   domain: str = "bench", start: int = 0, id_prefix: str | None = None) -> list[Case]:
+def generate_cases(
+    difficulty: str,
+    n: int,
+    seed: int,
+    validate: bool = True,
+    *,
+    config: CaseConfig | None = None,
+    validation: ValidationConfig | None = None,
+    domain: str = "bench",
+    start: int = 0,
+    id_prefix: str | None = None,
+) -> list[Case]:
     """``n`` cases of one difficulty, deterministic for ``seed``; the bench's suite maker.
 
     Slot ``i`` (``start <= i < start + n``) takes the first attempt whose case passes the plan
@@ -152,11 +210,21 @@ def generate_cases(difficulty: str, n: int, seed: int, validate: bool = True, *,
     for slot in range(start, start + n):
         outcome = fill_slot(seed, domain, difficulty, slot, cfg, val, prefix, replay_plan=validate)
         if outcome.case is None:
-            raise PacklabError(f"{difficulty} slot {slot}: no valid case in {val.max_attempts} attempts "
-                               f"({', '.join(outcome.rejected)})")
+            raise PacklabError(
+                f"{difficulty} slot {slot}: no valid case in {val.max_attempts} attempts "
+                f"({', '.join(outcome.rejected)})"
+            )
         cases.append(outcome.case)
     return cases
 
 
-__all__ = ["Blueprint", "SlotOutcome", "build_case", "case_from_blueprint", "draw_blueprint", "fill_slot",
-           "generate_cases", "slot_case"]
+__all__ = [
+    "Blueprint",
+    "SlotOutcome",
+    "build_case",
+    "case_from_blueprint",
+    "draw_blueprint",
+    "fill_slot",
+    "generate_cases",
+    "slot_case",
+]

@@ -113,8 +113,9 @@ def _cut(r: Rect, axis: int, offset: int) -> tuple[Rect, Rect]:
     return Rect(r.x, r.y, r.dx, offset), Rect(r.x, r.y + offset, r.dx, r.dy - offset)
 
 
-def guillotine_partition(rect: Rect, k: int, rules: PieceRules, rng: np.random.Generator,
-                         tries: int = 40) -> list[Rect] | None:
+def guillotine_partition(
+    rect: Rect, k: int, rules: PieceRules, rng: np.random.Generator, tries: int = 40
+) -> list[Rect] | None:
     """``rect`` cut into exactly ``k`` pieces obeying ``rules``, or None if the tries run out.
 
     Each cut splits a piece chosen with probability proportional to its area (keeps sizes
@@ -134,8 +135,8 @@ def guillotine_partition(rect: Rect, k: int, rules: PieceRules, rng: np.random.G
             i = splittable[int(rng.choice(len(splittable), p=areas / areas.sum()))]
             axis, offset = cuts[i][int(rng.integers(len(cuts[i])))]
             a, b = _cut(pieces[i], axis, offset)
-            pieces[i:i + 1] = [a, b]
-            cuts[i:i + 1] = [valid_cuts(a.dx, a.dy, rules), valid_cuts(b.dx, b.dy, rules)]
+            pieces[i : i + 1] = [a, b]
+            cuts[i : i + 1] = [valid_cuts(a.dx, a.dy, rules), valid_cuts(b.dx, b.dy, rules)]
         if len(pieces) == k:
             return pieces
     return None
@@ -157,8 +158,15 @@ class _Block:
     dz: int
 
 
-def _stepped_blocks(floor: Rect, z: int, dz: int, count: int, cfg: CaseConfig, rules: PieceRules,
-                    rng: np.random.Generator) -> list[_Block] | None:
+def _stepped_blocks(
+    floor: Rect,
+    z: int,
+    dz: int,
+    count: int,
+    cfg: CaseConfig,
+    rules: PieceRules,
+    rng: np.random.Generator,
+) -> list[_Block] | None:
     """Regions of a layer, each kept whole or split at its own height into two sub-layers."""
     zc = cfg.cell_z_mm
     lo, hi = (v // zc for v in cfg.objects.layer_height_mm)
@@ -182,8 +190,9 @@ def _stepped_blocks(floor: Rect, z: int, dz: int, count: int, cfg: CaseConfig, r
     return blocks
 
 
-def _tile_blocks(blocks: list[_Block], count: int, layer: int, rules: PieceRules,
-                 rng: np.random.Generator) -> list[LayoutBox] | None:
+def _tile_blocks(
+    blocks: list[_Block], count: int, layer: int, rules: PieceRules, rng: np.random.Generator
+) -> list[LayoutBox] | None:
     """Each block's floor cut into its share of ``count`` objects (share grows with area)."""
     shares = _spread(count, np.array([b.rect.area for b in blocks], dtype=np.float64), rng)
     out: list[LayoutBox] = []
@@ -195,7 +204,9 @@ def _tile_blocks(blocks: list[_Block], count: int, layer: int, rules: PieceRules
     return out
 
 
-def build_layout(scenario: Scenario, cfg: CaseConfig, rng: np.random.Generator, tries: int = 20) -> Layout:
+def build_layout(
+    scenario: Scenario, cfg: CaseConfig, rng: np.random.Generator, tries: int = 20
+) -> Layout:
     """The layout of a scenario in the configured family (pure; draws only from ``rng``)."""
     c = scenario.container
     nx, ny = c.cells
@@ -238,12 +249,21 @@ def partition_problems(layout: Layout) -> list[str]:
     for i, b in enumerate(boxes):
         if min(b.dx, b.dy, b.dz) <= 0:
             problems.append(f"box {i} has a non-positive size {b}")
-        if b.x < 0 or b.y < 0 or b.z < 0 or b.x + b.dx > nx or b.y + b.dy > ny or b.top > layout.height:
+        if (
+            b.x < 0
+            or b.y < 0
+            or b.z < 0
+            or b.x + b.dx > nx
+            or b.y + b.dy > ny
+            or b.top > layout.height
+        ):
             problems.append(f"box {i} sticks out of the {nx}x{ny}x{layout.height} cuboid: {b}")
     if boxes:
         lo = np.array([(b.x, b.y, b.z) for b in boxes])
         hi = lo + np.array([(b.dx, b.dy, b.dz) for b in boxes])
-        overlap = np.all((lo[:, None, :] < hi[None, :, :]) & (lo[None, :, :] < hi[:, None, :]), axis=2)
+        overlap = np.all(
+            (lo[:, None, :] < hi[None, :, :]) & (lo[None, :, :] < hi[:, None, :]), axis=2
+        )
         np.fill_diagonal(overlap, False)
         for i, j in zip(*np.nonzero(np.triu(overlap))):
             problems.append(f"boxes {i} and {j} overlap")

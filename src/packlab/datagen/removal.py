@@ -54,18 +54,25 @@ def choose_anchor(layout: Layout, cfg: AnchorConfig, rng: np.random.Generator) -
     probability ``cfg.corner_prob``, else a floor object touching no corner (any if none)."""
     nx, ny = layout.cells
     floor = [i for i, b in enumerate(layout.boxes) if b.z == 0]
-    corner_cells = {name: (nx - 1 if hx else 0, ny - 1 if hy else 0) for name, (hx, hy) in CORNERS.items()}
+    corner_cells = {
+        name: (nx - 1 if hx else 0, ny - 1 if hy else 0) for name, (hx, hy) in CORNERS.items()
+    }
     if rng.random() < cfg.corner_prob:
         name = cfg.corners[int(rng.integers(len(cfg.corners)))]
         cx, cy = corner_cells[name]
         return next(i for i in floor if _contains_cell(layout.boxes[i], cx, cy)), name
-    inner = [i for i in floor
-             if not any(_contains_cell(layout.boxes[i], cx, cy) for cx, cy in corner_cells.values())]
+    inner = [
+        i
+        for i in floor
+        if not any(_contains_cell(layout.boxes[i], cx, cy) for cx, cy in corner_cells.values())
+    ]
     pool = inner or floor
     return pool[int(rng.integers(len(pool)))], FREE_ANCHOR
 
 
-def reverse_removal(layout: Layout, anchor_cfg: AnchorConfig, rng: np.random.Generator) -> PlacementOrder:
+def reverse_removal(
+    layout: Layout, anchor_cfg: AnchorConfig, rng: np.random.Generator
+) -> PlacementOrder:
     """A random supported placement order whose first object is the chosen anchor."""
     boxes = layout.boxes
     anchor, label = choose_anchor(layout, anchor_cfg, rng)
@@ -101,7 +108,7 @@ def order_problems(layout: Layout, order: tuple[int, ...]) -> list[str]:
         return [f"order {order} is not a permutation of the {len(layout.boxes)} objects"]
     for step, i in enumerate(order):
         b = layout.boxes[i]
-        under = height[b.x:b.x + b.dx, b.y:b.y + b.dy]
+        under = height[b.x : b.x + b.dx, b.y : b.y + b.dy]
         if not np.all(under == b.z):
             problems.append(
                 f"step {step}: object {i} at z={b.z} is over cells of height {int(under.min())}..{int(under.max())}"

@@ -30,7 +30,9 @@ def _clamp(v: int, lo: int, hi: int) -> int:
     return min(max(v, lo), hi)
 
 
-def sample_container(spec: DifficultySpec, cfg: CaseConfig, rng: np.random.Generator) -> tuple[Container, tuple[int, int, int]]:
+def sample_container(
+    spec: DifficultySpec, cfg: CaseConfig, rng: np.random.Generator
+) -> tuple[Container, tuple[int, int, int]]:
     """A base size from the table, x/y jittered in whole grid cells and z in whole cm, clamped."""
     base = spec.base_sizes_mm[int(rng.integers(len(spec.base_sizes_mm)))]
     lim = cfg.container
@@ -43,7 +45,9 @@ def sample_container(spec: DifficultySpec, cfg: CaseConfig, rng: np.random.Gener
     return Container(size, cfg.cell_xy_mm, cfg.cell_z_mm), base
 
 
-def stack_height_choices(container_z_mm: int, n_layers: int, spec: DifficultySpec, cfg: CaseConfig) -> range:
+def stack_height_choices(
+    container_z_mm: int, n_layers: int, spec: DifficultySpec, cfg: CaseConfig
+) -> range:
     """Stack heights (mm, whole steps) within the ratio range that ``n_layers`` layers can fill."""
     step = cfg.objects.height_step_mm
     h_lo, h_hi = cfg.objects.layer_height_mm
@@ -53,8 +57,9 @@ def stack_height_choices(container_z_mm: int, n_layers: int, spec: DifficultySpe
     return range(lo * step, hi * step + 1, step) if lo <= hi else range(0)
 
 
-def split_height(total_mm: int, n_parts: int, lo_mm: int, hi_mm: int, step_mm: int,
-                 rng: np.random.Generator) -> tuple[int, ...]:
+def split_height(
+    total_mm: int, n_parts: int, lo_mm: int, hi_mm: int, step_mm: int, rng: np.random.Generator
+) -> tuple[int, ...]:
     """``total_mm`` as ``n_parts`` heights in [lo, hi], each a whole number of steps.
 
     Each part starts at ``lo`` and the spare steps are handed out one by one to random parts
@@ -63,7 +68,9 @@ def split_height(total_mm: int, n_parts: int, lo_mm: int, hi_mm: int, step_mm: i
     units = total_mm // step_mm
     lo_u, hi_u = lo_mm // step_mm, hi_mm // step_mm
     if total_mm % step_mm or not n_parts * lo_u <= units <= n_parts * hi_u:
-        raise ValueError(f"cannot split {total_mm} mm into {n_parts} parts of [{lo_mm}, {hi_mm}] mm")
+        raise ValueError(
+            f"cannot split {total_mm} mm into {n_parts} parts of [{lo_mm}, {hi_mm}] mm"
+        )
     parts = np.full(n_parts, lo_u, dtype=np.int64)
     spare = units - n_parts * lo_u
     # Dirichlet weights make uneven splits as likely as even ones; the loop respects the caps.
@@ -86,7 +93,9 @@ def sample_scenario(spec: DifficultySpec, cfg: CaseConfig, rng: np.random.Genera
     heights = stack_height_choices(container.height_mm, n_layers, spec, cfg)
     if not heights:
         # Only reachable with custom specs: fall back to any layer count that fits this container.
-        fitting = [n for n in layer_options if stack_height_choices(container.height_mm, n, spec, cfg)]
+        fitting = [
+            n for n in layer_options if stack_height_choices(container.height_mm, n, spec, cfg)
+        ]
         if not fitting:
             raise ValueError(f"no stack height fits container {container.size_mm} for {spec.name}")
         n_layers = int(rng.choice(fitting))

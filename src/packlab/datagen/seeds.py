@@ -32,7 +32,9 @@ def domain_tag(domain: str) -> int:
     try:
         return DOMAINS[domain]
     except KeyError:
-        raise ConfigError(f"seed domain = {domain!r}: unknown; choose from {', '.join(DOMAINS)}") from None
+        raise ConfigError(
+            f"seed domain = {domain!r}: unknown; choose from {', '.join(DOMAINS)}"
+        ) from None
 
 
 def case_seed(user_seed: int, domain: str, difficulty: str, slot: int, attempt: int = 0) -> int:

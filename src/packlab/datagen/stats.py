@@ -73,8 +73,11 @@ class Distribution:
             if not values:
                 return None
             a = np.asarray(values, dtype=np.float64)
-            return {"min": round(float(a.min()), 4), "mean": round(float(a.mean()), 4),
-                    "max": round(float(a.max()), 4)}
+            return {
+                "min": round(float(a.min()), 4),
+                "mean": round(float(a.mean()), 4),
+                "max": round(float(a.max()), 4),
+            }
 
         sides = np.asarray(self.sides_cm, dtype=np.float64).reshape(-1, 2)
         cont = np.asarray(self.container_cm, dtype=np.float64).reshape(-1, 3)
@@ -88,7 +91,9 @@ class Distribution:
             "container_x_cm": rng(cont[:, 0].tolist()),
             "container_y_cm": rng(cont[:, 1].tolist()),
             "container_z_cm": rng(cont[:, 2].tolist()),
-            "base_sizes_cm": {"x".join(f"{v:g}" for v in k): n for k, n in sorted(self.base_sizes_cm.items())},
+            "base_sizes_cm": {
+                "x".join(f"{v:g}" for v in k): n for k, n in sorted(self.base_sizes_cm.items())
+            },
             "stack_height_ratio": rng(self.stack_ratio),
             "object_side_cm": rng(sides.ravel().tolist()),
             "object_height_cm": rng([h for h, n in self.heights_cm.items() for _ in range(n)]),
@@ -109,7 +114,9 @@ def collect(cases: Iterable[Case]) -> dict[str, Distribution]:
 def dataset_cases(root: str | Path) -> Iterable[Case]:
     """Every kept case of a dataset directory, from its episode shards' ``case_json``."""
     for path in sorted(Path(root, EPISODES_DIR).glob("*.parquet")):
-        for row, text in enumerate(pq.read_table(path, columns=["case_json"]).column(0).to_pylist(), 1):
+        for row, text in enumerate(
+            pq.read_table(path, columns=["case_json"]).column(0).to_pylist(), 1
+        ):
             yield case_from_dict(json.loads(text), str(path), row)
 
 
@@ -117,8 +124,10 @@ def format_report(info: DatasetInfo, dists: dict[str, Distribution]) -> str:
     """A plain-text report: counts and rejections from info.json, then distributions."""
     counts = info.counts
     lines = [
-        (f"dataset {info.name} ({info.format_version}): "
-        f"{counts.episodes} episodes, {counts.steps} steps, {counts.shards} shards"),
+        (
+            f"dataset {info.name} ({info.format_version}): "
+            f"{counts.episodes} episodes, {counts.steps} steps, {counts.shards} shards"
+        ),
         "",
         f"{'difficulty':<10} {'requested':>9} {'episodes':>9} {'steps':>8} {'attempts':>9} {'accept':>7}  rejections",
     ]
@@ -129,17 +138,36 @@ def format_report(info: DatasetInfo, dists: dict[str, Distribution]) -> str:
         d = by[name]
         rate = d.acceptance_rate
         rej = ", ".join(f"{k}={v}" for k, v in d.rejections.items()) or "-"
-        lines.append(f"{name:<10} {d.requested:>9} {d.episodes:>9} {d.steps:>8} {d.attempts:>9} "
-                     f"{'-' if rate is None else f'{rate:.3f}':>7}  {rej}")
+        lines.append(
+            f"{name:<10} {d.requested:>9} {d.episodes:>9} {d.steps:>8} {d.attempts:>9} "
+            f"{'-' if rate is None else f'{rate:.3f}':>7}  {rej}"
+        )
     for name in sorted(dists, key=lambda n: order.index(n) if n in order else len(order)):
         s = dists[name].summary()
         lines += ["", f"[{name or 'unlabelled'}] {s['episodes']} cases, {s['objects']} objects"]
-        for key in ("objects_per_case", "layers", "layouts", "buffer_size", "base_sizes_cm", "anchors"):
+        for key in (
+            "objects_per_case",
+            "layers",
+            "layouts",
+            "buffer_size",
+            "base_sizes_cm",
+            "anchors",
+        ):
             lines.append(f"  {key:<20} " + "  ".join(f"{k}:{v}" for k, v in s[key].items()))
-        for key in ("container_x_cm", "container_y_cm", "container_z_cm", "stack_height_ratio",
-                    "object_side_cm", "object_height_cm", "footprint_aspect"):
+        for key in (
+            "container_x_cm",
+            "container_y_cm",
+            "container_z_cm",
+            "stack_height_ratio",
+            "object_side_cm",
+            "object_height_cm",
+            "footprint_aspect",
+        ):
             r = s[key]
-            lines.append(f"  {key:<20} " + ("-" if r is None else f"min {r['min']:g}  mean {r['mean']:g}  max {r['max']:g}"))
+            lines.append(
+                f"  {key:<20} "
+                + ("-" if r is None else f"min {r['min']:g}  mean {r['mean']:g}  max {r['max']:g}")
+            )
         lines.append(f"  {'rotated_fraction':<20} {s['rotated_fraction']}")
     return "\n".join(lines)
 

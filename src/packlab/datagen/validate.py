@@ -47,16 +47,20 @@ def plan_problems(case: Case) -> list[str]:
         fx, fy = fx_mm // c.cell_xy_mm, fy_mm // c.cell_xy_mm
         where = f"object {p.internal_id} (plan step {p.gt_index})"
         if (fx, fy, box.size_mm[2] // c.cell_z_mm) != p.cell_size or (p.x, p.y) != p.cell_min[:2]:
-            problems.append(f"{where}: cells {p.cell_min}+{p.cell_size} disagree with size {box.size_mm}")
+            problems.append(
+                f"{where}: cells {p.cell_min}+{p.cell_size} disagree with size {box.size_mm}"
+            )
             continue
         if not footprint_fits(hm.shape, p.x, p.y, fx, fy):
             problems.append(f"{where}: footprint outside the container")
             continue
-        under = hm[p.x:p.x + fx, p.y:p.y + fy]
+        under = hm[p.x : p.x + fx, p.y : p.y + fy]
         z = placement_height(hm, p.x, p.y, fx, fy)
         if z != p.cell_min[2] * c.cell_z_mm or int(under.min()) != z:
-            problems.append(f"{where}: drops to {z} mm over {int(under.min())}..{z} mm, plan says "
-                            f"{p.cell_min[2] * c.cell_z_mm} mm")
+            problems.append(
+                f"{where}: drops to {z} mm over {int(under.min())}..{z} mm, plan says "
+                f"{p.cell_min[2] * c.cell_z_mm} mm"
+            )
         hm = place_box(hm, p.x, p.y, fx, fy, z + box.size_mm[2])
     top = int(hm.max())
     if int(hm.min()) != top:
@@ -109,7 +113,9 @@ class _Recording:
         return action
 
 
-def replay(case: Case, backend: str = "mujoco", run_seed: int = 0, physics: Any = None) -> Trajectory:
+def replay(
+    case: Case, backend: str = "mujoco", run_seed: int = 0, physics: Any = None
+) -> Trajectory:
     """The oracle's closed-loop replay of ``case.gt_plan`` (run_episode with the bench's loop)."""
     policy = _Recording(make_policy("oracle"))
     result = run_episode(case, policy, run_seed, backend=backend, physics=physics)
@@ -144,7 +150,9 @@ def judge(trajectory: Trajectory, min_overall: float) -> str:
     return ""
 
 
-def check_case(case: Case, cfg: ValidationConfig, replay_plan: bool = True, physics: Any = None) -> Verdict:
+def check_case(
+    case: Case, cfg: ValidationConfig, replay_plan: bool = True, physics: Any = None
+) -> Verdict:
     """Plan checks, then (with ``replay_plan``) the closed-loop replay on ``cfg.backend``."""
     if plan_problems(case):
         return Verdict(False, "plan_check")

@@ -20,11 +20,17 @@ class OraclePolicy:
 
     def reset(self, case: Case, seed: int) -> None:
         if case.gt_plan is None:
-            raise ConfigError(f"case {case.episode_id!r}: the oracle needs a gt_plan and this case has none")
+            raise ConfigError(
+                f"case {case.episode_id!r}: the oracle needs a gt_plan and this case has none"
+            )
         self._plan = {step.internal_id: (order, step) for order, step in enumerate(case.gt_plan)}
 
     def act(self, observation: Observation) -> Action:
-        planned = [(self._plan[s.internal_id][0], s) for s in observation.shown if s.internal_id in self._plan]
+        planned = [
+            (self._plan[s.internal_id][0], s)
+            for s in observation.shown
+            if s.internal_id in self._plan
+        ]
         if not planned:
             raise ConfigError("oracle: no shown object is in the plan")
         _, item = min(planned, key=lambda pair: pair[0])

@@ -20,4 +20,6 @@ def shuffled_view(window: Sequence[int], rng: np.random.Generator) -> list[int]:
 
 def episode_rng(case_seed: int, run_seed: int) -> np.random.Generator:
     """The episode's RNG, seeded from (case seed, run seed) so runs are reproducible per case."""
-    return np.random.default_rng(np.random.SeedSequence([int(case_seed) & 0xFFFFFFFF, int(run_seed) & 0xFFFFFFFF]))
+    return np.random.default_rng(
+        np.random.SeedSequence([int(case_seed) & 0xFFFFFFFF, int(run_seed) & 0xFFFFFFFF])
+    )

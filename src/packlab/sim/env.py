@@ -91,16 +91,23 @@ class PackEnv(gym.Env):
     ) -> None:
         if cases is None:
             cases = demo_cases_path()
-        self.cases: list[Case] = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
+        self.cases: list[Case] = (
+            load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
+        )
         if not self.cases:
             raise ValueError("PackEnv needs at least one case")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode = {render_mode!r}: only 'rgb_array' is supported")
         self.render_mode = render_mode
         self.backend_name = backend
-        self.grid = (max(c.container.cells[0] for c in self.cases), max(c.container.cells[1] for c in self.cases))
+        self.grid = (
+            max(c.container.cells[0] for c in self.cases),
+            max(c.container.cells[1] for c in self.cases),
+        )
         self.k = max(c.buffer_size for c in self.cases)
-        height_bound = max(c.container.height_mm + sum(b.size_mm[2] for b in c.objects) for c in self.cases)
+        height_bound = max(
+            c.container.height_mm + sum(b.size_mm[2] for b in c.objects) for c in self.cases
+        )
         size_bound = max(max(b.size_mm) for c in self.cases for b in c.objects)
         n_actions = self.k * 2 * self.grid[0] * self.grid[1]
         self.observation_space = spaces.Dict(
@@ -122,7 +129,11 @@ class PackEnv(gym.Env):
         return Action(int(obj), int(rotation), int(x), int(y))
 
     def encode_action(self, action: Action) -> int:
-        return int(np.ravel_multi_index((action.object_id, action.rotation, action.x, action.y), (self.k, 2, *self.grid)))
+        return int(
+            np.ravel_multi_index(
+                (action.object_id, action.rotation, action.x, action.y), (self.k, 2, *self.grid)
+            )
+        )
 
     def _observation(self) -> dict[str, np.ndarray]:
         case = self._case
@@ -139,7 +150,12 @@ class PackEnv(gym.Env):
                 buffer_mask[item.shown_index] = 1
             fits = action_mask(observation_candidates(observation))  # (shown, 2, cx, cy)
             mask[: fits.shape[0], :, : fits.shape[2], : fits.shape[3]] = fits
-        return {"heightmap": hm, "buffer": buffer, "buffer_mask": buffer_mask, "action_mask": mask.reshape(-1)}
+        return {
+            "heightmap": hm,
+            "buffer": buffer,
+            "buffer_mask": buffer_mask,
+            "action_mask": mask.reshape(-1),
+        }
 
     # -- gymnasium API ---------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):

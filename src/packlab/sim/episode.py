@@ -42,7 +42,9 @@ class StepResult:
     reason: str  # "" when valid, else one of INVALID_REASONS
     internal_id: InternalId  # the object processed (placed or set aside), as the case file gives it
     shown: tuple[ShownItem, ...]
-    drop_mm: tuple[int, int, int] | None  # footprint minimum corner and Eq. 2 height; None if invalid
+    drop_mm: (
+        tuple[int, int, int] | None
+    )  # footprint minimum corner and Eq. 2 height; None if invalid
     settle_steps: int  # physics steps of this step (the last step adds the final settle's)
     #: The placement's settle ended with every box at rest; False when it hit the per-placement
     #: cap (``PhysicsConfig.max_settle_steps``) and the next step starts from a moving pile.
@@ -60,8 +62,11 @@ class StepResult:
     max_angular_speed: float = 0.0
 
     def to_record(self) -> dict[str, Any]:
-        action = (self.action.to_dict() if isinstance(self.action, Action)
-                  else {"unparsable": self.action.text, "error": self.action.error})
+        action = (
+            self.action.to_dict()
+            if isinstance(self.action, Action)
+            else {"unparsable": self.action.text, "error": self.action.error}
+        )
         return {
             "step": self.step_index,
             "action": action,
@@ -156,7 +161,9 @@ class Episode:
         """(invalid reason or "", index of the object this step processes)."""
         if isinstance(action, Unparsable):
             return "unparsable", self._random_shown()
-        if not isinstance(action.object_id, (int, np.integer)) or not 0 <= action.object_id < len(self._shown):
+        if not isinstance(action.object_id, (int, np.integer)) or not 0 <= action.object_id < len(
+            self._shown
+        ):
             return "bad_object_id", self._random_shown()
         index = self._shown_indices[int(action.object_id)]
         if action.rotation not in (0, 1):
@@ -178,7 +185,9 @@ class Episode:
         if self.case is None:
             raise RuntimeError("Episode.step() before reset()")
         if self.done:
-            raise RuntimeError(f"episode {self.case.episode_id!r} is finished; reset() to start again")
+            raise RuntimeError(
+                f"episode {self.case.episode_id!r} is finished; reset() to start again"
+            )
         started = time.perf_counter()
         reason, index = self._check(action)
         heightmap_before = self._heightmap
@@ -235,7 +244,9 @@ class Episode:
             if np.isnan(positions[i]).any():
                 out[box.internal_id] = None
             else:
-                out[box.internal_id] = Pose(tuple(map(float, positions[i])), tuple(map(float, quats[i])))
+                out[box.internal_id] = Pose(
+                    tuple(map(float, positions[i])), tuple(map(float, quats[i]))
+                )
         return out
 
     def metrics(self) -> EpisodeMetrics:
@@ -295,15 +306,24 @@ class EpisodeResult:
             "policy_time_s": round(self.policy_time_s, 6),
             "steps": [s.to_record() for s in self.steps],
             "final_poses": {
-                str(k): None if p is None else {"position_mm": [round(v, 3) for v in p.position_mm],
-                                                 "quaternion": [round(v, 6) for v in p.quaternion]}
+                str(k): None
+                if p is None
+                else {
+                    "position_mm": [round(v, 3) for v in p.position_mm],
+                    "quaternion": [round(v, 6) for v in p.quaternion],
+                }
                 for k, p in self.poses.items()
             },
         }
 
 
-def run_episode(case: Case, policy: Any, seed: int = 0, backend: str | TransitionBackend = "mujoco",
-                physics: Any = None) -> EpisodeResult:
+def run_episode(
+    case: Case,
+    policy: Any,
+    seed: int = 0,
+    backend: str | TransitionBackend = "mujoco",
+    physics: Any = None,
+) -> EpisodeResult:
     """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result."""
     episode = Episode(backend, physics)
     observation = episode.reset(case, seed)

@@ -95,7 +95,9 @@ def box_top_region(
     j1 = min(int(np.ceil((position_mm[1] + extent[1]) / cell_mm)), ny)
     if i0 >= i1 or j0 >= j1:
         return None
-    gx, gy = np.meshgrid((np.arange(i0, i1) + 0.5) * cell_mm, (np.arange(j0, j1) + 0.5) * cell_mm, indexing="ij")
+    gx, gy = np.meshgrid(
+        (np.arange(i0, i1) + 0.5) * cell_mm, (np.arange(j0, j1) + 0.5) * cell_mm, indexing="ij"
+    )
     top = box_top_over_cells(np.asarray(position_mm, dtype=np.float64), rot, half, gx, gy)
     return i0, i1, j0, j1, top
 
@@ -127,5 +129,8 @@ def rasterise_poses(
     """
     return compose_regions(
         grid_shape,
-        (box_top_region(grid_shape, cell_mm, s, p, q) for s, p, q in zip(sizes_mm, positions_mm, quaternions)),
+        (
+            box_top_region(grid_shape, cell_mm, s, p, q)
+            for s, p, q in zip(sizes_mm, positions_mm, quaternions)
+        ),
     )

@@ -50,7 +50,8 @@ _FRAME_RGB = (20, 20, 20)
 # Anchors of the height ramp at t = 0, 0.25, ..., 1: dark to light, hue changing along the way,
 # so both brightness and hue tell heights apart.
 _RAMP_ANCHORS = np.array(
-    [(40, 70, 170), (30, 140, 175), (70, 190, 100), (235, 215, 40), (255, 248, 190)], dtype=np.float64
+    [(40, 70, 170), (30, 140, 175), (70, 190, 100), (235, 215, 40), (255, 248, 190)],
+    dtype=np.float64,
 )
 
 
@@ -61,7 +62,7 @@ def _build_palette() -> np.ndarray:
     base = np.vstack([_FLOOR_RGB, ramp, _ABOVE_RIM_RGB])  # (LEVELS, 3)
     shaded = [base * s for s in _SHADES]
     palette = np.zeros((256, 3), dtype=np.float64)
-    palette[: BACKGROUND_INDEX] = np.vstack(shaded)
+    palette[:BACKGROUND_INDEX] = np.vstack(shaded)
     palette[BACKGROUND_INDEX] = _BACKGROUND_RGB
     palette[FRAME_INDEX] = _FRAME_RGB
     return np.rint(palette).astype(np.uint8)
@@ -113,7 +114,9 @@ class _Geometry:
     px: int  # whole pixels per cell, 0 when the grid has more cells than the canvas has pixels
     row_cells: np.ndarray  # (height,) cell y of each map row
     col_cells: np.ndarray  # (width,) cell x of each map column
-    shade: np.ndarray  # (height, width) uint8 palette offset of the grid lines (0, LEVELS, 2 LEVELS)
+    shade: (
+        np.ndarray
+    )  # (height, width) uint8 palette offset of the grid lines (0, LEVELS, 2 LEVELS)
     top: int
     left: int
     canvas: np.ndarray  # (size, size) uint8 background and frame, to be copied
@@ -125,28 +128,33 @@ def _geometry(nx: int, ny: int, size: int, major_every: int) -> _Geometry:
     # same for all of them.
     longest = max(nx, ny)
     px = size // longest if longest <= size else 0
-    width, height = (nx * px, ny * px) if px else (max(1, nx * size // longest), max(1, ny * size // longest))
+    width, height = (
+        (nx * px, ny * px) if px else (max(1, nx * size // longest), max(1, ny * size // longest))
+    )
     col_cells, row_cells = _pixel_cells(nx, width), _pixel_cells(ny, height)
-    shade = np.maximum(_line_shade(row_cells, px, major_every)[:, None],
-                       _line_shade(col_cells, px, major_every)[None, :]) * np.uint8(LEVELS)
+    shade = np.maximum(
+        _line_shade(row_cells, px, major_every)[:, None],
+        _line_shade(col_cells, px, major_every)[None, :],
+    ) * np.uint8(LEVELS)
     canvas = np.full((size, size), BACKGROUND_INDEX, dtype=np.uint8)
     top, left = (size - height) // 2, (size - width) // 2
     # The frame sits in the margin, one pixel outside the map, on the sides that have room.
     if top > 0:
-        canvas[top - 1, max(left - 1, 0):left + width + 1] = FRAME_INDEX
+        canvas[top - 1, max(left - 1, 0) : left + width + 1] = FRAME_INDEX
     if top + height < size:
-        canvas[top + height, max(left - 1, 0):left + width + 1] = FRAME_INDEX
+        canvas[top + height, max(left - 1, 0) : left + width + 1] = FRAME_INDEX
     if left > 0:
-        canvas[max(top - 1, 0):top + height + 1, left - 1] = FRAME_INDEX
+        canvas[max(top - 1, 0) : top + height + 1, left - 1] = FRAME_INDEX
     if left + width < size:
-        canvas[max(top - 1, 0):top + height + 1, left + width] = FRAME_INDEX
+        canvas[max(top - 1, 0) : top + height + 1, left + width] = FRAME_INDEX
     for a in (row_cells, col_cells, shade, canvas):
         a.setflags(write=False)
     return _Geometry(px, row_cells, col_cells, shade.astype(np.uint8), top, left, canvas)
 
 
-def heightmap_to_indices(heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE,
-                         major_every: int = 5) -> np.ndarray:
+def heightmap_to_indices(
+    heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE, major_every: int = 5
+) -> np.ndarray:
     """(size, size) uint8 palette indices of the image of ``heightmap`` (x_cells, y_cells) mm."""
     if size < 1:
         raise ValueError(f"size = {size}: must be positive")
@@ -161,18 +169,24 @@ def heightmap_to_indices(heightmap: np.ndarray, container: Container, size: int 
         image = levels[g.row_cells[:, None], g.col_cells[None, :]]
     canvas = g.canvas.copy()
     h, w = g.shade.shape
-    np.add(image, g.shade, out=canvas[g.top:g.top + h, g.left:g.left + w])
+    np.add(image, g.shade, out=canvas[g.top : g.top + h, g.left : g.left + w])
     return canvas
 
 
-def heightmap_to_rgb(heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE,
-                     major_every: int = 5) -> np.ndarray:
+def heightmap_to_rgb(
+    heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE, major_every: int = 5
+) -> np.ndarray:
     """(size, size, 3) uint8 RGB image of ``heightmap`` (see the module docstring)."""
     return PALETTE[heightmap_to_indices(heightmap, container, size, major_every)]
 
 
-def heightmap_to_image(heightmap: np.ndarray, container: Container, size: int = DEFAULT_SIZE,
-                       major_every: int = 5, mode: str = "RGB") -> Image.Image:
+def heightmap_to_image(
+    heightmap: np.ndarray,
+    container: Container,
+    size: int = DEFAULT_SIZE,
+    major_every: int = 5,
+    mode: str = "RGB",
+) -> Image.Image:
     """The image as a PIL image: ``mode="RGB"`` (default) or ``"P"`` (palette, smallest PNGs)."""
     indices = heightmap_to_indices(heightmap, container, size, major_every)
     if mode == "P":

@@ -6,8 +6,13 @@ from packlab.metrics import AVERAGE
 
 #: How methods are called in tables and figures (the paper's names); others print as registered.
 DISPLAY_NAMES = {
-    "dblf": "DBLF", "hm": "HM", "mta": "MTA", "ffp": "FFP", "sdf": "SDF-Pack",
-    "random": "Random", "oracle": "Oracle (gt plan)",
+    "dblf": "DBLF",
+    "hm": "HM",
+    "mta": "MTA",
+    "ffp": "FFP",
+    "sdf": "SDF-Pack",
+    "random": "Random",
+    "oracle": "Oracle (gt plan)",
 }
 METRIC_SHORT = {"success_ratio": "SR", "compactness": "Compact.", "overall": "Overall"}
 

@@ -23,8 +23,13 @@ from packlab.viz.labels import display_name, group_title
 
 #: Fixed colours, so a method looks the same in every figure of every run.
 _METHOD_COLOURS = {
-    "dblf": "#4C72B0", "hm": "#55A868", "mta": "#C44E52", "ffp": "#8172B2", "sdf": "#DD8452",
-    "random": "#9A9A9A", "oracle": "#333333",
+    "dblf": "#4C72B0",
+    "hm": "#55A868",
+    "mta": "#C44E52",
+    "ffp": "#8172B2",
+    "sdf": "#DD8452",
+    "random": "#9A9A9A",
+    "oracle": "#333333",
 }
 _EXTRA = ["#64B5CD", "#CCB974", "#DA8BC3", "#8C613C", "#2F9E8F", "#B279A2"]
 #: Difficulty shading of grouped bars (light to dark), the average in a saturated tone.
@@ -50,8 +55,11 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 130) -> Pa
 def _case_overall(summary: RunSummary, policy: str, difficulty: str) -> np.ndarray:
     """Per-case Overall (mean over seeds) of one method on one difficulty."""
     per_case = summary.per_case.get(policy, {})
-    vals = [c.overall.mean for c in per_case.values()
-            if c.difficulty == difficulty and c.overall.mean is not None]
+    vals = [
+        c.overall.mean
+        for c in per_case.values()
+        if c.difficulty == difficulty and c.overall.mean is not None
+    ]
     return np.asarray(vals, dtype=float)
 
 
@@ -76,22 +84,41 @@ def overall_distribution_figure(summary: RunSummary) -> Figure:
         pos = np.arange(1, len(policies) + 1)
         shown = [(i, d) for i, d in enumerate(data) if d.size]
         if shown:
-            bp = ax.boxplot([d for _, d in shown], positions=[pos[i] for i, _ in shown], widths=0.62,
-                            patch_artist=True, showfliers=False, medianprops={"color": "black", "linewidth": 1.4},
-                            whiskerprops={"color": "#555555"}, capprops={"color": "#555555"})
+            bp = ax.boxplot(
+                [d for _, d in shown],
+                positions=[pos[i] for i, _ in shown],
+                widths=0.62,
+                patch_artist=True,
+                showfliers=False,
+                medianprops={"color": "black", "linewidth": 1.4},
+                whiskerprops={"color": "#555555"},
+                capprops={"color": "#555555"},
+            )
             for patch, (i, _) in zip(bp["boxes"], shown):
                 patch.set_facecolor(method_colour(policies[i], policies))
                 patch.set_alpha(0.35)
                 patch.set_edgecolor("#444444")
         for i, d in shown:
             jitter = rng.uniform(-0.17, 0.17, size=d.size)
-            ax.scatter(pos[i] + jitter, d, s=13, color=method_colour(policies[i], policies), alpha=0.85,
-                       edgecolors="white", linewidths=0.4, zorder=3)
+            ax.scatter(
+                pos[i] + jitter,
+                d,
+                s=13,
+                color=method_colour(policies[i], policies),
+                alpha=0.85,
+                edgecolors="white",
+                linewidths=0.4,
+                zorder=3,
+            )
         n_cases = max((d.size for d in data), default=0)
         ax.set_title(f"{group_title(group)} ({n_cases} cases)", fontsize=11)
         ax.set_xticks(pos)
-        ax.set_xticklabels([display_name(p).replace(" (gt plan)", "") for p in policies], rotation=35,
-                           ha="right", fontsize=9)
+        ax.set_xticklabels(
+            [display_name(p).replace(" (gt plan)", "") for p in policies],
+            rotation=35,
+            ha="right",
+            fontsize=9,
+        )
         ax.set_ylim(-0.02, 1.05)
         ax.grid(axis="y", color="#DDDDDD", linewidth=0.7)
         ax.set_axisbelow(True)
@@ -129,15 +156,29 @@ def average_overall_figure(summary: RunSummary) -> Figure:
         colours = [method_colour(p, policies) for p in policies]
         is_avg = group == AVERAGE or n == 1
         offs = x - 0.4 + width * (j + 0.5)
-        bars = ax.bar(offs, means, width * 0.92, yerr=stds, color=colours,
-                      alpha=1.0 if is_avg else _GROUP_ALPHA.get(j, 0.5), edgecolor="#333333" if is_avg else "none",
-                      linewidth=0.6, error_kw={"elinewidth": 0.8, "capsize": 2, "ecolor": "#333333"},
-                      label=group_title(group))
+        bars = ax.bar(
+            offs,
+            means,
+            width * 0.92,
+            yerr=stds,
+            color=colours,
+            alpha=1.0 if is_avg else _GROUP_ALPHA.get(j, 0.5),
+            edgecolor="#333333" if is_avg else "none",
+            linewidth=0.6,
+            error_kw={"elinewidth": 0.8, "capsize": 2, "ecolor": "#333333"},
+            label=group_title(group),
+        )
         if is_avg:
             for bar, m in zip(bars, means):
                 if not np.isnan(m):
-                    ax.text(bar.get_x() + bar.get_width() / 2, m + 0.025, f"{m:.3f}", ha="center", va="bottom",
-                            fontsize=8)
+                    ax.text(
+                        bar.get_x() + bar.get_width() / 2,
+                        m + 0.025,
+                        f"{m:.3f}",
+                        ha="center",
+                        va="bottom",
+                        fontsize=8,
+                    )
     ax.set_xticks(x)
     ax.set_xticklabels([display_name(p) for p in policies], fontsize=9)
     ax.set_ylim(0, 1.12)
@@ -148,14 +189,19 @@ def average_overall_figure(summary: RunSummary) -> Figure:
         ax.spines[side].set_visible(False)
     if n > 1:
         # Legend by group shade, drawn in neutral grey so it does not suggest one method.
-        handles = [Patch(facecolor="#555555", alpha=1.0 if g == AVERAGE else _GROUP_ALPHA.get(j, 0.5),
-                         edgecolor="#333333" if g == AVERAGE else "none", label=group_title(g))
-                   for j, g in enumerate(groups)]
+        handles = [
+            Patch(
+                facecolor="#555555",
+                alpha=1.0 if g == AVERAGE else _GROUP_ALPHA.get(j, 0.5),
+                edgecolor="#333333" if g == AVERAGE else "none",
+                label=group_title(g),
+            )
+            for j, g in enumerate(groups)
+        ]
         ax.legend(handles=handles, ncol=n, fontsize=8, frameon=False, loc="upper left")
     bars_are = "bars: difficulties, then average; " if n > 1 else ""
     suite = _run_field(summary, "suite", "bench")
-    ax.set_title(f"{suite}: mean Overall per method ({bars_are}± std across seeds)",
-                 fontsize=10)
+    ax.set_title(f"{suite}: mean Overall per method ({bars_are}± std across seeds)", fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -22,8 +22,20 @@ from packlab.sim.raster import height_colour, heightmap_to_rgb
 from packlab.viz.labels import display_name
 
 #: Type colours (type_id modulo the list): soft, distinguishable, legible with black edges.
-TYPE_COLOURS = ["#8DB3E2", "#F4A582", "#A6D96A", "#C2A5CF", "#FFD966", "#80CDC1", "#F1B6DA",
-                "#BABABA", "#E6AB02", "#66C2A5", "#FC8D62", "#B3B3E6"]
+TYPE_COLOURS = [
+    "#8DB3E2",
+    "#F4A582",
+    "#A6D96A",
+    "#C2A5CF",
+    "#FFD966",
+    "#80CDC1",
+    "#F1B6DA",
+    "#BABABA",
+    "#E6AB02",
+    "#66C2A5",
+    "#FC8D62",
+    "#B3B3E6",
+]
 _UNIT = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
 #: Corner indices of the six faces of a box (corners ordered as in _UNIT).
 _FACES = ((0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5))
@@ -33,7 +45,9 @@ def type_colour(type_id: int) -> str:
     return TYPE_COLOURS[int(type_id) % len(TYPE_COLOURS)]
 
 
-def box_corners(size_mm: Sequence[float], position_mm: Sequence[float], quaternion: Sequence[float]) -> np.ndarray:
+def box_corners(
+    size_mm: Sequence[float], position_mm: Sequence[float], quaternion: Sequence[float]
+) -> np.ndarray:
     """(8, 3) corners in mm of a box of ``size_mm`` (its own l, w, h) at a pose."""
     local = _UNIT * np.asarray(size_mm, dtype=float)
     return local @ quat_to_matrix(quaternion).T + np.asarray(position_mm, dtype=float)
@@ -52,7 +66,9 @@ def _view_direction() -> np.ndarray:
 def _container_edges(c: Container) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """(back edges, front edges): back ones are drawn under the boxes, front ones over them."""
     x, y, z = c.size_mm
-    pts = np.array([[a, b, h] for h in (0, z) for a, b in ((0, 0), (x, 0), (x, y), (0, y))], dtype=float)
+    pts = np.array(
+        [[a, b, h] for h in (0, z) for a, b in ((0, 0), (x, 0), (x, y), (0, y))], dtype=float
+    )
     edges = [(i, (i + 1) % 4) for i in range(4)] + [(4 + i, 4 + (i + 1) % 4) for i in range(4)]
     edges += [(i, i + 4) for i in range(4)]
     view, centre = _view_direction(), pts.mean(axis=0)
@@ -85,7 +101,9 @@ def painter_order(corners: list[np.ndarray]) -> list[int]:
                 continue
             for k in range(3):
                 # Camera on the + side of axis k: the box at smaller k is farther, and vice versa.
-                if (view[k] > 0 and hi[a][k] <= lo[b][k] + tol) or (view[k] < 0 and lo[a][k] >= hi[b][k] - tol):
+                if (view[k] > 0 and hi[a][k] <= lo[b][k] + tol) or (
+                    view[k] < 0 and lo[a][k] >= hi[b][k] - tol
+                ):
                     behind[a][b] = True
     remaining, order = set(range(n)), []
     while remaining:
@@ -96,8 +114,9 @@ def painter_order(corners: list[np.ndarray]) -> list[int]:
     return order
 
 
-def draw_packing(ax: Any, case: Case, poses: Mapping[str, FinalPose | None], title: str = "",
-                 zoom: float = 0.92) -> int:
+def draw_packing(
+    ax: Any, case: Case, poses: Mapping[str, FinalPose | None], title: str = "", zoom: float = 0.92
+) -> int:
     """Draw a case's boxes at ``poses`` (record form, keyed by str(internal_id)) on a 3D axis.
 
     Returns the number of boxes drawn (set-aside boxes have no pose and are not drawn).
@@ -112,16 +131,29 @@ def draw_packing(ax: Any, case: Case, poses: Mapping[str, FinalPose | None], tit
             boxes.append((box, corners, box_inside(pose.position_mm, c)))
     # Our own drawing order (see painter_order) instead of mplot3d's per-polygon depth sort.
     ax.computed_zorder = False
-    floor = np.array([[0, 0, 0], [c.size_mm[0], 0, 0], [c.size_mm[0], c.size_mm[1], 0], [0, c.size_mm[1], 0]], float)
-    ax.add_collection3d(Poly3DCollection([floor], facecolors="#EEEEEE", edgecolors="none", alpha=0.7))
+    floor = np.array(
+        [[0, 0, 0], [c.size_mm[0], 0, 0], [c.size_mm[0], c.size_mm[1], 0], [0, c.size_mm[1], 0]],
+        float,
+    )
+    ax.add_collection3d(
+        Poly3DCollection([floor], facecolors="#EEEEEE", edgecolors="none", alpha=0.7)
+    )
     back, front = _container_edges(c)
     ax.add_collection3d(Line3DCollection(back, colors="#999999", linewidths=0.8))
     for i in painter_order([b[1] for b in boxes]):
         box, corners, inside = boxes[i]
-        faces = sorted((corners[list(f)] for f in _FACES), key=lambda q: float(q.mean(axis=0) @ view))
-        ax.add_collection3d(Poly3DCollection(
-            faces, facecolors=type_colour(box.type_id), edgecolors="#222222" if inside else "#D62728",
-            linewidths=0.5 if inside else 1.1, alpha=1.0))
+        faces = sorted(
+            (corners[list(f)] for f in _FACES), key=lambda q: float(q.mean(axis=0) @ view)
+        )
+        ax.add_collection3d(
+            Poly3DCollection(
+                faces,
+                facecolors=type_colour(box.type_id),
+                edgecolors="#222222" if inside else "#D62728",
+                linewidths=0.5 if inside else 1.1,
+                alpha=1.0,
+            )
+        )
     ax.add_collection3d(Line3DCollection(front, colors="#333333", linewidths=1.1))
     # Limits: the container, widened to take in boxes that fell outside it.
     lo, hi = np.zeros(3), np.asarray(c.size_mm, dtype=float)
@@ -140,12 +172,15 @@ def draw_packing(ax: Any, case: Case, poses: Mapping[str, FinalPose | None], tit
 
 
 def scores_text(metrics: MetricsRecord) -> str:
-    return (f"SR {metrics.success_ratio:.3f} · C {metrics.compactness:.3f} · "
-            f"Overall {metrics.overall:.3f}")
+    return (
+        f"SR {metrics.success_ratio:.3f} · C {metrics.compactness:.3f} · "
+        f"Overall {metrics.overall:.3f}"
+    )
 
 
-def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, EpisodeOk]],
-                              seed: int | None = None, columns: int = 4) -> Figure:
+def packing_comparison_figure(
+    case: Case, entries: Sequence[tuple[str, EpisodeOk]], seed: int | None = None, columns: int = 4
+) -> Figure:
     """Side by side: each method's final packing of one case, titled with its three scores."""
     n = max(1, len(entries))
     cols = min(columns, n)
@@ -159,8 +194,11 @@ def packing_comparison_figure(case: Case, entries: Sequence[tuple[str, EpisodeOk
         draw_packing(ax, case, record.final_poses, title)
     x, y, z = (v / 10 for v in case.container.size_mm)
     seed_txt = f", seed {seed}" if seed is not None else ""
-    fig.suptitle(f"{case.episode_id} ({case.difficulty}, {len(case.objects)} objects, buffer {case.buffer_size}, "
-                 f"container {x:g}x{y:g}x{z:g} cm{seed_txt})", fontsize=12)
+    fig.suptitle(
+        f"{case.episode_id} ({case.difficulty}, {len(case.objects)} objects, buffer {case.buffer_size}, "
+        f"container {x:g}x{y:g}x{z:g} cm{seed_txt})",
+        fontsize=12,
+    )
     fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.9, wspace=0.02, hspace=0.12)
     return fig
 
@@ -179,7 +217,7 @@ def _crop_background(rgb: np.ndarray) -> np.ndarray:
     rows, cols = np.flatnonzero(keep.any(axis=1)), np.flatnonzero(keep.any(axis=0))
     if rows.size == 0:
         return rgb
-    return rgb[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    return rgb[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
 
 
 def _height_scale(ax: Any, container: Container) -> None:
@@ -195,8 +233,9 @@ def _height_scale(ax: Any, container: Container) -> None:
     ax.set_title("heightmap colour: height (cm); red = above the rim", fontsize=8, pad=3)
 
 
-def episode_figure(case: Case, record: EpisodeOk, heightmaps: Sequence[np.ndarray],
-                   max_steps: int = 40) -> Figure:
+def episode_figure(
+    case: Case, record: EpisodeOk, heightmaps: Sequence[np.ndarray], max_steps: int = 40
+) -> Figure:
     """One episode: the final packing (left) and the heightmap after each step (right grid).
 
     Heightmaps use ``packlab.sim.raster``'s fixed colour scale (the picture the VLM reads), so
@@ -217,20 +256,37 @@ def episode_figure(case: Case, record: EpisodeOk, heightmaps: Sequence[np.ndarra
     tiles = outer[0, 1].subgridspec(rows, cols, wspace=0.08, hspace=0.35)
     for i, (step, hm) in enumerate(zip(steps, heightmaps)):
         ax = fig.add_subplot(tiles[i // cols, i % cols])
-        ax.imshow(_crop_background(heightmap_to_rgb(hm, case.container, size=160, major_every=5)),
-                  interpolation="nearest")
-        ax.set_title(_step_label(step), fontsize=7, color="black" if step.valid else "#D62728", pad=2)
+        ax.imshow(
+            _crop_background(heightmap_to_rgb(hm, case.container, size=160, major_every=5)),
+            interpolation="nearest",
+        )
+        ax.set_title(
+            _step_label(step), fontsize=7, color="black" if step.valid else "#D62728", pad=2
+        )
         ax.set_xticks([])
         ax.set_yticks([])
         for spine in ax.spines.values():
             spine.set_visible(False)
-    more = f" (first {max_steps} of {len(record.steps)} steps)" if len(record.steps) > max_steps else ""
-    fig.suptitle(f"{display_name(record.policy)} on {case.episode_id} ({case.difficulty}, {len(case.objects)} "
-                 f"objects), seed {record.seed}, {record.backend}{more}\n"
-                 f"tiles: heightmap after each step (x right, y down), titled step: #object rotation (x, y)",
-                 fontsize=10)
+    more = (
+        f" (first {max_steps} of {len(record.steps)} steps)"
+        if len(record.steps) > max_steps
+        else ""
+    )
+    fig.suptitle(
+        f"{display_name(record.policy)} on {case.episode_id} ({case.difficulty}, {len(case.objects)} "
+        f"objects), seed {record.seed}, {record.backend}{more}\n"
+        f"tiles: heightmap after each step (x right, y down), titled step: #object rotation (x, y)",
+        fontsize=10,
+    )
     return fig
 
 
-__all__ = ["TYPE_COLOURS", "box_corners", "draw_packing", "episode_figure", "packing_comparison_figure",
-           "scores_text", "type_colour"]
+__all__ = [
+    "TYPE_COLOURS",
+    "box_corners",
+    "draw_packing",
+    "episode_figure",
+    "packing_comparison_figure",
+    "scores_text",
+    "type_colour",
+]

@@ -47,8 +47,21 @@ def candidates(hm: np.ndarray, shown: list[ShownItem], rim: int) -> list[RefCand
                     if x + fx > nx or y + fy > ny:
                         continue
                     z = max(int(hm[i, j]) for i in range(x, x + fx) for j in range(y, y + fy))
-                    out.append(RefCandidate(k, rot, x, y, fx, fy, z, z + h, z + h <= rim,
-                                            item.size_mm, item.internal_id))
+                    out.append(
+                        RefCandidate(
+                            k,
+                            rot,
+                            x,
+                            y,
+                            fx,
+                            fy,
+                            z,
+                            z + h,
+                            z + h <= rim,
+                            item.size_mm,
+                            item.internal_id,
+                        )
+                    )
     return out
 
 
@@ -75,8 +88,16 @@ def choose(cands: list[RefCandidate], key, tie_break: str = "larger_volume") -> 
         return None
     if tie_break == "shown_order":
         return min(p, key=lambda i: (key(cands[i]), i))
-    return min(p, key=lambda i: (key(cands[i]), larger_first(cands[i]), cands[i].rotation,
-                                 cands[i].x, cands[i].y))
+    return min(
+        p,
+        key=lambda i: (
+            key(cands[i]),
+            larger_first(cands[i]),
+            cands[i].rotation,
+            cands[i].x,
+            cands[i].y,
+        ),
+    )
 
 
 def hm_increase_mm3(hm: np.ndarray, c: RefCandidate, cell: int = 25) -> int:

@@ -19,13 +19,21 @@ def test_hand_made_state_in_scan_order() -> None:
     got = list(zip(c.obj, c.rotation, c.x, c.y, c.z, c.top, c.fits_in_rim))
     expected = [
         # object 0, rotation 0 (fx=2, fy=1): x in 0..1, y in 0..1
-        (0, 0, 0, 0, 10, 60, True), (0, 0, 0, 1, 40, 90, True),
-        (0, 0, 1, 0, 10, 60, True), (0, 0, 1, 1, 0, 50, True),
+        (0, 0, 0, 0, 10, 60, True),
+        (0, 0, 0, 1, 40, 90, True),
+        (0, 0, 1, 0, 10, 60, True),
+        (0, 0, 1, 1, 0, 50, True),
         # object 0, rotation 1 (fx=1, fy=2): x in 0..2, y = 0
-        (0, 1, 0, 0, 40, 90, True), (0, 1, 1, 0, 10, 60, True), (0, 1, 2, 0, 0, 50, True),
+        (0, 1, 0, 0, 40, 90, True),
+        (0, 1, 1, 0, 10, 60, True),
+        (0, 1, 2, 0, 0, 50, True),
         # object 1, both rotations (square): every cell
-        *[(1, r, x, y, int(hm[x, y]), int(hm[x, y]) + 70, int(hm[x, y]) + 70 <= 100)
-          for r in (0, 1) for x in range(3) for y in range(2)],
+        *[
+            (1, r, x, y, int(hm[x, y]), int(hm[x, y]) + 70, int(hm[x, y]) + 70 <= 100)
+            for r in (0, 1)
+            for x in range(3)
+            for y in range(2)
+        ],
     ]
     as_ints = [tuple(int(v) for v in row) for row in got]
     assert as_ints == [tuple(int(v) for v in e) for e in expected]

@@ -17,9 +17,7 @@ def pick(hm, shown, rim=200) -> Action:
 
 
 def test_height_dominates_then_depth_then_left() -> None:
-    hm = [[30, 30, 0],
-          [30, 30, 0],
-          [0, 0, 0]]
+    hm = [[30, 30, 0], [30, 30, 0], [0, 0, 0]]
     # Object 0 (2 x 2) rests at 30 mm wherever it goes. Object 1 (1 x 2) reaches the floor at
     # rotation 0 on x = 2 (y = 0 or 1) and at rotation 1 on y = 2 (x = 0 or 1): the deepest
     # (smallest x) of those is rotation 1 at (0, 2), even though object 0 comes first.

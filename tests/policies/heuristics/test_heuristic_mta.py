@@ -15,17 +15,19 @@ def cands(heights, shown, rim=100):
     return search_candidates(np.asarray(heights, dtype=np.int32), shown, rim)
 
 
-POCKET = [[50, 50, 50],
-          [0, 0, 50],
-          [0, 0, 50]]
+POCKET = [[50, 50, 50], [0, 0, 50], [0, 0, 50]]
 
 
 def test_contact_area_of_a_square_box_in_each_position() -> None:
     # 2 x 2 cells, 40 mm tall, rim 100. Areas in cm^2 (cell 2.5 cm, so a cell is 6.25 cm^2 and
     # a 1 mm overlap along one cell edge is 0.25 cm^2).
     c = cands(POCKET, [ref.shown_item(0, 2, 2, 40)])
-    got = dict(zip(zip(c.x[c.rotation == 0].tolist(), c.y[c.rotation == 0].tolist()),
-                   mta.contact_area_cm2(c)[c.rotation == 0].tolist()))
+    got = dict(
+        zip(
+            zip(c.x[c.rotation == 0].tolist(), c.y[c.rotation == 0].tolist()),
+            mta.contact_area_cm2(c)[c.rotation == 0].tolist(),
+        )
+    )
     # (0, 0): rests at 50 on two cells (12.5); -x and -y walls 40 mm over 2 cells each
     # (4 * 40 * 0.25 = 40); the +x columns (0 mm) and +y columns (50 mm) lie below it.
     # (0, 1): rests at 50 on three cells (18.75); -x and +y walls (40).
@@ -65,9 +67,7 @@ def test_equal_contact_ties_go_bottom_then_deepest() -> None:
     # 1 x 1 box, 50 mm, rim 100. The floor corner (0, 0) and the pit (1, 1) at 20 mm both touch
     # 625 + 3 * 50 * 25 = 4375 mm^2 ((0, 0): -x and -y walls and the 100 mm column at +x;
     # (1, 1): three 100 mm columns). Lower z wins; (0, 2) also ties at z = 0 but lies further left.
-    heights = [[0, 0, 0],
-               [100, 20, 100],
-               [100, 100, 100]]
+    heights = [[0, 0, 0], [100, 20, 100], [100, 100, 100]]
     c = cands(heights, [ref.shown_item(0, 1, 1, 50)])
     area = dict(zip(zip(c.x.tolist(), c.y.tolist()), mta.contact_area_mm2(c).tolist()))
     assert area[(0, 0)] == area[(1, 1)] == area[(0, 2)] == 4375

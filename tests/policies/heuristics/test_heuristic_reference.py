@@ -21,8 +21,9 @@ def states(max_cells: int = 6):
     """Random states, and states whose boxes share one volume (ties between objects)."""
     return st.one_of(
         packing_states(max_cells=max_cells),
-        packing_states(max_cells=max_cells, max_items=4, shapes=EQUAL_VOLUME_SHAPES,
-                       heights=LEVEL_HEIGHTS_MM),
+        packing_states(
+            max_cells=max_cells, max_items=4, shapes=EQUAL_VOLUME_SHAPES, heights=LEVEL_HEIGHTS_MM
+        ),
     )
 
 

@@ -102,8 +102,10 @@ def test_equal_volumes_tie_on_the_keys_and_go_to_the_larger_footprint(name: str)
 
 
 def _permute(shown: list[ShownItem], order: list[int]) -> list[ShownItem]:
-    return [ShownItem(i, shown[j].internal_id, shown[j].size_mm, shown[j].size_cells)
-            for i, j in enumerate(order)]
+    return [
+        ShownItem(i, shown[j].internal_id, shown[j].size_mm, shown[j].size_cells)
+        for i, j in enumerate(order)
+    ]
 
 
 def _chosen(obs: Observation, name: str, tie_break: str) -> tuple:
@@ -115,8 +117,9 @@ def _chosen(obs: Observation, name: str, tie_break: str) -> tuple:
 @pytest.mark.parametrize("name", NAMES)
 @settings(max_examples=30, deadline=None)
 @given(
-    state=packing_states(max_cells=5, max_items=4, shapes=EQUAL_VOLUME_SHAPES,
-                         heights=LEVEL_HEIGHTS_MM),
+    state=packing_states(
+        max_cells=5, max_items=4, shapes=EQUAL_VOLUME_SHAPES, heights=LEVEL_HEIGHTS_MM
+    ),
     data=st.data(),
 )
 def test_default_choice_does_not_depend_on_the_shown_order(name: str, state, data) -> None:
@@ -142,8 +145,9 @@ def _equal_volume_case() -> Case:
     buffer 4, on a 6 x 4 floor: the heuristics' keys often tie between objects. String ids in
     the reference's style, numbered against the arrival order."""
     sizes = [(50, 25, 40), (25, 50, 40), (25, 25, 80), (50, 50, 20)] * 2
-    boxes = tuple(Box(internal_id=f"obj_{7 - i:05d}", size_mm=s, gt_index=i)
-                  for i, s in enumerate(sizes))
+    boxes = tuple(
+        Box(internal_id=f"obj_{7 - i:05d}", size_mm=s, gt_index=i) for i, s in enumerate(sizes)
+    )
     return Case("equal-volumes", Container((150, 100, 300)), 4, boxes, seed=3)
 
 
@@ -209,8 +213,22 @@ def _bench(tmp_path, *extra: str) -> list[str]:
     from packlab.cases import save_cases
 
     cases = save_cases([_equal_volume_case()], tmp_path / "cases.jsonl")
-    return ["bench", "--cases", str(cases), "--backend", "geometric", "--policies", "dblf,ffp",
-            "--seeds", "0", "--workers", "1", "--no-progress", "--no-figures", *extra]
+    return [
+        "bench",
+        "--cases",
+        str(cases),
+        "--backend",
+        "geometric",
+        "--policies",
+        "dblf,ffp",
+        "--seeds",
+        "0",
+        "--workers",
+        "1",
+        "--no-progress",
+        "--no-figures",
+        *extra,
+    ]
 
 
 def test_bench_takes_the_option_as_a_policy_arg(tmp_path, capsys) -> None:

@@ -129,8 +129,14 @@ def _box_sums(s: np.ndarray, lo: tuple[np.ndarray, ...], hi: tuple[np.ndarray, .
     b0, b1 = lo[1] * nc, hi[1] * nc
     c0, c1 = lo[2], hi[2]
     return (
-        flat[a1 + b1 + c1] - flat[a0 + b1 + c1] - flat[a1 + b0 + c1] - flat[a1 + b1 + c0]
-        + flat[a0 + b0 + c1] + flat[a0 + b1 + c0] + flat[a1 + b0 + c0] - flat[a0 + b0 + c0]
+        flat[a1 + b1 + c1]
+        - flat[a0 + b1 + c1]
+        - flat[a1 + b0 + c1]
+        - flat[a1 + b1 + c0]
+        + flat[a0 + b0 + c1]
+        + flat[a0 + b1 + c0]
+        + flat[a1 + b0 + c0]
+        - flat[a0 + b0 + c0]
     )
 
 

@@ -69,9 +69,11 @@ def side_neighbours(walled: np.ndarray, fx: int, fy: int) -> tuple[np.ndarray, n
     along_y = sliding(walled[:, 1:-1], fy, 1)  # (X + 2, Y', fy)
     along_x = sliding(walled[1:-1, :], fx, 0)  # (X', Y + 2, fx)
     sy0 = along_y.strides[0]
-    x_faces = as_strided(along_y, (2, px, py, fy), (sy0 * (fx + 1), *along_y.strides),
-                         writeable=False)
+    x_faces = as_strided(
+        along_y, (2, px, py, fy), (sy0 * (fx + 1), *along_y.strides), writeable=False
+    )
     sx1 = along_x.strides[1]
-    y_faces = as_strided(along_x, (2, px, py, fx), (sx1 * (fy + 1), *along_x.strides),
-                         writeable=False)
+    y_faces = as_strided(
+        along_x, (2, px, py, fx), (sx1 * (fy + 1), *along_x.strides), writeable=False
+    )
     return x_faces, y_faces

@@ -111,7 +111,9 @@ class PhysicsConfig:
             if not value > 0:
                 raise ConfigError(f"PhysicsConfig.{name} = {value!r}: must be positive")
         if self.clearance_mm < 0 or self.collision_inset_mm < 0:
-            raise ConfigError("PhysicsConfig.clearance_mm and collision_inset_mm must not be negative")
+            raise ConfigError(
+                "PhysicsConfig.clearance_mm and collision_inset_mm must not be negative"
+            )
 
 
 def _squared_speeds(qvel: np.ndarray, dof_idx: np.ndarray) -> np.ndarray:
@@ -223,7 +225,9 @@ class MujocoBackend:
 
     def place(self, index: int, rotation: int, min_corner_mm: tuple[int, int, int]) -> Transition:
         model, data, cfg = self._model, self._data, self.config
-        assert model is not None and data is not None and self._container is not None, "reset() first"
+        assert model is not None and data is not None and self._container is not None, (
+            "reset() first"
+        )
         l, w, h = self._sizes_mm[index]
         fx, fy = (w, l) if rotation == 1 else (l, w)
         x, y, z = min_corner_mm
@@ -245,7 +249,9 @@ class MujocoBackend:
         """Settle until at rest (longer window, own larger cap) before the episode is scored."""
         if not self._placed.any():
             return Transition(np.zeros(self._container.cells, dtype=np.int32), 0, False)
-        return self._settle(self.config.final_settle_window_steps, self.config.final_max_settle_steps)
+        return self._settle(
+            self.config.final_settle_window_steps, self.config.final_max_settle_steps
+        )
 
     def _lift_clear(self, index: int, rotation: int) -> None:
         """Raise a just-placed box out of any box it would start inside.
@@ -287,9 +293,12 @@ class MujocoBackend:
         half = model.geom_size[self._geom_ids[index]]
         half_x, half_y = (half[1], half[0]) if rotation == 1 else (half[0], half[1])
         pos = data.geom_xpos[others]
-        extent = np.einsum("nij,nj->ni", np.abs(data.geom_xmat[others].reshape(-1, 3, 3)), model.geom_size[others])
-        overlap = ((np.abs(pos[:, 0] - centre[0]) < extent[:, 0] + half_x)
-                   & (np.abs(pos[:, 1] - centre[1]) < extent[:, 1] + half_y))
+        extent = np.einsum(
+            "nij,nj->ni", np.abs(data.geom_xmat[others].reshape(-1, 3, 3)), model.geom_size[others]
+        )
+        overlap = (np.abs(pos[:, 0] - centre[0]) < extent[:, 0] + half_x) & (
+            np.abs(pos[:, 1] - centre[1]) < extent[:, 1] + half_y
+        )
         if not overlap.any():
             return True
         top = float((pos[overlap, 2] + extent[overlap, 2]).max())
@@ -300,7 +309,9 @@ class MujocoBackend:
         model, data = self._model, self._data
         mujoco.mj_kinematics(model, data)  # also wakes a tree whose qpos was just set
         mujoco.mj_collision(model, data)
-        return max((-c.dist for c in data.contact[: data.ncon] if geom in (c.geom1, c.geom2)), default=0.0)
+        return max(
+            (-c.dist for c in data.contact[: data.ncon] if geom in (c.geom1, c.geom2)), default=0.0
+        )
 
     def _highest_top(self, skip: int) -> float:
         """Height (m) of the highest point of any placed box but ``skip`` (0 if none)."""
@@ -337,7 +348,9 @@ class MujocoBackend:
             speed2 = _squared_speeds(data.qvel, dof_idx)
             moving = (speed2 >= limits).any(axis=1)
             if moving.any() and step > k:  # only then is a net motion over k steps known
-                net2 = _net_squared_speeds(history[(step + 1) % (k + 1)], history[step % (k + 1)], span)
+                net2 = _net_squared_speeds(
+                    history[(step + 1) % (k + 1)], history[step % (k + 1)], span
+                )
                 moving &= (net2 >= limits).any(axis=1)
             if moving.any():
                 still_for = 0
@@ -348,13 +361,20 @@ class MujocoBackend:
                     break
         speed2 = _squared_speeds(data.qvel, dof_idx)
         if steps > k:
-            net2 = _net_squared_speeds(history[(steps + 1) % (k + 1)], history[steps % (k + 1)], span)
+            net2 = _net_squared_speeds(
+                history[(steps + 1) % (k + 1)], history[steps % (k + 1)], span
+            )
             # Per box, the measure by which it looks stillest (the one the rest test accepts).
             net_is_stiller = (net2 / limits).max(axis=1) < (speed2 / limits).max(axis=1)
             speed2 = np.where(net_is_stiller[:, None], net2, speed2)
         residual = np.sqrt(speed2.max(axis=0))
-        return Transition(self._rasterise(), settle_steps=steps, capped=capped,
-                          max_linear_speed=float(residual[0]), max_angular_speed=float(residual[1]))
+        return Transition(
+            self._rasterise(),
+            settle_steps=steps,
+            capped=capped,
+            max_linear_speed=float(residual[0]),
+            max_angular_speed=float(residual[1]),
+        )
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         n = len(self._placed)
@@ -377,8 +397,11 @@ class MujocoBackend:
         grid, cell = self._container.cells, self._container.cell_xy_mm
         for i in np.flatnonzero(self._placed):
             cached = self._regions.get(i)
-            if (cached is None or np.abs(cached[0] - positions[i]).max() > _REUSE_MM
-                    or np.abs(cached[1] - quats[i]).max() > _REUSE_QUAT):
+            if (
+                cached is None
+                or np.abs(cached[0] - positions[i]).max() > _REUSE_MM
+                or np.abs(cached[1] - quats[i]).max() > _REUSE_QUAT
+            ):
                 region = box_top_region(grid, cell, self._sizes_mm[i], positions[i], quats[i])
                 self._regions[i] = (positions[i].copy(), quats[i].copy(), region)
         return compose_regions(grid, (r[2] for r in self._regions.values()))
