@@ -89,13 +89,14 @@ def timing_tables(
     if wall_s is not None:
         lines.append(
             f"measured: {len(records)} episodes on {workers} workers in {wall_s:.1f} s wall; "
-            f"episode CPU {total_cpu:.1f} s (episode wall {total_wall:.1f} s: the excess is waiting "
-            f"for a core on a shared machine)"
+            f"episode CPU {total_cpu:.1f} s (episode wall {total_wall:.1f} s: the excess is "
+            f"waiting for a core on a shared machine)"
         )
         if suite_counts:
             lines.append(
                 f"full default run, extrapolated per difficulty: CPU {full_cpu:.0f} s -> "
-                f"~{full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min) on {workers} idle cores; "
+                f"~{full_cpu / workers:.0f} s ({full_cpu / workers / 60:.1f} min) "
+                f"on {workers} idle cores; "
                 f"~{wall_s * full_cpu / total_cpu:.0f} s at this run's load"
             )
         else:
@@ -105,7 +106,8 @@ def timing_tables(
             )
     else:
         lines.append(
-            f"{len(records)} episodes: episode CPU {total_cpu:.1f} s -> ~{total_cpu / workers:.0f} s "
+            f"{len(records)} episodes: episode CPU {total_cpu:.1f} s "
+            f"-> ~{total_cpu / workers:.0f} s "
             f"({total_cpu / workers / 60:.1f} min) on {workers} idle cores (records without cpu_s "
             f"count their wall time)"
         )
@@ -135,7 +137,8 @@ def timing_tables(
                 else f"{'-':>16}{'-':>17}"
             )
         cpu = sum(_cpu_s(r) * scale[r.difficulty] for r in mine)
-        row += f"{cpu / max(1, len(mine)) / (sum(scale[r.difficulty] for r in mine) / max(1, len(mine))):>10.3f}"
+        mean_weight = sum(scale[r.difficulty] for r in mine) / max(1, len(mine))
+        row += f"{cpu / max(1, len(mine)) / mean_weight:>10.3f}"
         row += f"{100 * cpu / full_cpu:>10.1f}%"
         lines.append(row)
     return "\n".join(lines)
@@ -202,7 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         wall = time.perf_counter() - t0
         records = read_records(outcome.run_dir / "episodes.jsonl")
     print(
-        f"{len(cases)} of {sum(counts.values())} cases ({', '.join(f'{d} {n}' for d, n in counts.items())} "
+        f"{len(cases)} of {sum(counts.values())} cases "
+        f"({', '.join(f'{d} {n}' for d, n in counts.items())} "
         f"in the suite), seeds {args.seeds}, backend {args.backend}, {outcome.planned} episodes; "
         f"load average now {os.getloadavg()[0]:.2f}"
     )

@@ -98,14 +98,15 @@ def main() -> None:
             rows.append(measure(d, args.episodes, args, Path(tmp) / d))
 
         print(
-            f"datagen throughput: {args.episodes} episodes per difficulty, validation={args.validation}, "
+            f"datagen throughput: {args.episodes} episodes per difficulty, "
+            f"validation={args.validation}, "
             f"layout={args.layout}, images {args.image_size}px, sft={args.sft}, one core each "
             f"(os.cpu_count()={os.cpu_count()})"
         )
         print()
         print(
-            "| difficulty | episodes | steps/ep | rejected | s/ep wall | s/ep cpu | replay share | ep/s/core | "
-            "disk/ep (KiB, apparent) | disk/ep (KiB, allocated) |"
+            "| difficulty | episodes | steps/ep | rejected | s/ep wall | s/ep cpu | replay share "
+            "| ep/s/core | disk/ep (KiB, apparent) | disk/ep (KiB, allocated) |"
         )
         print("|---|---|---|---|---|---|---|---|---|---|")
         total_core_s = total_app = total_alloc = 0.0
@@ -115,7 +116,8 @@ def main() -> None:
             alloc = sum(b for _, b in r["sizes"].values()) / n
             print(
                 f"| {r['difficulty']} | {r['episodes']} | {r['steps'] / n:.1f} | {r['rejected']} | "
-                f"{r['wall'] / n:.3f} | {r['cpu'] / n:.3f} | {r['replay'] / max(r['wall'], 1e-9):.0%} | "
+                f"{r['wall'] / n:.3f} | {r['cpu'] / n:.3f} | "
+                f"{r['replay'] / max(r['wall'], 1e-9):.0%} | "
                 f"{n / r['wall']:.2f} | {app / 1024:.1f} | {alloc / 1024:.1f} |"
             )
             k = counts.get(r["difficulty"], 0)
@@ -132,7 +134,8 @@ def main() -> None:
         }
         print(
             f"{args.recipe} extrapolated: {total_core_s / 3600:.2f} core-hours -> "
-            f"{total_core_s / args.cores / 60:.1f} min wall on {args.cores} cores (perfect scaling); "
+            f"{total_core_s / args.cores / 60:.1f} min wall on {args.cores} cores "
+            f"(perfect scaling); "
             f"disk {total_app / 2**30:.2f} GiB apparent, {total_alloc / 2**30:.2f} GiB allocated "
             f"(images {by_part['images'] / 2**30:.2f}, parquet {by_part['data'] / 2**30:.2f}, "
             f"sft {by_part['sft'] / 2**30:.2f} GiB apparent)"
@@ -159,8 +162,9 @@ def main() -> None:
             per = {r["difficulty"]: r["wall"] / max(r["episodes"], 1) for r in rows}
             serial_estimate = sum(k * per.get(d, 0.0) for d, k in zip(recipe.difficulties, share))
             print(
-                f"process pool, {sum(share)} mixed episodes on {args.cores} workers: {wall:.1f} s wall "
-                f"(one-core estimate {serial_estimate:.1f} s -> speed-up {serial_estimate / wall:.2f}x); "
+                f"process pool, {sum(share)} mixed episodes on {args.cores} workers: "
+                f"{wall:.1f} s wall (one-core estimate {serial_estimate:.1f} s "
+                f"-> speed-up {serial_estimate / wall:.2f}x); "
                 f"recipe at this rate: {wall / sum(share) * recipe_total(recipe) / 60:.1f} min"
             )
 

@@ -109,7 +109,8 @@ def main() -> None:
 
     print(f"MuJoCo placement, oracle replay, {args.episodes} episodes per size")
     header = (
-        f"{'size':8s} {'boxes':>5s} {'container cm':>14s} {'mean ms':>8s} {'p95 ms':>8s} {'steps':>6s} "
+        f"{'size':8s} {'boxes':>5s} {'container cm':>14s} {'mean ms':>8s} {'p95 ms':>8s} "
+        f"{'steps':>6s} "
         f"{'drift mm':>8s} {'overall':>8s} {'peak MB':>8s} {'ref s':>6s} {'speed-up':>8s}"
     )
     print(header)
@@ -117,8 +118,10 @@ def main() -> None:
     for r in rows:
         ref = REFERENCE_S[r["difficulty"]]
         print(
-            f"{r['difficulty']:8s} {r['boxes']:5d} {r['container_cm']:>14s} {r['mean_ms']:8.2f} {r['p95_ms']:8.2f} "
-            f"{r['settle_steps']:6.1f} {r['drift_mm']:8.3f} {r['min_overall']:8.4f} {r['peak_rss_mb']:8.0f} "
+            f"{r['difficulty']:8s} {r['boxes']:5d} {r['container_cm']:>14s} "
+            f"{r['mean_ms']:8.2f} {r['p95_ms']:8.2f} "
+            f"{r['settle_steps']:6.1f} {r['drift_mm']:8.3f} {r['min_overall']:8.4f} "
+            f"{r['peak_rss_mb']:8.0f} "
             f"{ref:6.3f} {ref * 1e3 / r['mean_ms']:7.0f}x"
         )
     rate = geometric_steps_per_second(args.geometric_steps)

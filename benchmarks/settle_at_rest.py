@@ -180,7 +180,8 @@ def main() -> None:
         c for level in levels for c in [c for c in suite if c.difficulty == level][: args.per_level]
     ]
     print(
-        f"packlab-bench-v1 on mujoco: {len(cases)} cases ({args.per_level} per level: {','.join(levels)}), "
+        f"packlab-bench-v1 on mujoco: {len(cases)} cases "
+        f"({args.per_level} per level: {','.join(levels)}), "
         f"seeds {','.join(map(str, seeds))}; physics overrides {overrides or 'none'}"
     )
     tallies = {}
@@ -193,7 +194,8 @@ def main() -> None:
         print(f"  {name}: {time.perf_counter() - t0:.1f} s")
 
     header = (
-        f"{'policy':8s} {'placements':>10s} {'% unsettled':>11s} {'episodes':>8s} {'not at rest':>11s} "
+        f"{'policy':8s} {'placements':>10s} {'% unsettled':>11s} {'episodes':>8s} "
+        f"{'not at rest':>11s} "
         f"{'qvel lin':>8s} {'qvel ang':>8s} {'moved mm':>8s} {'>1 mm':>5s} {'final steps':>11s} "
         f"{'dOverall':>8s} {'ms/placement':>12s} {'p95 ms':>7s}"
     )
@@ -204,7 +206,8 @@ def main() -> None:
         print(
             f"{name:8s} {t.placements:10d} {pct:10.1f}% {t.episodes:8d} {t.not_at_rest:11d} "
             f"{t.qvel_lin:8.4f} {t.qvel_ang:8.3f} {t.moved_mm:8.2f} {t.moved_episodes:5d} "
-            f"{np.mean(t.final_steps):11.0f} {t.overall_change:8.4f} {1e3 * np.mean(t.step_s):12.2f} "
+            f"{np.mean(t.final_steps):11.0f} {t.overall_change:8.4f} "
+            f"{1e3 * np.mean(t.step_s):12.2f} "
             f"{1e3 * np.percentile(t.step_s, 95):7.1f}"
         )
 

@@ -8,6 +8,7 @@ offender, so one run shows all there is to fix.
 from __future__ import annotations
 
 import ast
+import importlib.util
 import re
 import subprocess
 import sys
@@ -38,6 +39,8 @@ LAZY_IMPORTS_ALLOWED = frozenset(
     }
 )
 MAX_FUNCTION_LINES = 80
+#: The paths ``ruff check`` covers; its settings are pyproject's [tool.ruff].
+RUFF_PATHS = ("src", "tests", "benchmarks", "scripts")
 FUNCTION_NODES = (ast.FunctionDef, ast.AsyncFunctionDef)
 
 
@@ -140,6 +143,18 @@ def test_import_linter_contract_is_kept():
     report = done.stdout + done.stderr
     assert done.returncode == 0, f"lint-imports failed (exit {done.returncode}):\n{report}"
     assert re.search(r"\b0 broken\b", report), report
+
+
+def test_ruff_check_passes():
+    """``ruff check`` (pyproject: the defaults, the 100-character line limit, sorted imports)."""
+    if importlib.util.find_spec("ruff") is None:
+        pytest.skip("ruff is not importable (it is in the test extra: pip install -e '.[test]')")
+    command = [sys.executable, "-m", "ruff", "check", "--no-cache", *RUFF_PATHS]
+    done = subprocess.run(
+        command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=300, check=False
+    )
+    report = done.stdout + done.stderr
+    assert done.returncode == 0, f"ruff check failed (exit {done.returncode}):\n{report}"
 
 
 def test_matplotlib_is_imported_only_under_viz():

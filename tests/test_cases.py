@@ -127,7 +127,7 @@ def test_save_is_atomic_and_keeps_the_old_file_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["suite.jsonl"]
 
 
-# -- ids, reference rows, limits, file modes --------------------------------------------------------
+# -- ids, reference rows, limits, file modes ------------------------------------------------------
 
 
 def _reference_row(**extra_overrides):

@@ -103,7 +103,10 @@ def test_describe_reports_table1_quantities():
 
 @pytest.mark.physics
 def test_the_bundled_file_is_reproducible_from_its_seeds(tmp_path):
-    """Provenance: regenerating from the spec gives the bundled bytes (else: a new suite version)."""
+    """Provenance: regenerating from the spec gives the bundled bytes.
+
+    (Else: a new suite version.)
+    """
     from packlab.bench.suites import write_suite
 
     spec = SUITES[DEFAULT_SUITE]

@@ -1,4 +1,6 @@
-"""Bad case files: one clear line naming file, line or row, field and value; exit code 2; nothing written.
+"""Bad case files: one clear line naming file, line or row, field and value.
+
+Exit code 2; nothing written.
 
 Each maker writes one bad file into a directory of its own and returns its path and the pieces
 the error must contain. Every case is checked twice: through ``load_cases`` (the message) and

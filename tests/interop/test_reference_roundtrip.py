@@ -1,4 +1,4 @@
-"""The reference's own benchmark files load unchanged, and packlab cases survive the trip through them.
+"""The reference's own benchmark files load unchanged; packlab cases survive the trip through them.
 
 The fixture under tests/data/reference_bench is the reference generator's output (see its
 README.md): 60 cases, string object ids, ``gt_plan`` beside ``interaction_kwargs``.

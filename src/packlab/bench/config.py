@@ -91,7 +91,8 @@ def parse_names(text: str | None, flag: str) -> tuple[str, ...]:
     names = _split(text)
     if not names:
         raise ConfigError(
-            f"{flag} = {text!r}: empty list; name at least one (or leave out --{flag} for the default)"
+            f"{flag} = {text!r}: empty list; name at least one "
+            f"(or leave out --{flag} for the default)"
         )
     return names
 
@@ -219,7 +220,8 @@ class RunConfig:
             for name in self.policies:
                 if name not in known:
                     raise ConfigError(
-                        f"policies: {name!r} is not a registered policy; available: {', '.join(known)}"
+                        f"policies: {name!r} is not a registered policy; "
+                        f"available: {', '.join(known)}"
                     )
         if len(set(self.difficulties)) != len(self.difficulties):
             raise ConfigError(
@@ -232,7 +234,8 @@ class RunConfig:
                 )
         if self.physics_overrides and self.backend != "mujoco":
             raise ConfigError(
-                f"physics = {dict(self.physics_overrides)!r}: only the mujoco backend has physics settings"
+                f"physics = {dict(self.physics_overrides)!r}: "
+                "only the mujoco backend has physics settings"
             )
 
 
@@ -361,7 +364,8 @@ def resolve(config: RunConfig) -> ResolvedRun:
         for d in config.difficulties:
             if d not in present:
                 raise ConfigError(
-                    f"difficulty = {d!r}: no such cases in {source.label}; present: {', '.join(present)}"
+                    f"difficulty = {d!r}: no such cases in {source.label}; "
+                    f"present: {', '.join(present)}"
                 )
         difficulties = tuple(d for d in present if d in config.difficulties)
     else:

@@ -111,13 +111,17 @@ def _containers_text(sizes: tuple[tuple[float, float, float], ...]) -> str:
 
 def format_description(label: str, stats: Sequence[GroupStats]) -> str:
     """A plain-text table of the statistics, one row per group."""
-    header = f"{'difficulty':<10} {'cases':>5} {'buffer':>6}  {'objects/case':<22} {'layers':<20} {'steps':>5}  {'fill':<22} containers (cm)"
+    header = (
+        f"{'difficulty':<10} {'cases':>5} {'buffer':>6}  {'objects/case':<22} {'layers':<20} "
+        f"{'steps':>5}  {'fill':<22} containers (cm)"
+    )
     lines = [f"{label}", header, "-" * len(header)]
     for s in stats:
         buf = ",".join(map(str, s.buffer_sizes))
         layers = s.layers.text() if s.layers else "-"
         lines.append(
-            f"{s.name:<10} {s.n_cases:>5} {buf:>6}  {s.objects.text():<22} {layers:<20} {s.steps:>5}  "
+            f"{s.name:<10} {s.n_cases:>5} {buf:>6}  {s.objects.text():<22} {layers:<20} "
+            f"{s.steps:>5}  "
             f"{s.fill_ratio.text(2):<22} {_containers_text(s.container_cm)}"
         )
     return "\n".join(lines)

@@ -269,7 +269,8 @@ class TransportBreaker:
             else f"last: {last.policy} on {last.case_id} seed {last.seed}: {last.error}"
         )
         return (
-            f"stopped after {self.count} consecutive transport errors (--max-transport-failures {self.limit}); "
+            f"stopped after {self.count} consecutive transport errors "
+            f"(--max-transport-failures {self.limit}); "
             f"{where}"
         )
 

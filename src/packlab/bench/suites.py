@@ -47,7 +47,8 @@ class SuiteSpec:
     def __post_init__(self) -> None:
         if not self.counts or any(n < 1 for _, n in self.counts):
             raise ConfigError(
-                f"suite {self.name!r}: counts = {self.counts!r}: need at least one case per difficulty"
+                f"suite {self.name!r}: counts = {self.counts!r}: "
+                "need at least one case per difficulty"
             )
 
     @property
@@ -61,7 +62,9 @@ SUITES: dict[str, SuiteSpec] = {
         "packlab-bench-v1",
         counts=(("easy", 20), ("medium", 20), ("hard", 20)),
         seed=0,
-        description="PackLab-Bench v1: 20 easy (buffer 3), 20 medium (buffer 5), 20 hard (buffer 10)",
+        description=(
+            "PackLab-Bench v1: 20 easy (buffer 3), 20 medium (buffer 5), 20 hard (buffer 10)"
+        ),
     ),
 }
 

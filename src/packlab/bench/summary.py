@@ -106,6 +106,40 @@ def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
     )
 
 
+#: Scores by (policy, difficulty) -> case -> seed -> metric.
+Scores = dict[tuple[str, str], dict[str, dict[int, dict[str, float]]]]
+
+
+def _policy_cells(
+    value: Scores, policy: str, seeds: list[int], difficulties: list[str]
+) -> tuple[dict[str, MetricCells], dict[str, CaseCells]]:
+    """One policy's table cells (per difficulty and the average) and its per-case cells."""
+    per_case: dict[str, CaseCells] = {}
+    by_group: dict[str, dict[str, dict[str, float]]] = {}  # group -> metric -> seed -> score
+    for d in difficulties:
+        cases = value.get((policy, d), {})
+        by_group[d] = {}
+        for m in METRICS:
+            by_group[d][m] = {}
+            for s in seeds:
+                scores = [cases[c][s][m] for c in sorted(cases) if s in cases[c]]
+                if scores:
+                    by_group[d][m][str(s)] = _mean(scores)
+        for c in sorted(cases):
+            seeds_of_case = [s for s in seeds if s in cases[c]]
+            per_case[c] = CaseCells(
+                d, *(_cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS)
+            )
+    by_group[AVERAGE] = {}
+    for m in METRICS:
+        by_group[AVERAGE][m] = {}
+        for s in seeds:
+            parts = [by_group[d][m][str(s)] for d in difficulties if str(s) in by_group[d][m]]
+            if len(parts) == len(difficulties) and parts:
+                by_group[AVERAGE][m][str(s)] = _mean(parts)
+    return {g: _metric_cells(metrics) for g, metrics in by_group.items()}, per_case
+
+
 def summarize(
     records: Iterable[EpisodeRecord],
     policies: Sequence[str] | None = None,
@@ -135,9 +169,7 @@ def summarize(
     errors = [r for r in recs if isinstance(r, EpisodeError)]
 
     # metric value by (policy, difficulty, case, seed)
-    value: dict[tuple[str, str], dict[str, dict[int, dict[str, float]]]] = defaultdict(
-        lambda: defaultdict(dict)
-    )
+    value: Scores = defaultdict(lambda: defaultdict(dict))
     for r in ok:
         value[(r.policy, r.difficulty)][r.case_id][r.seed] = {
             m: float(getattr(r.metrics, m)) for m in METRICS
@@ -146,31 +178,7 @@ def summarize(
     table: dict[str, dict[str, MetricCells]] = {}
     per_case: dict[str, dict[str, CaseCells]] = {}
     for p in policies:
-        table[p], per_case[p] = {}, {}
-        by_group: dict[str, dict[str, dict[str, float]]] = {}  # group -> metric -> seed -> score
-        for d in difficulties:
-            cases = value.get((p, d), {})
-            by_group[d] = {}
-            for m in METRICS:
-                by_group[d][m] = {}
-                for s in seeds:
-                    scores = [cases[c][s][m] for c in sorted(cases) if s in cases[c]]
-                    if scores:
-                        by_group[d][m][str(s)] = _mean(scores)
-            for c in sorted(cases):
-                seeds_of_case = [s for s in seeds if s in cases[c]]
-                per_case[p][c] = CaseCells(
-                    d, *(_cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS)
-                )
-        by_group[AVERAGE] = {}
-        for m in METRICS:
-            by_group[AVERAGE][m] = {}
-            for s in seeds:
-                parts = [by_group[d][m][str(s)] for d in difficulties if str(s) in by_group[d][m]]
-                if len(parts) == len(difficulties) and parts:
-                    by_group[AVERAGE][m][str(s)] = _mean(parts)
-        for g, metrics in by_group.items():
-            table[p][g] = _metric_cells(metrics)
+        table[p], per_case[p] = _policy_cells(value, p, seeds, difficulties)
 
     counts = {
         p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))

@@ -35,9 +35,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "bench",
         help="run PackLab-Bench (or any case file) and print a Table-2-style table",
-        description="Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
-        "write summary.json, table.md and figures. Rerun the same command to resume.",
+        description=(
+            "Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
+            "write summary.json, table.md and figures. Rerun the same command to resume."
+        ),
     )
+    _add_case_options(p)
+    _add_run_options(p)
+    _add_limit_options(p)
+    p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.set_defaults(func=run)
+    _add_subcommands(p)
+
+
+def _add_case_options(p: argparse.ArgumentParser) -> None:
+    """What is run: cases, policies, seeds, backend, difficulties."""
     add_field(
         p,
         RunConfig,
@@ -72,6 +85,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         parse=partial(parse_names, flag="difficulty"),
         help="comma-separated difficulties to run (default: all)",
     )
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """Where and how it runs: output, workers, executor, policy and physics settings, retries."""
     add_field(
         p,
         RunConfig,
@@ -122,6 +139,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--retry-errors",
         help="rerun episodes recorded as failed (transport errors are rerun anyway)",
     )
+
+
+def _add_limit_options(p: argparse.ArgumentParser) -> None:
+    """Time limits, the circuit breaker and the progress bar."""
     add_field(
         p,
         RunConfig,
@@ -154,11 +175,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "resume); default {default}",
     )
     add_field(p, RunConfig, "progress", "--no-progress", help="no progress bar on stderr")
-    p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    p.set_defaults(func=run)
 
+
+def _add_subcommands(p: argparse.ArgumentParser) -> None:
+    """``bench report`` and ``bench compare``."""
     sub = p.add_subparsers(dest="bench_command", metavar="{report,compare}")
+    _add_report_parser(sub)
+    _add_compare_parser(sub)
+
+
+def _add_report_parser(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser(
         "report",
         help="rebuild summary, table and figures of a run from its records",
@@ -173,6 +199,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--seed", type=int, help="run seed of that figure (default: the first seed)")
     r.add_argument("--no-figures", action="store_true", help="tables only")
     r.set_defaults(func=run_report)
+
+
+def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser(
         "compare",
         help="one table over several runs (ablations, checkpoints)",
@@ -210,7 +239,8 @@ def run(args: argparse.Namespace) -> int:
     resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
     failed = f", {outcome.failed} failed" if outcome.failed else ""
     print(
-        f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s{resumed}{failed}; "
+        f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s"
+        f"{resumed}{failed}; "
         f"{len(outcome.outputs)} outputs written",
         file=sys.stderr,
     )

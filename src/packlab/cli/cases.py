@@ -1,4 +1,5 @@
-"""``packlab cases``: check a case source, or convert it between packlab's JSONL and the reference layout."""
+"""``packlab cases``: check a case source, or convert it between packlab's JSONL and the
+reference layout."""
 
 from __future__ import annotations
 
@@ -60,7 +61,8 @@ def run_validate(args: argparse.Namespace) -> int:
         f"{source.origin}: {len(cases)} cases OK "
         f"({', '.join(f'{lvl} {n}' for lvl, n in levels.items())}); "
         f"objects {min(objects)}-{max(objects)}, {sum(objects)} in all; "
-        f"gt_plan in {sum(c.gt_plan is not None for c in cases)}; internal_id {'/'.join(id_types)}; "
+        f"gt_plan in {sum(c.gt_plan is not None for c in cases)}; "
+        f"internal_id {'/'.join(id_types)}; "
         f"sha256 {source.sha256}"
     )
     return 0
@@ -80,6 +82,7 @@ def run_export(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}", file=sys.stderr)
     print(
-        f"{len(source.cases)} cases from {source.origin} -> {out} ({args.format}); sha256 {source.sha256}"
+        f"{len(source.cases)} cases from {source.origin} -> {out} ({args.format}); "
+        f"sha256 {source.sha256}"
     )
     return 0

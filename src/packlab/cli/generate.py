@@ -37,6 +37,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Generate validated packing trajectories into a dataset directory. Rerun the "
         "same command to resume an interrupted run.",
     )
+    _add_dataset_options(p)
+    _add_case_options(p)
+    _add_output_options(p)
+    _add_run_options(p)
+    p.set_defaults(func=run)
+
+
+def _add_dataset_options(p: argparse.ArgumentParser) -> None:
+    """Which dataset: recipe, difficulties, episode counts, seed, output directory."""
     add_field(
         p,
         DatasetConfig,
@@ -77,6 +86,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="dataset directory (created; an existing one is resumed)",
     )
+
+
+def _add_case_options(p: argparse.ArgumentParser) -> None:
+    """How cases are made and validated."""
     add_field(p, CaseConfig, "layout", "--layout", help="layout family; default {default}")
     add_field(
         p,
@@ -102,6 +115,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--max-attempts",
         help="case seeds tried per episode slot; default {default}",
     )
+
+
+def _add_output_options(p: argparse.ArgumentParser) -> None:
+    """Shard size, image size and SFT export."""
     add_field(
         p,
         DatasetConfig,
@@ -117,6 +134,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="heightmap image side in pixels; default {default}",
     )
     add_field(p, DatasetConfig, "sft", "--sft", help="SFT export granularity; default {default}")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """Workers, executor and the progress bar."""
     add_field(
         p,
         RunOptions,
@@ -134,7 +155,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "default {default}",
     )
     add_field(p, RunOptions, "progress", "--no-progress", help="no progress bar on stderr")
-    p.set_defaults(func=run)
 
 
 def config_from_args(args: argparse.Namespace) -> DatasetConfig:

@@ -1,7 +1,8 @@
-"""The protocols every part plugs into: a ``Policy`` chooses actions, a ``TransitionBackend`` executes them.
+"""The protocols every part plugs into.
 
-Both live in the contract layer so that ``sim`` (which runs policies) and ``policies`` (which read
-the simulator's observations) share them without importing each other.
+A ``Policy`` chooses actions, a ``TransitionBackend`` executes them. Both live in the contract
+layer so that ``sim`` (which runs policies) and ``policies`` (which read the simulator's
+observations) share them without importing each other.
 """
 
 from __future__ import annotations
@@ -55,7 +56,10 @@ class TransitionBackend(Protocol):
         ...
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """Centres (n, 3) float mm and quaternions (n, 4) wxyz of all boxes; NaN rows = not placed."""
+        """Centres (n, 3) float mm and quaternions (n, 4) wxyz of all boxes.
+
+        NaN rows = not placed.
+        """
         ...
 
 

@@ -122,7 +122,10 @@ class Case:
 
 @dataclass(frozen=True, slots=True)
 class Action:
-    """A placement: ``object_id`` indexes the *shown* buffer; (x, y) is the footprint's minimum cell."""
+    """A placement: ``object_id`` indexes the *shown* buffer.
+
+    (x, y) is the footprint's minimum cell.
+    """
 
     object_id: int
     rotation: int

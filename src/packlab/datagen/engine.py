@@ -206,7 +206,8 @@ def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
         if stored != wanted:
             diff = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
             raise ConfigError(
-                f"out = {str(root)!r}: holds a dataset made with a different config ({', '.join(diff)} "
+                f"out = {str(root)!r}: holds a dataset made with a different config "
+                f"({', '.join(diff)} "
                 "differ); rerun with the same options to resume, or choose another --out"
             )
     elif any(p.name != ".packlab-write-probe.tmp" for p in root.iterdir()):

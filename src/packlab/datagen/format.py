@@ -401,7 +401,10 @@ def sft_jsonl(rows: Sequence[dict[str, Any]], mode: str) -> bytes:
 
 
 def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> list[Path]:
-    """(Re)write ``sft/*.jsonl`` of an existing dataset from its step shards (files in, files out)."""
+    """(Re)write ``sft/*.jsonl`` of an existing dataset from its step shards.
+
+    Files in, files out.
+    """
     root = Path(dataset_dir)
     written = []
     for path in sorted((root / STEPS_DIR).glob("*.parquet")):
@@ -435,9 +438,11 @@ def dataset_card(info: DatasetInfo) -> str:
         f"Episodes: {counts.episodes}; steps: {counts.steps}. Format {info.format_version}.\n\n"
         "```python\n"
         "import datasets\n"
-        f'steps = datasets.load_dataset("parquet", data_files="{STEPS_DIR}/*.parquet", split="train")\n'
+        f'steps = datasets.load_dataset("parquet", data_files="{STEPS_DIR}/*.parquet", '
+        'split="train")\n'
         "```\n\n"
         "Images (`image` column) and SFT messages reference PNGs relative to this directory.\n"
-        "Heightmap images: x along columns (left to right), y along rows (top to bottom), cell (0, 0)\n"
+        "Heightmap images: x along columns (left to right), y along rows (top to bottom), "
+        "cell (0, 0)\n"
         "top-left; colour is absolute height from the floor to the container rim.\n"
     )

@@ -233,7 +233,8 @@ def build_layout(
         else:
             return Layout((nx, ny), scenario.stack_height_mm // zc, tuple(boxes), cfg.layout)
     raise ValueError(
-        f"could not tile {scenario.n_objects} objects in {n_layers} layers on a {nx}x{ny}-cell floor"
+        f"could not tile {scenario.n_objects} objects in {n_layers} layers "
+        f"on a {nx}x{ny}-cell floor"
     )
 
 

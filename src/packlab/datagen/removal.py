@@ -111,7 +111,8 @@ def order_problems(layout: Layout, order: tuple[int, ...]) -> list[str]:
         under = height[b.x : b.x + b.dx, b.y : b.y + b.dy]
         if not np.all(under == b.z):
             problems.append(
-                f"step {step}: object {i} at z={b.z} is over cells of height {int(under.min())}..{int(under.max())}"
+                f"step {step}: object {i} at z={b.z} is over cells of height "
+                f"{int(under.min())}..{int(under.max())}"
             )
         under[...] = b.top
     return problems

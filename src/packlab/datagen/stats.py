@@ -129,7 +129,10 @@ def format_report(info: DatasetInfo, dists: dict[str, Distribution]) -> str:
             f"{counts.episodes} episodes, {counts.steps} steps, {counts.shards} shards"
         ),
         "",
-        f"{'difficulty':<10} {'requested':>9} {'episodes':>9} {'steps':>8} {'attempts':>9} {'accept':>7}  rejections",
+        (
+            f"{'difficulty':<10} {'requested':>9} {'episodes':>9} {'steps':>8} {'attempts':>9} "
+            f"{'accept':>7}  rejections"
+        ),
     ]
     by = counts.by_difficulty
     listed = info.generator_config.get("difficulties")
@@ -183,7 +186,10 @@ _HISTOGRAMS = (
 
 
 def save_histograms(dists: dict[str, Distribution], out_dir: str | Path) -> list[Path]:
-    """PNG histograms (``packlab.viz.distributions``) of the main distributions; returns the files."""
+    """PNG histograms (``packlab.viz.distributions``) of the main distributions.
+
+    Returns the files written.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []

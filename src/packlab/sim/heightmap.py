@@ -1,4 +1,6 @@
-"""Pure heightmap operations: placing boxes and rasterising settled poses (Eq. 2 lives in core.feasibility).
+"""Pure heightmap operations: placing boxes and rasterising settled poses.
+
+Eq. 2 lives in core.feasibility.
 
 A heightmap is an int32 array of shape (x_cells, y_cells) holding, for each grid cell, the top
 surface height in millimetres over that cell.

@@ -88,7 +88,10 @@ def height_colour(height_mm: int, container: Container) -> tuple[int, int, int]:
 
 
 def _pixel_cells(n_cells: int, n_px: int) -> np.ndarray:
-    """Cell index of each of ``n_px`` pixels spanning ``n_cells`` cells (nearest, exact when whole)."""
+    """Cell index of each of ``n_px`` pixels spanning ``n_cells`` cells.
+
+    Nearest cell; exact when ``n_px`` is a whole multiple of ``n_cells``.
+    """
     return np.arange(n_px) * n_cells // n_px
 
 

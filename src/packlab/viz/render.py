@@ -195,7 +195,8 @@ def packing_comparison_figure(
     x, y, z = (v / 10 for v in case.container.size_mm)
     seed_txt = f", seed {seed}" if seed is not None else ""
     fig.suptitle(
-        f"{case.episode_id} ({case.difficulty}, {len(case.objects)} objects, buffer {case.buffer_size}, "
+        f"{case.episode_id} ({case.difficulty}, {len(case.objects)} objects, "
+        f"buffer {case.buffer_size}, "
         f"container {x:g}x{y:g}x{z:g} cm{seed_txt})",
         fontsize=12,
     )
@@ -273,7 +274,8 @@ def episode_figure(
         else ""
     )
     fig.suptitle(
-        f"{display_name(record.policy)} on {case.episode_id} ({case.difficulty}, {len(case.objects)} "
+        f"{display_name(record.policy)} on {case.episode_id} "
+        f"({case.difficulty}, {len(case.objects)} "
         f"objects), seed {record.seed}, {record.backend}{more}\n"
         f"tiles: heightmap after each step (x right, y down), titled step: #object rotation (x, y)",
         fontsize=10,

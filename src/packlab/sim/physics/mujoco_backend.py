@@ -153,7 +153,8 @@ def build_model_xml(container: Container, boxes: Sequence[Box], cfg: PhysicsConf
         (sx / 2, sy + t / 2, half_h, sx / 2 + t, t / 2, half_h),
     ]
     wall_xml = "\n".join(
-        f'    <geom name="wall{i}" type="box" pos="{_fmt(w[:3])}" size="{_fmt(w[3:])}" rgba=".6 .6 .7 .3"/>'
+        f'    <geom name="wall{i}" type="box" pos="{_fmt(w[:3])}" size="{_fmt(w[3:])}" '
+        'rgba=".6 .6 .7 .3"/>'
         for i, w in enumerate(walls)
     )
     inset = cfg.collision_inset_mm
@@ -165,19 +166,28 @@ def build_model_xml(container: Container, boxes: Sequence[Box], cfg: PhysicsConf
         body_xml.append(
             f'    <body name="box{i}" pos="{_fmt(park)}" gravcomp="1">\n'
             f'      <freejoint name="j{i}"/>\n'
-            f'      <geom name="g{i}" type="box" size="{_fmt(half)}" density="{cfg.density_kg_m3:g}"'
+            f'      <geom name="g{i}" type="box" size="{_fmt(half)}" '
+            f'density="{cfg.density_kg_m3:g}"'
             f' contype="0" conaffinity="0"/>\n'
             f"    </body>"
         )
     sleep_flag = '<flag sleep="enable"/>' if cfg.sleep else ""
+    solver = (
+        f'solver="{cfg.solver}" cone="{cfg.cone}" iterations="{cfg.solver_iterations}" '
+        f'tolerance="{cfg.solver_tolerance:g}"'
+    )
+    geom_default = (
+        f'friction="{cfg.friction:g} 0.005 0.0001" solref="{_fmt(cfg.solref)}" '
+        f'solimp="{_fmt(cfg.solimp)}" condim="3"'
+    )
     return f"""<mujoco model="packlab">
   <option timestep="{cfg.timestep_s:g}" gravity="0 0 {cfg.gravity:g}" integrator="implicitfast"
-          solver="{cfg.solver}" cone="{cfg.cone}" iterations="{cfg.solver_iterations}" tolerance="{cfg.solver_tolerance:g}"
+          {solver}
           noslip_iterations="{cfg.noslip_iterations}" impratio="{cfg.impratio:g}">
     {sleep_flag}
   </option>
   <default>
-    <geom friction="{cfg.friction:g} 0.005 0.0001" solref="{_fmt(cfg.solref)}" solimp="{_fmt(cfg.solimp)}" condim="3"/>
+    <geom {geom_default}/>
   </default>
   <worldbody>
     <geom name="floor" type="plane" size="0 0 1" rgba=".8 .8 .8 1"/>
