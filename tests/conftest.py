@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import pytest
 from layered_cases import make_layered_case
 
@@ -11,3 +14,27 @@ from packlab.core.types import Case
 @pytest.fixture
 def layered_case() -> Case:
     return make_layered_case(1)
+
+
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """One local Ray cluster for every Ray test (starting one costs seconds; tests reuse it).
+
+    The executors use an already-initialised Ray and leave it running. Ray workers are fresh
+    processes: they import the tests' helper modules from these directories, and the setup hook
+    registers the bench fault-test policies in each of them.
+    """
+    ray = pytest.importorskip("ray")
+    tests = Path(__file__).parent
+    path = os.pathsep.join([str(tests), str(tests / "bench"), os.environ.get("PYTHONPATH", "")])
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        runtime_env={
+            "env_vars": {"PYTHONPATH": path},
+            "worker_process_setup_hook": "fault_policies.register_all",
+        },
+    )
+    yield ray
+    ray.shutdown()

@@ -10,7 +10,6 @@ import multiprocessing as mp
 import os
 import signal
 import time
-from pathlib import Path
 
 import pytest
 
@@ -156,25 +155,13 @@ def test_bad_options_are_one_line_errors(kwargs, message):
 
 
 @pytest.mark.slow
-def test_ray_gives_the_same_results_and_reports():
-    ray = pytest.importorskip("ray")
-    # Ray workers are fresh processes: they import this module's functions from its directory.
-    path = os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])
-    ray.init(
-        num_cpus=2,
-        include_dashboard=False,
-        log_to_driver=False,
-        runtime_env={"env_vars": {"PYTHONPATH": path}},
-    )
-    try:
-        reports = []
-        out = list(run_items(square, ITEMS, executor="ray", workers=2, on_report=reports.append))
-        assert sorted(out) == [i * i for i in ITEMS]
-        assert sorted(reports) == [("seen", i) for i in ITEMS]
-        with pytest.raises(ValueError, match="three is not allowed"):
-            list(run_items(fail_on_3, ITEMS, executor="ray", workers=2))
-        out = run_items(die_on_2, ITEMS, executor="ray", workers=2, on_lost=lost_marker)
-        lost = [r for r in out if isinstance(r, tuple)]
-        assert [r[:3] + r[4:] for r in lost] == [("lost", 2, "died", "ray")]
-    finally:
-        ray.shutdown()
+def test_ray_gives_the_same_results_and_reports(ray_cluster):
+    reports = []
+    out = list(run_items(square, ITEMS, executor="ray", workers=2, on_report=reports.append))
+    assert sorted(out) == [i * i for i in ITEMS]
+    assert sorted(reports) == [("seen", i) for i in ITEMS]
+    with pytest.raises(ValueError, match="three is not allowed"):
+        list(run_items(fail_on_3, ITEMS, executor="ray", workers=2))
+    out = run_items(die_on_2, ITEMS, executor="ray", workers=2, on_lost=lost_marker)
+    lost = [r for r in out if isinstance(r, tuple)]
+    assert [r[:3] + r[4:] for r in lost] == [("lost", 2, "died", "ray")]

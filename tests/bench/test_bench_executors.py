@@ -69,7 +69,11 @@ def bench(cases, out, executor: str, workers: int) -> dict:
         pytest.param("ray", 2, marks=pytest.mark.slow),
     ],
 )
-def test_every_executor_gives_the_same_records(tiny_suite, tmp_path, capsys, executor, workers):
+def test_every_executor_gives_the_same_records(
+    tiny_suite, tmp_path, capsys, executor, workers, request
+):
+    if executor == "ray":
+        request.getfixturevalue("ray_cluster")  # one cluster for every Ray test
     reference = bench(tiny_suite, tmp_path / "serial", "process", 1)
     assert bench(tiny_suite, tmp_path / executor, executor, workers) == reference
     # The scores too (table.md also shows timings, which differ).

@@ -221,61 +221,43 @@ def test_a_clean_run_exits_0_with_no_error_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_ray_time_limit_and_deadline(tmp_path, capsys):
-    ray = pytest.importorskip("ray")
-    import os
-    from pathlib import Path
-
-    here = str(Path(__file__).parent)
-    # Ray workers are fresh processes: register the test policies there through a setup hook.
-    ray.init(
-        num_cpus=2,
-        include_dashboard=False,
-        log_to_driver=False,
-        runtime_env={
-            "env_vars": {"PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])},
-            "worker_process_setup_hook": "fault_policies.register_all",
-        },
+def test_ray_time_limit_and_deadline(tmp_path, capsys, ray_cluster):
+    code, wall, _, records = bench(
+        tmp_path,
+        capsys,
+        "--policies",
+        "test-sleep,dblf",
+        "--seeds",
+        "0",
+        "--executor",
+        "ray",
+        "--workers",
+        "2",
+        "--episode-timeout",
+        "1",
     )
-    try:
-        code, wall, _, records = bench(
-            tmp_path,
-            capsys,
-            "--policies",
-            "test-sleep,dblf",
-            "--seeds",
-            "0",
-            "--executor",
-            "ray",
-            "--workers",
-            "2",
-            "--episode-timeout",
-            "1",
-        )
-        assert code == EXIT_EPISODE_ERRORS and wall < 60
-        assert (
-            sorted(getattr(r, "error_kind", "ok") for r in records)
-            == ["ok"] * N_DEMO + ["timeout"] * N_DEMO
-        )
-        code, wall, err, _ = bench(
-            tmp_path / "b",
-            capsys,
-            "--policies",
-            "test-sleep",
-            "--seeds",
-            "0",
-            "--executor",
-            "ray",
-            "--workers",
-            "2",
-            "--episode-timeout",
-            "0",
-            "--deadline",
-            "3",
-        )
-        assert code == EXIT_ABORTED and wall < 60 and "--deadline 3 s" in err[-1]
-    finally:
-        ray.shutdown()
+    assert code == EXIT_EPISODE_ERRORS and wall < 60
+    assert (
+        sorted(getattr(r, "error_kind", "ok") for r in records)
+        == ["ok"] * N_DEMO + ["timeout"] * N_DEMO
+    )
+    code, wall, err, _ = bench(
+        tmp_path / "b",
+        capsys,
+        "--policies",
+        "test-sleep",
+        "--seeds",
+        "0",
+        "--executor",
+        "ray",
+        "--workers",
+        "2",
+        "--episode-timeout",
+        "0",
+        "--deadline",
+        "3",
+    )
+    assert code == EXIT_ABORTED and wall < 60 and "--deadline 3 s" in err[-1]
 
 
 def test_breaker_counts_only_consecutive_transport_errors():

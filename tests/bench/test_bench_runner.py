@@ -167,8 +167,7 @@ def test_a_policy_that_cannot_be_built_fails_before_any_work(tiny_suite, tmp_pat
 
 
 @pytest.mark.slow
-def test_ray_executor_gives_the_same_numbers(tiny_suite, tmp_path):
-    pytest.importorskip("ray")
+def test_ray_executor_gives_the_same_numbers(tiny_suite, tmp_path, ray_cluster):
     local = run_bench(_cfg(tiny_suite, tmp_path / "a", workers=1), figures=False)
     remote = run_bench(_cfg(tiny_suite, tmp_path / "b", workers=2, executor="ray"), figures=False)
     assert remote.summary.table == local.summary.table

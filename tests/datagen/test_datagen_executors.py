@@ -83,7 +83,9 @@ def generate(out: Path, executor: str, workers: int) -> dict[str, Any]:
         pytest.param("ray", 2, marks=pytest.mark.slow),
     ],
 )
-def test_every_executor_makes_the_same_dataset(tmp_path, capsys, executor, workers):
+def test_every_executor_makes_the_same_dataset(tmp_path, capsys, executor, workers, request):
+    if executor == "ray":
+        request.getfixturevalue("ray_cluster")  # one cluster for every Ray test
     reference = generate(tmp_path / "serial", "process", 1)
     assert generate(tmp_path / executor, executor, workers) == reference
 

@@ -9,14 +9,9 @@ from packlab.datagen.engine import RunOptions, generate_dataset
 
 
 @pytest.mark.slow
-def test_ray_backend_matches_local_output(tiny_dataset, tmp_path):
-    ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        generate_dataset(
-            tiny_config(),
-            RunOptions(str(tmp_path / "ray"), workers=2, executor="ray", progress=False),
-        )
-    finally:
-        ray.shutdown()
+def test_ray_backend_matches_local_output(tiny_dataset, tmp_path, ray_cluster):
+    generate_dataset(
+        tiny_config(),
+        RunOptions(str(tmp_path / "ray"), workers=2, executor="ray", progress=False),
+    )
     assert tree_bytes(tmp_path / "ray") == tree_bytes(tiny_dataset)
