@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from packlab.core.records import (
     RUN_FORMAT,
     ActionRecord,
@@ -107,3 +109,17 @@ def error_record(
         traceback="",
         timing=Timing(episode_s=0.1),
     )
+
+
+def without_timing(value: Any) -> Any:
+    """JSON with every wall-clock field removed (``timing``, durations ``*_s`` and ``*_ms``):
+    those differ from run to run; everything else must not."""
+    if isinstance(value, dict):
+        return {
+            k: without_timing(v)
+            for k, v in value.items()
+            if k != "timing" and not k.endswith(("_s", "_ms"))
+        }
+    if isinstance(value, (list, tuple)):
+        return [without_timing(v) for v in value]
+    return value

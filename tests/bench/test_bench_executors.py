@@ -7,29 +7,15 @@ Ray (slow): identical records and scores; the executor is saved in config.json.
 from __future__ import annotations
 
 import json
-from typing import Any
 
 import pytest
+from record_helpers import without_timing
 
 from packlab.bench.records import read_record_file, record_key
 from packlab.cli.main import main
 from packlab.core.records import to_builtins
 
 POLICIES = "dblf,ffp,random,oracle"
-
-
-def without_timing(value: Any) -> Any:
-    """JSON with every wall-clock field removed (``timing``, durations ``*_s`` and ``*_ms``):
-    those differ from run to run; everything else must not."""
-    if isinstance(value, dict):
-        return {
-            k: without_timing(v)
-            for k, v in value.items()
-            if k != "timing" and not k.endswith(("_s", "_ms"))
-        }
-    if isinstance(value, (list, tuple)):
-        return [without_timing(v) for v in value]
-    return value
 
 
 def bench(cases, out, executor: str, workers: int) -> dict:

@@ -12,22 +12,10 @@ from typing import Any
 
 import pyarrow.parquet as pq
 import pytest
+from record_helpers import without_timing
 
 from packlab.cli.main import main
 from packlab.datagen import format as fmt
-
-
-def without_timing(value: Any) -> Any:
-    """JSON with every wall-clock field removed (``timing``, durations ``*_s`` and ``*_ms``)."""
-    if isinstance(value, dict):
-        return {
-            k: without_timing(v)
-            for k, v in value.items()
-            if k != "timing" and not k.endswith(("_s", "_ms"))
-        }
-    if isinstance(value, (list, tuple)):
-        return [without_timing(v) for v in value]
-    return value
 
 
 def contents(root: Path) -> dict[str, Any]:
