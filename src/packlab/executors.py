@@ -243,6 +243,10 @@ def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
     # Ctrl-C goes to the whole process group; only the parent should act on it (it stops the
     # workers and keeps every result so far). Workers dying mid-item would add noise.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # The default action for terminate(): the worker holds nothing that needs a clean exit.
+    # The parent blocked SIGTERM across the fork (_Pool._spawn); one sent meanwhile lands now.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
     parent = os.getppid()
     ctx = Context(None, lambda payload: conn.send((_REPORT, payload)))
     while True:
@@ -307,7 +311,14 @@ class _Pool:
         proc = self._ctx.Process(
             target=_worker_main, args=(child_end, self._work, self._n), daemon=True
         )
-        proc.start()
+        # SIGTERM stays blocked across the fork until the child has reset its handler: a
+        # handler inherited from this process (Ray installs one) would otherwise swallow a
+        # terminate() sent while the child is still starting, leaving it for the SIGKILL wait.
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+        try:
+            proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         child_end.close()  # the parent's copy; the worker's end stays open in the worker
         return _Worker(proc, parent_end)
 

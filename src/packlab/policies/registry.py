@@ -24,6 +24,10 @@ PolicyFactory = Callable[..., Policy]
 
 _RUNTIME: dict[str, PolicyFactory] = {}
 
+#: Factories already loaded from an entry point. Scanning every installed distribution's
+#: metadata costs milliseconds, and the bench makes a policy per episode.
+_LOADED: dict[str, PolicyFactory] = {}
+
 
 def register_policy(name: str) -> Callable[[PolicyFactory], PolicyFactory]:
     """Decorator: register ``factory(**kwargs) -> Policy`` under ``name`` for this process."""
@@ -55,11 +59,15 @@ def policy_factory(name: str) -> PolicyFactory:
     """The factory registered under ``name`` (imports its package), or a ConfigError."""
     if name in _RUNTIME:
         return _RUNTIME[name]
+    if name in _LOADED:
+        return _LOADED[name]
     declared = _declared()
     if name not in declared:
         known = ", ".join(available_policies()) or "none (is packlab installed? pip install -e .)"
         raise ConfigError(f"policy = {name!r}: unknown; available: {known}")
-    return declared[name].load()
+    factory: PolicyFactory = declared[name].load()
+    _LOADED[name] = factory
+    return factory
 
 
 def make_policy(name: str, **kwargs: Any) -> Policy:
