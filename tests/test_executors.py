@@ -165,3 +165,16 @@ def test_ray_gives_the_same_results_and_reports(ray_cluster):
     out = run_items(die_on_2, ITEMS, executor="ray", workers=2, on_lost=lost_marker)
     lost = [r for r in out if isinstance(r, tuple)]
     assert [r[:3] + r[4:] for r in lost] == [("lost", 2, "died", "ray")]
+
+
+def test_terminate_ends_a_starting_worker_even_under_an_inherited_sigterm_handler():
+    """Ray installs a Python SIGTERM handler in its driver; forked workers inherit it. A worker
+    stopped before it reset that handler must still end by SIGTERM, not by the SIGKILL backstop
+    that follows seconds later."""
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: None)
+    try:
+        pool = executors._Pool(slow, 2)
+        pool.shutdown()  # at once: the workers are still starting
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert [w.proc.exitcode for w in pool.workers] == [-signal.SIGTERM] * 2

@@ -105,3 +105,13 @@ def test_plugin_policy_runs_in_the_bench(installed_plugin, tmp_path):
     records = [json.loads(line) for line in lines]  # the file format, not a reader's types
     assert {r["policy"] for r in records} == {PLUGIN_POLICY}
     assert all(r["status"] == "ok" for r in records)
+
+
+def test_a_loaded_factory_is_reused_without_scanning_the_installed_packages(monkeypatch):
+    """The bench makes a policy per episode; reading every distribution's metadata each time
+    cost more than a whole geometric episode."""
+    from packlab.policies import registry
+
+    make_policy("dblf")
+    monkeypatch.setattr(registry, "entry_points", lambda **kw: pytest.fail("scanned again"))
+    assert make_policy("dblf") is not None
