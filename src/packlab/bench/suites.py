@@ -25,6 +25,7 @@ from packlab.cases import cases_sha256, load_cases, save_cases
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Case
 from packlab.datagen import generate_cases
+from packlab.datagen.stats import dataset_cases
 
 #: Where the bundled suites live inside the installed package.
 SUITE_PACKAGE_DIR = ("data", "suites")
@@ -193,7 +194,8 @@ class CaseSource:
 
 def resolve_cases(cases: str | None = None) -> CaseSource:
     """A registered suite by name (default ``packlab-bench-v1``), or a case source by path: a
-    case file (JSON, JSONL, parquet) or a reference benchmark directory (see ``packlab.cases``).
+    case file (JSON, JSONL, parquet), a reference benchmark directory (see ``packlab.cases``) or
+    a dataset directory written by ``packlab generate`` (its kept cases, in shard order).
 
     The checksum is of the cases, not of the file's bytes (``cases_sha256``): the same cases
     give the same digest whatever file they came in, so a suite and its export to the
@@ -210,7 +212,8 @@ def resolve_cases(cases: str | None = None) -> CaseSource:
             f"cases = {cases!r}: neither a registered suite ({', '.join(SUITES)}) nor an existing "
             f"file or directory"
         )
-    loaded = load_cases(path)
+    is_dataset = (path / "meta" / "info.json").is_file()
+    loaded = list(dataset_cases(path)) if is_dataset else load_cases(path)
     if not loaded:
         raise ConfigError(f"cases = {cases!r}: the file holds no cases")
     return CaseSource(

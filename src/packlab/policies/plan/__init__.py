@@ -1,0 +1,1 @@
+"""``plan``: a receding-horizon lookahead planner over the shown buffer (docs/planner.md)."""

@@ -1,0 +1,78 @@
+"""PlanPolicy: the Policy protocol over the beam search, and the ``plan`` factory.
+
+Sees only its observation: the heightmap, the shown buffer and the history (for the sizes of
+the boxes seen so far). Deterministic for a given budget; the run seed is accepted and ignored.
+With ``time_s`` set the search stops after the depth that passes it, so results then depend on
+the machine's speed (documented as not bit-reproducible).
+
+Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``depth``,
+``time_s`` (see :class:`.search.Budget`) and the cost weights ``w_trapped``,
+``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.search import Budget, Problem, search
+
+
+def _seen_footprints(observation: Observation) -> tuple[tuple[int, int], ...]:
+    items = [s for h in observation.history for s in h.shown] + list(observation.shown)
+    return smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items])
+
+
+@dataclass
+class PlanPolicy:
+    """Receding-horizon lookahead: search, commit the first placement, observe, repeat."""
+
+    budget: Budget = field(default_factory=Budget)
+    weights: Weights = field(default_factory=Weights)
+    name: str = "plan"
+    rollouts: list[int] = field(default_factory=list)  # per decision, this episode
+
+    def reset(self, case: Case, seed: int) -> None:
+        """Only the per-episode counters; the plan never reads the case (its future objects)."""
+        self.rollouts = []
+
+    def act(self, observation: Observation) -> Action:
+        problem = Problem(
+            observation.shown,
+            observation.container.height_mm,
+            observation.container.cell_xy_mm,
+            _seen_footprints(observation),
+            self.weights,
+        )
+        outcome = search(observation.heightmap, problem, self.budget)
+        self.rollouts.append(outcome.rollouts)
+        first = outcome.placement
+        if first is None:  # nothing fits the floor: an out-of-bounds step sets object 0 aside
+            return Action(object_id=0, rotation=0, x=0, y=0)
+        return Action(object_id=first.object_index, rotation=first.rotation, x=first.x, y=first.y)
+
+
+_BUDGET_KEYS = {f.name for f in fields(Budget)}
+_WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
+
+
+def make_plan(**options: Any) -> PlanPolicy:
+    """The ``plan`` policy; keywords as in the module docstring."""
+    unknown = sorted(set(options) - _BUDGET_KEYS - set(_WEIGHT_KEYS))
+    if unknown:
+        known = ", ".join(sorted(_BUDGET_KEYS | set(_WEIGHT_KEYS)))
+        raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
+    budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
+    weights = Weights(
+        **{_WEIGHT_KEYS[k]: float(v) for k, v in options.items() if k in _WEIGHT_KEYS}
+    )
+    for name in ("first", "depth"):
+        value = getattr(budget, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 1")
+    if budget.time_s is not None and not budget.time_s > 0:
+        raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
+    return PlanPolicy(budget, weights)

@@ -1,0 +1,52 @@
+"""The planner's proposer: the few first placements worth a rollout, from the shared search.
+
+Every floor-fitting placement of every shown object in both rotations comes from
+:func:`packlab.core.feasibility.search_candidates` (restricted to the rim pool, as for the
+heuristics). The proposer keeps the union, in this order and without duplicates, of
+
+1. SDF-Pack's best ``per_ranking`` placements (its keys: score, z, x, y), and
+2. the flush/contact ranking's best ``per_ranking``: less volume trapped under the box first,
+   then more contact area with floor, walls and boxes (MTA's measure), then lower top, then
+   scan order.
+
+Neither ranking reads anything but the candidate set, so the proposer sees only what the
+policy observes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from packlab.core.feasibility import CandidateSet
+from packlab.policies.heuristics import sdf
+from packlab.policies.heuristics.mta import contact_area_mm2
+from packlab.policies.heuristics.select import rim_pool
+from packlab.policies.heuristics.windows import window_sum
+
+
+def trapped_under(cands: CandidateSet) -> np.ndarray:
+    """(n,) int64 cell-mm: empty space between the heightmap and each candidate's underside."""
+    out = np.empty(len(cands), dtype=np.int64)
+    hm = cands.heightmap
+    for g in cands.groups:
+        under = window_sum(hm, g.fx, g.fy)
+        out[g.offset : g.offset + g.size] = (g.fx * g.fy * g.z.astype(np.int64) - under).ravel()
+    return out
+
+
+def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
+    """Candidate indices to roll out (see the module docstring); empty when nothing fits."""
+    pool = rim_pool(cands)
+    if pool.size == 0:
+        return []
+    keys = sdf.score(cands)
+    by_sdf = pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+    trapped = trapped_under(cands)[pool]
+    contact = contact_area_mm2(cands)[pool]
+    by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
+    out: list[int] = []
+    for ranking in (by_sdf, by_flush):
+        for i in ranking[:per_ranking]:
+            if int(i) not in out:
+                out.append(int(i))
+    return out
