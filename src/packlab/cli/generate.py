@@ -134,6 +134,14 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
         help="heightmap image side in pixels; default {default}",
     )
     add_field(p, DatasetConfig, "sft", "--sft", help="SFT export granularity; default {default}")
+    add_field(
+        p,
+        DatasetConfig,
+        "teacher",
+        "--teacher",
+        help="policy whose actions the trajectories hold (e.g. plan, sdf); the oracle replays "
+        "each layout's own plan; default {default}",
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

@@ -179,7 +179,10 @@ class CaseConfig:
             raise ConfigError(f"n_types = {self.n_types}: must be at least 1")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        if self.teacher == "oracle":  # datasets made before the field existed stay resumable
+            del out["teacher"]
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -257,6 +260,11 @@ class DatasetConfig:
     #: SFT export: one chat example per step (its whole history as context), per episode, none.
     sft: SFTExport = "per_step"
     recipe: str | None = None
+    #: The policy whose actions the trajectories hold. "oracle": the layout's own plan (the
+    #: replay that validated the case). Any other registered policy (e.g. "plan", "sdf") is run
+    #: closed loop on each validated case, on the validation backend, and its trajectory is
+    #: written whatever it scores: labels of that teacher on the states it reaches itself.
+    teacher: str = "oracle"
 
     def __post_init__(self) -> None:
         if self.seed is None:
@@ -298,6 +306,8 @@ class DatasetConfig:
         if not 16 <= self.image_size <= 4096:
             raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
         require_choice(self.sft, SFTExport, "sft")
+        if not self.teacher.strip():
+            raise ConfigError("teacher = '': name a registered policy, e.g. oracle or plan")
         if self.recipe is not None and self.recipe not in RECIPES:
             raise ConfigError(
                 f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}"
@@ -308,7 +318,10 @@ class DatasetConfig:
         return sum(self.episodes)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        if self.teacher == "oracle":  # datasets made before the field existed stay resumable
+            del out["teacher"]
+        return out
 
     @classmethod
     def from_recipe(cls, name: str, **overrides: Any) -> DatasetConfig:

@@ -19,7 +19,7 @@ import json
 import os
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,7 @@ from packlab.core.records import (
 from packlab.datagen import format as fmt
 from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig
 from packlab.datagen.generator import SlotOutcome, fill_slot
+from packlab.datagen.validate import replay
 from packlab.executors import Context, Lost, WorkerLost, progress_bar, run_items
 from packlab.vlm.prompt.render import PROMPT_VERSION
 
@@ -116,10 +117,16 @@ def plan_shards(cfg: DatasetConfig) -> list[ShardSpec]:
 
 
 def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
-    """The slot's first validated case in the training seed space, with its replay."""
-    return fill_slot(
+    """The slot's first validated case in the training seed space, with the trajectory of the
+    dataset's teacher on it (the validating replay itself when the teacher is the oracle)."""
+    outcome = fill_slot(
         cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-"
     )
+    if cfg.teacher == "oracle" or outcome.trajectory is None:
+        return outcome
+    v = cfg.validation
+    taught = replay(outcome.trajectory.case, v.backend, v.run_seed, teacher=cfg.teacher)
+    return replace(outcome, trajectory=taught)
 
 
 def run_shard(

@@ -114,10 +114,15 @@ class _Recording:
 
 
 def replay(
-    case: Case, backend: str = "mujoco", run_seed: int = 0, physics: Any = None
+    case: Case,
+    backend: str = "mujoco",
+    run_seed: int = 0,
+    physics: Any = None,
+    teacher: str = "oracle",
 ) -> Trajectory:
-    """The oracle's closed-loop replay of ``case.gt_plan`` (run_episode with the bench's loop)."""
-    policy = _Recording(make_policy("oracle"))
+    """A closed-loop run of ``teacher`` on ``case`` (run_episode with the bench's loop); the
+    default, the oracle, replays ``case.gt_plan``."""
+    policy = _Recording(make_policy(teacher))
     result = run_episode(case, policy, run_seed, backend=backend, physics=physics)
     return Trajectory(
         case=case,
