@@ -58,3 +58,15 @@ def test_the_oracle_default_keeps_the_config_of_older_datasets():
 def test_an_empty_teacher_is_a_one_line_error():
     with pytest.raises(ConfigError, match="teacher = ''"):
         tiny_config(teacher=" ")
+
+
+def test_the_bench_reads_a_generated_dataset_directory_as_its_cases(tmp_path):
+    from packlab.bench.suites import resolve_cases
+    from packlab.datagen.stats import dataset_cases
+
+    generate_dataset(
+        tiny_config(episodes=(2, 1, 0)), RunOptions(str(tmp_path), workers=1, progress=False)
+    )
+    source = resolve_cases(str(tmp_path))
+    assert [c.episode_id for c in source.cases] == [c.episode_id for c in dataset_cases(tmp_path)]
+    assert len(source.cases) == 3
