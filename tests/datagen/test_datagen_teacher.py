@@ -9,9 +9,11 @@ import pyarrow.parquet as pq
 import pytest
 from datagen_helpers import tiny_config
 
+from packlab.bench.suites import resolve_cases
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container, Observation, ShownItem
 from packlab.datagen.engine import RunOptions, generate_dataset
+from packlab.datagen.stats import dataset_cases
 from packlab.policies import make_policy
 
 
@@ -61,9 +63,6 @@ def test_an_empty_teacher_is_a_one_line_error():
 
 
 def test_the_bench_reads_a_generated_dataset_directory_as_its_cases(tmp_path):
-    from packlab.bench.suites import resolve_cases
-    from packlab.datagen.stats import dataset_cases
-
     generate_dataset(
         tiny_config(episodes=(2, 1, 0)), RunOptions(str(tmp_path), workers=1, progress=False)
     )
