@@ -33,11 +33,9 @@ class PlanPolicy:
     budget: Budget = field(default_factory=Budget)
     weights: Weights = field(default_factory=Weights)
     name: str = "plan"
-    rollouts: list[int] = field(default_factory=list)  # per decision, this episode
 
     def reset(self, case: Case, seed: int) -> None:
-        """Only the per-episode counters; the plan never reads the case (its future objects)."""
-        self.rollouts = []
+        """Nothing to prepare: the plan never reads the case (its future objects)."""
 
     def act(self, observation: Observation) -> Action:
         problem = Problem(
@@ -48,7 +46,6 @@ class PlanPolicy:
             self.weights,
         )
         outcome = search(observation.heightmap, problem, self.budget)
-        self.rollouts.append(outcome.rollouts)
         first = outcome.placement
         if first is None:  # nothing fits the floor: an out-of-bounds step sets object 0 aside
             return Action(object_id=0, rotation=0, x=0, y=0)

@@ -28,7 +28,8 @@ from packlab.core.types import ShownItem
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import choose
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
-from packlab.policies.plan.proposer import first_placements, trapped_under
+from packlab.policies.plan.proposer import first_placements
+from packlab.sim.heightmap import place_box
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,13 +75,15 @@ def _candidates(hm: np.ndarray, problem: Problem, left: tuple[int, ...]) -> Cand
     )
 
 
-def _apply(hm: np.ndarray, cands: CandidateSet, i: int, problem: Problem) -> tuple[np.ndarray, int]:
-    """(heightmap after candidate ``i``, its cell-mm above the rim)."""
+def _apply(
+    hm: np.ndarray, cands: CandidateSet, i: int, problem: Problem
+) -> tuple[np.ndarray, PathLoss]:
+    """(heightmap after candidate ``i``, what that placement lost: trapped and over-rim cell-mm)."""
     x, y, fx, fy = (int(a[i]) for a in (cands.x, cands.y, cands.fx, cands.fy))
-    top = int(cands.top[i])
-    out = hm.copy()
-    out[x : x + fx, y : y + fy] = top
-    return out, max(0, top - problem.container_height_mm) * fx * fy
+    top, z = int(cands.top[i]), int(cands.z[i])
+    trapped = fx * fy * z - int(hm[x : x + fx, y : y + fy].sum(dtype=np.int64))
+    over = max(0, top - problem.container_height_mm) * fx * fy
+    return place_box(hm, x, y, fx, fy, top), PathLoss(trapped, over)
 
 
 def rollout(
@@ -98,9 +101,8 @@ def rollout(
                 problem.footprints,
                 problem.weights,
             )
-        trapped = int(trapped_under(cands)[i])
-        hm, over = _apply(hm, cands, i, problem)
-        loss = loss.plus(trapped, over)
+        hm, lost = _apply(hm, cands, i, problem)
+        loss = loss.plus(lost.trapped, lost.over_rim)
         placed = left[int(cands.obj[i])]
         left = tuple(k for k in left if k != placed)
     return state_cost(hm, loss, problem.footprints, problem.weights)
@@ -117,10 +119,9 @@ def search(heightmap: np.ndarray, problem: Problem, budget: Budget) -> Outcome:
         return Outcome(None, 0, float("inf"))
     best: tuple[float, int] | None = None
     for n, i in enumerate(firsts, 1):
-        after, over = _apply(hm, cands, i, problem)
+        after, loss = _apply(hm, cands, i, problem)
         placed = int(cands.obj[i])
         left = tuple(k for k in everything if k != placed)
-        loss = PathLoss(int(trapped_under(cands)[i]), over)
         cost = rollout(after, left, problem, budget.depth, loss)
         if best is None or cost < best[0]:
             best = (cost, i)
