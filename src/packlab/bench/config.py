@@ -61,11 +61,14 @@ IDENTITY_KEYS = (
 
 
 def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
-    """Every registered heuristic, then random and the oracle (when every case has a plan).
+    """Every registered heuristic, the planner at its fast budget (``plan-fast``), then random and
+    the oracle (when every case has a plan).
 
     VLM policies are registered too but never run unless named: they need models and hardware.
+    ``plan`` at its default budget is left to ``--policies``: it would take the default run past
+    five minutes on two cores.
     """
-    names = (*SCORERS, "random")
+    names = (*SCORERS, "plan-fast", "random")
     if all(c.gt_plan is not None for c in cases):
         names += ("oracle",)
     return names

@@ -24,6 +24,8 @@ Difficulty = Literal["easy", "medium", "hard"]
 TieBreak = Literal["larger_volume", "shown_order"]
 #: Layout family of generated cases: the paper's ``layered``, or the opt-in richer ``stepped``.
 LayoutFamily = Literal["layered", "stepped"]
+#: The ``plan`` policy's check of its chosen placement before committing it.
+StabilityCheck = Literal["off", "support"]
 #: SFT export of a dataset: one chat example per step (its history as context), per episode, none.
 SFTExport = Literal["per_step", "per_episode", "none"]
 #: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).

@@ -11,6 +11,8 @@ DISPLAY_NAMES = {
     "mta": "MTA",
     "ffp": "FFP",
     "sdf": "SDF-Pack",
+    "plan": "Plan (lookahead)",
+    "plan-fast": "Plan (lookahead, fast)",
     "random": "Random",
     "oracle": "Oracle (gt plan)",
 }

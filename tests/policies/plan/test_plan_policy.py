@@ -71,7 +71,8 @@ def test_the_planner_reads_only_its_observation():
 @pytest.mark.parametrize(
     "options, message",
     [
-        ({"beam": 3}, "unknown option 'beam'"),
+        ({"width": 3}, "unknown option 'width'"),
+        ({"beam": 0}, "beam = 0"),
         ({"first": 0}, "first = 0"),
         ({"depth": 1.5}, "depth = 1.5"),
         ({"time_s": 0}, "time_s = 0"),
@@ -80,3 +81,16 @@ def test_the_planner_reads_only_its_observation():
 def test_bad_options_are_one_line_errors(options, message):
     with pytest.raises(ConfigError, match=message):
         make_policy("plan", **options)
+
+
+def test_plan_fast_is_plan_at_the_fast_budget_and_options_override_it():
+    fast = make_policy("plan-fast")
+    assert fast.name == "plan-fast" and (fast.budget.first, fast.budget.depth) == (2, 4)
+    assert make_policy("plan-fast", first=5).budget.first == 5
+
+
+def test_beam_search_gives_valid_repeatable_actions():
+    case = make_layered_case(3, cells=(8, 6), layer_heights_mm=(100, 60), buffer_size=4)
+    runs = [run_episode(case, make_policy("plan", beam=2), backend="geometric") for _ in range(2)]
+    assert all(s.valid for s in runs[0].steps)
+    assert [s.action for s in runs[0].steps] == [s.action for s in runs[1].steps]

@@ -6,8 +6,11 @@ With ``time_s`` set the search stops after the depth that passes it, so results 
 the machine's speed (documented as not bit-reproducible).
 
 Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``depth``,
-``time_s`` (see :class:`.search.Budget`) and the cost weights ``w_trapped``,
-``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`).
+``time_s`` (see :class:`.search.Budget`), the cost weights ``w_trapped``,
+``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`) and
+``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
+support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
+choice).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
@@ -32,7 +36,12 @@ class PlanPolicy:
 
     budget: Budget = field(default_factory=Budget)
     weights: Weights = field(default_factory=Weights)
+    stability: StabilityCheck = "off"
     name: str = "plan"
+    #: Since construction: decisions taken, and those where the cheapest placement failed the
+    #: stability check and a supported one (or, with none, the cheapest anyway) was taken.
+    decisions: int = 0
+    fallbacks: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Nothing to prepare: the plan never reads the case (its future objects)."""
@@ -45,7 +54,11 @@ class PlanPolicy:
             _seen_footprints(observation),
             self.weights,
         )
-        outcome = search(observation.heightmap, problem, self.budget)
+        outcome = search(
+            observation.heightmap, problem, self.budget, check_support=self.stability == "support"
+        )
+        self.decisions += 1
+        self.fallbacks += int(outcome.fell_back)
         first = outcome.placement
         if first is None:  # nothing fits the floor: an out-of-bounds step sets object 0 aside
             return Action(object_id=0, rotation=0, x=0, y=0)
@@ -58,18 +71,32 @@ _WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
 
 def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
+    stability = options.pop("stability", "off")
+    require_choice(stability, StabilityCheck, "plan: stability")
     unknown = sorted(set(options) - _BUDGET_KEYS - set(_WEIGHT_KEYS))
     if unknown:
-        known = ", ".join(sorted(_BUDGET_KEYS | set(_WEIGHT_KEYS)))
+        known = ", ".join(sorted(_BUDGET_KEYS | set(_WEIGHT_KEYS) | {"stability"}))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
     weights = Weights(
         **{_WEIGHT_KEYS[k]: float(v) for k, v in options.items() if k in _WEIGHT_KEYS}
     )
-    for name in ("first", "depth"):
+    for name in ("first", "depth", "beam"):
         value = getattr(budget, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 1")
     if budget.time_s is not None and not budget.time_s > 0:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
-    return PlanPolicy(budget, weights)
+    return PlanPolicy(budget, weights, stability)
+
+
+#: ``plan-fast``'s budget: the sweep's point that keeps the default ``packlab bench`` (which runs
+#: it) under five minutes on two cores (docs/planner.md).
+FAST_BUDGET = {"first": 2, "depth": 4}
+
+
+def make_plan_fast(**options: Any) -> PlanPolicy:
+    """``plan`` at :data:`FAST_BUDGET` (keywords as for ``plan`` override it)."""
+    policy = make_plan(**{**FAST_BUDGET, **options})
+    policy.name = "plan-fast"
+    return policy

@@ -10,7 +10,8 @@ heightmap under its footprint becomes its top. A decision:
 3. scores the end state (:func:`.evaluate.state_cost`): every complete rollout has placed the
    same boxes, so the costs compare like for like;
 4. commits only the first placement of the cheapest rollout (receding horizon: the closed loop
-   corrects what the model got wrong).
+   corrects what the model got wrong); with ``check_support`` the cheapest whose centre is
+   over its support (:mod:`.stability`), falling back down the ranking.
 
 With ``time_s`` set, rollouts stop once the time is spent (the first one always runs); the
 answer is the best so far.
@@ -26,9 +27,10 @@ import numpy as np
 from packlab.core.feasibility import CandidateSet, search_candidates
 from packlab.core.types import ShownItem
 from packlab.policies.heuristics import sdf
-from packlab.policies.heuristics.select import choose
+from packlab.policies.heuristics.select import choose, rim_pool
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
 from packlab.policies.plan.proposer import first_placements
+from packlab.policies.plan.stability import centre_supported
 from packlab.sim.heightmap import place_box
 
 
@@ -39,6 +41,7 @@ class Budget:
     first: int = 3  # first placements from each of the two rankings
     depth: int = 10  # placements per rollout after the first (all shown objects when larger)
     time_s: float | None = None  # anytime limit (not bit-reproducible when set)
+    beam: int = 1  # partial rollouts kept per depth, and placements tried per kept rollout
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +70,7 @@ class Outcome:
     placement: Placement | None  # None when no shown object fits the floor
     rollouts: int
     cost: float
+    fell_back: bool = False  # the cheapest placement failed the support test (check_support)
 
 
 def _candidates(hm: np.ndarray, problem: Problem, left: tuple[int, ...]) -> CandidateSet:
@@ -108,7 +112,75 @@ def rollout(
     return state_cost(hm, loss, problem.footprints, problem.weights)
 
 
-def search(heightmap: np.ndarray, problem: Problem, budget: Budget) -> Outcome:
+@dataclass(frozen=True, slots=True)
+class _Path:
+    """A partial rollout in the beam: its heightmap, what it lost, the objects still to place."""
+
+    hm: np.ndarray
+    loss: PathLoss
+    left: tuple[int, ...]
+    cost: float
+
+
+def _stuck_cost(path: _Path, problem: Problem) -> float:
+    lost = sum(int(np.prod(problem.shown[k].size_cells[:2])) for k in path.left)
+    loss = path.loss.plus(0, lost * problem.container_height_mm)
+    return state_cost(path.hm, loss, problem.footprints, problem.weights)
+
+
+def _children(path: _Path, problem: Problem, width: int) -> list[_Path]:
+    """``path`` extended by each of SDF-Pack's ``width`` best placements of its objects left."""
+    cands = _candidates(path.hm, problem, path.left)
+    pool = rim_pool(cands)
+    if pool.size == 0:
+        return [_Path(path.hm, path.loss, (), _stuck_cost(path, problem))]
+    keys = sdf.score(cands)
+    ranked = pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+    out = []
+    for i in ranked[:width]:
+        hm, lost = _apply(path.hm, cands, int(i), problem)
+        loss = path.loss.plus(lost.trapped, lost.over_rim)
+        placed = path.left[int(cands.obj[i])]
+        left = tuple(k for k in path.left if k != placed)
+        out.append(_Path(hm, loss, left, state_cost(hm, loss, problem.footprints, problem.weights)))
+    return out
+
+
+def beam_rollout(
+    hm: np.ndarray, left: tuple[int, ...], problem: Problem, budget: Budget, loss: PathLoss
+) -> float:
+    """Like :func:`rollout`, but keeping the ``budget.beam`` cheapest partial rollouts at each
+    depth, each extended by SDF-Pack's ``budget.beam`` best placements (not only its best)."""
+    paths = [_Path(hm, loss, left, 0.0)]
+    for _ in range(min(budget.depth, len(left))):
+        grown = [c for p in paths for c in (_children(p, problem, budget.beam) if p.left else [p])]
+        paths = sorted(grown, key=lambda p: p.cost)[: budget.beam]
+    return min(p.cost for p in paths)
+
+
+def _supported(hm: np.ndarray, cands: CandidateSet, i: int) -> bool:
+    x, y, fx, fy, z = (int(a[i]) for a in (cands.x, cands.y, cands.fx, cands.fy, cands.z))
+    return centre_supported(hm, x, y, fx, fy, z)
+
+
+def _pick(
+    hm: np.ndarray, cands: CandidateSet, scored: list[tuple[float, int]], check_support: bool
+) -> tuple[float, int, bool]:
+    """(cost, candidate, whether the cheapest failed the support test): the cheapest scored
+    first placement, or with ``check_support`` the cheapest whose centre is supported (the
+    cheapest overall when none is)."""
+    ranked = sorted(scored, key=lambda t: t[0])  # stable: equal costs keep proposal order
+    if not check_support:
+        return ranked[0][0], ranked[0][1], False
+    for n, (cost, i) in enumerate(ranked):
+        if _supported(hm, cands, i):
+            return cost, i, n > 0
+    return ranked[0][0], ranked[0][1], True
+
+
+def search(
+    heightmap: np.ndarray, problem: Problem, budget: Budget, check_support: bool = False
+) -> Outcome:
     """The first placement of the cheapest rollout (see the module docstring)."""
     start = time.perf_counter()
     hm = np.asarray(heightmap)
@@ -117,20 +189,21 @@ def search(heightmap: np.ndarray, problem: Problem, budget: Budget) -> Outcome:
     firsts = first_placements(cands, budget.first)
     if not firsts:
         return Outcome(None, 0, float("inf"))
-    best: tuple[float, int] | None = None
-    for n, i in enumerate(firsts, 1):
+    scored: list[tuple[float, int]] = []
+    for i in firsts:
         after, loss = _apply(hm, cands, i, problem)
         placed = int(cands.obj[i])
         left = tuple(k for k in everything if k != placed)
-        cost = rollout(after, left, problem, budget.depth, loss)
-        if best is None or cost < best[0]:
-            best = (cost, i)
+        if budget.beam > 1:
+            scored.append((beam_rollout(after, left, problem, budget, loss), i))
+        else:
+            scored.append((rollout(after, left, problem, budget.depth, loss), i))
         if budget.time_s is not None and time.perf_counter() - start > budget.time_s:
             break
-    assert best is not None
-    i = best[1]
+    cost, i, fell_back = _pick(hm, cands, scored, check_support)
     return Outcome(
         Placement(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i])),
-        n,
-        best[0],
+        len(scored),
+        cost,
+        fell_back,
     )
