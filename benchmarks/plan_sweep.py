@@ -29,7 +29,6 @@ BUDGETS: tuple[tuple[str, dict[str, int]], ...] = (
     ("plan-first2-depth4", {"first": 2, "depth": 4}),
     ("plan-first3", {"first": 3}),
     ("plan-first6", {"first": 6}),
-    ("plan-first12", {"first": 12}),
 )
 BASELINES = ("sdf", "mta", "dblf", "oracle")
 
