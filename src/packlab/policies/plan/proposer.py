@@ -34,18 +34,23 @@ def trapped_under(cands: CandidateSet) -> np.ndarray:
     return out
 
 
+def by_sdf(cands: CandidateSet, pool: np.ndarray) -> np.ndarray:
+    """``pool`` (candidate indices) in SDF-Pack's order: its keys score, z, x, y, best first."""
+    keys = sdf.score(cands)
+    return pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+
+
 def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
     """Candidate indices to roll out (see the module docstring); empty when nothing fits."""
     pool = rim_pool(cands)
     if pool.size == 0:
         return []
-    keys = sdf.score(cands)
-    by_sdf = pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+    sdf_ranked = by_sdf(cands, pool)
     trapped = trapped_under(cands)[pool]
     contact = contact_area_mm2(cands)[pool]
     by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
     out: list[int] = []
-    for ranking in (by_sdf, by_flush):
+    for ranking in (sdf_ranked, by_flush):
         for i in ranking[:per_ranking]:
             if int(i) not in out:
                 out.append(int(i))

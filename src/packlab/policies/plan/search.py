@@ -29,7 +29,7 @@ from packlab.core.types import ShownItem
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import choose, rim_pool
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
-from packlab.policies.plan.proposer import first_placements
+from packlab.policies.plan.proposer import by_sdf, first_placements
 from packlab.policies.plan.stability import centre_supported
 from packlab.sim.heightmap import place_box
 
@@ -90,6 +90,13 @@ def _apply(
     return place_box(hm, x, y, fx, fy, top), PathLoss(trapped, over)
 
 
+def _stuck_cost(hm: np.ndarray, loss: PathLoss, left: tuple[int, ...], problem: Problem) -> float:
+    """Cost when none of the objects ``left`` fits: they count as lost over the rim."""
+    lost = sum(int(np.prod(problem.shown[k].size_cells[:2])) for k in left)
+    loss = loss.plus(0, lost * problem.container_height_mm)
+    return state_cost(hm, loss, problem.footprints, problem.weights)
+
+
 def rollout(
     hm: np.ndarray, left: tuple[int, ...], problem: Problem, depth: int, loss: PathLoss
 ) -> float:
@@ -98,13 +105,7 @@ def rollout(
         cands = _candidates(hm, problem, left)
         i = choose(cands, sdf.score(cands))
         if i is None:  # nothing fits: the objects left count as lost over the rim
-            lost = sum(int(np.prod(problem.shown[k].size_cells[:2])) for k in left)
-            return state_cost(
-                hm,
-                loss.plus(0, lost * problem.container_height_mm),
-                problem.footprints,
-                problem.weights,
-            )
+            return _stuck_cost(hm, loss, left, problem)
         hm, lost = _apply(hm, cands, i, problem)
         loss = loss.plus(lost.trapped, lost.over_rim)
         placed = left[int(cands.obj[i])]
@@ -122,22 +123,14 @@ class _Path:
     cost: float
 
 
-def _stuck_cost(path: _Path, problem: Problem) -> float:
-    lost = sum(int(np.prod(problem.shown[k].size_cells[:2])) for k in path.left)
-    loss = path.loss.plus(0, lost * problem.container_height_mm)
-    return state_cost(path.hm, loss, problem.footprints, problem.weights)
-
-
 def _children(path: _Path, problem: Problem, width: int) -> list[_Path]:
     """``path`` extended by each of SDF-Pack's ``width`` best placements of its objects left."""
     cands = _candidates(path.hm, problem, path.left)
     pool = rim_pool(cands)
     if pool.size == 0:
-        return [_Path(path.hm, path.loss, (), _stuck_cost(path, problem))]
-    keys = sdf.score(cands)
-    ranked = pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+        return [_Path(path.hm, path.loss, (), _stuck_cost(path.hm, path.loss, path.left, problem))]
     out = []
-    for i in ranked[:width]:
+    for i in by_sdf(cands, pool)[:width]:
         hm, lost = _apply(path.hm, cands, int(i), problem)
         loss = path.loss.plus(lost.trapped, lost.over_rim)
         placed = path.left[int(cands.obj[i])]
