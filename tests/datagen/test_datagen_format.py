@@ -13,6 +13,7 @@ from packlab.cases import case_from_dict
 from packlab.core.types import Action
 from packlab.datagen.format import EPISODE_SCHEMA, STEP_SCHEMA, export_sft
 from packlab.sim.raster import heightmap_to_rgb
+from packlab.vlm.prompt.render import action_text
 
 
 def _steps(root):
@@ -54,7 +55,8 @@ def test_steps_replay_their_episode(tiny_dataset):
                 p.rotation,
             )
             assert len(s["shown"]) == min(case.buffer_size, s["remaining"])
-            assert s["action_text"] == json.dumps(s["action"], separators=(",", ":"))
+            assert json.loads(s["action_text"]) == s["action"]
+            assert s["action_text"] == action_text(Action(**s["action"]))
 
 
 def test_images_are_the_rasterised_heightmaps(tiny_dataset):

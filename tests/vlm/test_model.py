@@ -23,6 +23,7 @@ from packlab.vlm.data.encoding import (
 from packlab.vlm.model.checkpoint import FAMILIES, family_of, load_model, save_model
 from packlab.vlm.model.tiny import build_tiny_model, mrope_sections
 from packlab.vlm.prompt.render import (
+    PROMPT_VERSION,
     PromptOptions,
     TurnState,
     action_text,
@@ -107,9 +108,7 @@ def test_save_load_gives_identical_generations(vlm, fixed_state, tmp_path):
     assert family_of(tmp_path / "ckpt") == vlm.family
     loaded = load_model(tmp_path / "ckpt")
     assert type(loaded.model) is type(vlm.model)
-    assert (
-        loaded.meta["prompt_version"] == "packlab-prompt-v1" and loaded.meta["note"] == "round trip"
-    )
+    assert loaded.meta["prompt_version"] == PROMPT_VERSION and loaded.meta["note"] == "round trip"
     assert _greedy(loaded, messages) == before
     # Same tokenizer after the round trip.
     text = messages[-1]["content"][-1]["text"]

@@ -62,7 +62,7 @@ BAD = [
     ('<think>still thinking about {"object_id": 1', "unterminated <think> block"),
     ("<think>done</think>   ", "empty answer after </think>"),
     ('{"object_id": 1, "x": 3, "y": 4}', "missing key(s): rotation"),
-    ('{"object_id": 1, "x": 3}', "missing key(s): y, rotation"),
+    ('{"object_id": 1, "x": 3}', "missing key(s): rotation, y"),
     ('{"object_id": 1, "x": 3, "y": 4, "rotation": 0, "z": 2}', "unknown key(s): z"),
     ('{"id": 1, "x": 3, "y": 4, "rotation": 0}', "missing key(s): object_id"),
     ('{"object_id": "1", "x": 3, "y": 4, "rotation": 0}', 'object_id must be an integer, got "1"'),
@@ -79,7 +79,7 @@ BAD = [
     ("{'object_id': 1, 'x': 3, 'y': 4, 'rotation': 0}", "no JSON object found"),  # Python, not JSON
     (
         '{"action": ' + J + "}",
-        "missing key(s): object_id, x, y, rotation",
+        "missing key(s): object_id, rotation, x, y",
     ),  # wrapped, not tolerated
     (
         'first {"object_id": 0, "x": 0, "y": 0, "rotation": 0} or maybe ' + J,

@@ -35,7 +35,7 @@ COMBOS = [
 
 
 def test_prompt_version_pinned():
-    assert PROMPT_VERSION == "packlab-prompt-v1"
+    assert PROMPT_VERSION == "packlab-prompt-v2"
 
 
 @pytest.mark.parametrize("history,image", COMBOS)
@@ -72,7 +72,7 @@ def test_full_context_literal(fixed_state):
             '[{"object_id":0,"l":4,"w":3,"h":20},{"object_id":1,"l":2,"w":2,"h":10}]',
         },
     ]
-    assert m[2]["content"] == [{"type": "text", "text": '{"object_id":0,"x":0,"y":0,"rotation":0}'}]
+    assert m[2]["content"] == [{"type": "text", "text": '{"object_id":0,"rotation":0,"x":0,"y":0}'}]
     assert m[4]["content"][0]["text"] == "I would place it left"  # unparsable past answer, verbatim
 
 
@@ -117,7 +117,7 @@ def test_split_target(fixed_state):
     container, past, current = fixed_state
     ctx = render_messages(container, past, current)
     got_ctx, answer = split_target(with_answer(ctx, Action(1, 1, 2, 3)))
-    assert got_ctx == ctx and answer == '{"object_id":1,"x":2,"y":3,"rotation":1}'
+    assert got_ctx == ctx and answer == '{"object_id":1,"rotation":1,"x":2,"y":3}'
     with pytest.raises(ValueError):
         split_target(ctx)
 
@@ -133,7 +133,7 @@ def test_action_text_exact_and_round_trips():
     from packlab.vlm.prompt.parse import parse_action
 
     a = Action(object_id=2, rotation=1, x=7, y=0)
-    assert action_text(a) == '{"object_id":2,"x":7,"y":0,"rotation":1}'
+    assert action_text(a) == '{"object_id":2,"rotation":1,"x":7,"y":0}'
     r = parse_action(action_text(a))
     assert r.action == a and r.case == "plain"
 
@@ -143,7 +143,7 @@ def test_with_answer_appends_target(fixed_state):
     m = render_messages(container, past, current)
     full = with_answer(m, Action(1, 0, 3, 4))
     assert full[:-1] == m and full[-1]["role"] == "assistant"
-    assert full[-1]["content"][0]["text"] == '{"object_id":1,"x":3,"y":4,"rotation":0}'
+    assert full[-1]["content"][0]["text"] == '{"object_id":1,"rotation":0,"x":3,"y":4}'
 
 
 def test_turns_from_observation(fixed_state):

@@ -5,7 +5,7 @@ The SFT export is JSONL, one step-level example per line::
     # messages: render_messages(...) then with_answer(target)
     {"messages": [system, user, assistant, ..., user, assistant-target],
      "episode_id": "easy-17", "difficulty": "easy", "step_index": 3,
-     "prompt_version": "packlab-prompt-v1"}
+     "prompt_version": "packlab-prompt-v2"}
 
 rendered with the default options (full history, heightmap images given as paths relative to the
 dataset root); the trainer derives the ablations with

@@ -10,10 +10,11 @@ Tolerated wrapping (the reported ``case``):
   text after the last ``</think>`` is read, so drafts inside the reasoning never count; a lone
   ``</think>`` is accepted because Qwen3 chat templates put the opening tag in the prompt).
 
-Strict content: exactly the keys ``object_id``, ``x``, ``y``, ``rotation``; integer values (not
-bools, floats or strings); rotation 0 or 1; no duplicate keys; and one answer only (several
-different JSON objects are ambiguous). Negative ids or coordinates parse: judging them against
-the container is the episode's job (DESIGN.md section 4), not the parser's. Pure, no torch.
+Strict content: exactly the keys ``object_id``, ``rotation``, ``x``, ``y`` in any order (the
+prompt renders them in this order); integer values (not bools, floats or strings); rotation 0
+or 1; no duplicate keys; and one answer only (several different JSON objects are ambiguous).
+Negative ids or coordinates parse: judging them against the container is the episode's job
+(DESIGN.md section 4), not the parser's. Pure, no torch.
 
 Limits (any ``str`` gets a :class:`ParseResult` or an :class:`ActionParseError`, nothing else):
 
@@ -41,7 +42,8 @@ from dataclasses import dataclass
 
 from packlab.core.types import Action, Unparsable
 
-ACTION_KEYS: tuple[str, ...] = ("object_id", "x", "y", "rotation")
+#: The keys of an action, in the order the prompt renders them; any order parses.
+ACTION_KEYS: tuple[str, ...] = ("object_id", "rotation", "x", "y")
 BASE_CASES: tuple[str, ...] = ("plain", "fenced", "embedded")
 #: Every value :attr:`ParseResult.case` can take.
 PARSE_CASES: tuple[str, ...] = BASE_CASES + tuple(f"think+{c}" for c in BASE_CASES)

@@ -27,8 +27,9 @@ from PIL import Image
 from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.types import Action, Container, Observation, ShownItem, Unparsable
 
-#: Bump on any change to the rendered text or message layout (golden tests pin version 1).
-PROMPT_VERSION = "packlab-prompt-v1"
+#: Bump on any change to the rendered text or message layout (golden tests pin the version).
+#: v2: the answer puts rotation before the coordinates it decides (v1: object_id, x, y, rotation).
+PROMPT_VERSION = "packlab-prompt-v2"
 
 #: Stand-in put in image entries under ``image="blank"`` when the caller gives no blank image.
 #: The processor (vlm/data/encoding.py) replaces it by an all-zero image of the configured size,
@@ -71,13 +72,17 @@ class TurnState:
 
 
 def action_text(action: Action) -> str:
-    """The exact assistant target for ``action``: compact JSON with keys in a fixed order."""
+    """The exact assistant target for ``action``: compact JSON with keys in a fixed order.
+
+    The rotation comes before x and y: it sets the footprint that the coordinates must fit, so a
+    model that writes left to right decides it first.
+    """
     return json.dumps(
         {
             "object_id": int(action.object_id),
+            "rotation": int(action.rotation),
             "x": int(action.x),
             "y": int(action.y),
-            "rotation": int(action.rotation),
         },
         separators=_JSON_SEPARATORS,
     )
@@ -146,7 +151,7 @@ def system_prompt(container: Container, options: PromptOptions = PromptOptions()
         lines.append(IMAGE_LINE)
     lines.append(
         "Answer with exactly one JSON object and nothing else: "
-        '{"object_id": <int>, "x": <int>, "y": <int>, "rotation": <0 or 1>}'
+        '{"object_id": <int>, "rotation": <0 or 1>, "x": <int>, "y": <int>}'
     )
     return "\n".join(lines)
 
