@@ -35,6 +35,12 @@ Precision = Literal["auto", "bf16", "no"]
 #: policy's server was unreachable.
 ErrorKind = Literal["exception", "timeout", "transport"]
 
+#: How a policy's answer names its action: the paper's free JSON object, or the index of one of
+#: the placements listed by the candidate proposer (``packlab.policies.candidates``).
+ActionFormat = Literal["json", "candidate"]
+#: Round order of the candidate proposer (``packlab.policies.candidates``).
+ProposerRule = Literal["lowest", "lowest+largest"]
+
 
 def choices(choice_type: object) -> tuple[str, ...]:
     """The allowed values of a ``Literal`` choice type, in declaration order."""

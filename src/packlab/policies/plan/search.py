@@ -20,6 +20,7 @@ answer is the best so far.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,14 +173,22 @@ def _pick(
 
 
 def search(
-    heightmap: np.ndarray, problem: Problem, budget: Budget, check_support: bool = False
+    heightmap: np.ndarray,
+    problem: Problem,
+    budget: Budget,
+    check_support: bool = False,
+    firsts: Sequence[int] | None = None,
 ) -> Outcome:
-    """The first placement of the cheapest rollout (see the module docstring)."""
+    """The first placement of the cheapest rollout (see the module docstring).
+
+    ``firsts`` replaces step 1's proposals by these indices into the shared candidate search of
+    the whole shown buffer (the planner restricted to another proposer's set, for measuring it).
+    """
     start = time.perf_counter()
     hm = np.asarray(heightmap)
     everything = tuple(range(len(problem.shown)))
     cands = _candidates(hm, problem, everything)
-    firsts = first_placements(cands, budget.first)
+    firsts = first_placements(cands, budget.first) if firsts is None else list(firsts)
     if not firsts:
         return Outcome(None, 0, float("inf"))
     scored: list[tuple[float, int]] = []

@@ -29,6 +29,7 @@ from packlab.core.types import Action, Container, Observation, ShownItem, Unpars
 
 #: Bump on any change to the rendered text or message layout (golden tests pin the version).
 #: v2: the answer puts rotation before the coordinates it decides (v1: object_id, x, y, rotation).
+#: Candidate mode's compact text (:mod:`.compact`) shares this version.
 PROMPT_VERSION = "packlab-prompt-v2"
 
 #: Stand-in put in image entries under ``image="blank"`` when the caller gives no blank image.

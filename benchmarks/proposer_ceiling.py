@@ -1,0 +1,245 @@
+"""The candidate proposer's own ceiling: how much of each teacher survives its K listed placements.
+
+Usage:
+    python benchmarks/proposer_ceiling.py                      # packlab-bench-v1, geometric, seed 0
+    python benchmarks/proposer_ceiling.py --k 8 --rules lowest --teachers sdf   # a quick look
+
+For each teacher (registered policies ``sdf``, ``mta``, ``plan``) and each proposer setting
+(``--rules`` x ``--k``, see ``packlab.policies.candidates``) it reports, per level:
+
+- **match**: on the teacher's own closed-loop trajectories, the share of steps whose chosen
+  action is one of the listed placements exactly (same shown object, rotation, x, y);
+- **restricted**: the closed-loop Overall of the teacher restricted to the listed set. At each
+  step the teacher ranks only the listed placements by its own score and takes the best: SDF-Pack
+  and MTA by their keys and the shared tie-break (rim rule first, as always: every listed
+  placement is already in the rim pool), the planner by rolling out each listed placement as a
+  first placement (its search with the proposer's set instead of its own proposals). This is the
+  best a policy that picks among the listed placements could do when it imitates that teacher
+  perfectly.
+
+It also reports ``first``: the closed-loop Overall of always taking index 0, the proposer's own
+choice (what a model that learned nothing but the listing order would score). Overall is the
+mean over the level's cases, and the last column the mean of the three levels, as in the bench.
+
+Episodes run on ``--workers`` processes (default 2); every episode is independent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from packlab.bench.suites import resolve_cases
+from packlab.core.feasibility import CandidateSet, observation_candidates
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.candidates import Candidate, ProposerConfig, propose_from
+from packlab.policies.heuristics.policy import SCORERS
+from packlab.policies.heuristics.select import object_rank
+from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.search import Budget, Problem, search
+from packlab.policies.registry import make_policy
+from packlab.sim.episode import run_episode
+
+LEVELS = ("easy", "medium", "hard")
+
+
+def flat_index(cands: CandidateSet, cand: Candidate) -> int:
+    """The index of a listed placement in the candidate search it came from."""
+    for g in cands.groups:
+        if g.object_index == cand.object_index and g.rotation == cand.rotation:
+            return g.offset + cand.x * g.z.shape[1] + cand.y
+    raise KeyError(f"no group for object {cand.object_index} rotation {cand.rotation}")
+
+
+def best_by_keys(cands: CandidateSet, teacher: str, listed: np.ndarray) -> int:
+    """The listed candidate SDF-Pack or MTA ranks first: its keys, then the default tie-break
+    (larger object first, then scan order)."""
+    keys = [np.asarray(k)[listed] for k in SCORERS[teacher](cands)]
+    rank = object_rank(cands.shown_sizes_mm, cands.shown_id_order)[cands.obj[listed]]
+    # np.lexsort sorts by its last key first: the teacher's keys, then object rank, then scan.
+    return int(listed[np.lexsort((listed, rank, *reversed(keys)))[0]])
+
+
+def best_by_plan(observation: Observation, listed: np.ndarray) -> int:
+    """The listed candidate whose rollout the planner (default budget) finds cheapest."""
+    seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
+    problem = Problem(
+        observation.shown,
+        observation.container.height_mm,
+        observation.container.cell_xy_mm,
+        smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in seen]),
+        Weights(),
+    )
+    placement = search(observation.heightmap, problem, Budget(), firsts=listed.tolist()).placement
+    assert placement is not None  # the listed set is not empty
+    cands = observation_candidates(observation)
+    g = next(
+        g
+        for g in cands.groups
+        if (g.object_index, g.rotation) == (placement.object_index, placement.rotation)
+    )
+    return g.offset + placement.x * g.z.shape[1] + placement.y
+
+
+@dataclass
+class Restricted:
+    """A teacher that may only take one of the proposer's listed placements (or index 0)."""
+
+    teacher: str  # sdf | mta | plan | first (always index 0)
+    config: ProposerConfig
+    name: str = "restricted"
+
+    def reset(self, case: Case, seed: int) -> None:
+        self._fallback = make_policy("sdf")  # nothing listed: nothing fits, any action will do
+
+    def act(self, observation: Observation) -> Action:
+        cands = observation_candidates(observation)
+        proposed = propose_from(cands, self.config)
+        if not proposed:
+            return self._fallback.act(observation)
+        if self.teacher == "first":
+            return proposed[0].action
+        listed = np.array([flat_index(cands, c) for c in proposed], dtype=np.int64)
+        if self.teacher == "plan":
+            i = best_by_plan(observation, listed)
+        else:
+            i = best_by_keys(cands, self.teacher, listed)
+        return Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
+
+
+@dataclass
+class Probe:
+    """The teacher itself, counting how often its action is among each setting's listed set."""
+
+    teacher: str
+    configs: tuple[ProposerConfig, ...]
+    name: str = "probe"
+
+    def reset(self, case: Case, seed: int) -> None:
+        self._policy = make_policy(self.teacher)
+        self._policy.reset(case, seed)
+        self.hits = [0] * len(self.configs)
+        self.steps = 0
+
+    def act(self, observation: Observation) -> Action:
+        action = self._policy.act(observation)
+        cands = observation_candidates(observation)
+        self.steps += 1
+        for n, config in enumerate(self.configs):
+            self.hits[n] += action in [c.action for c in propose_from(cands, config)]
+        return action
+
+
+def run_item(item: tuple[str, str, tuple[ProposerConfig, ...], Case]) -> dict[str, Any]:
+    """One episode: ``("probe", teacher, configs, case)`` or ``("restricted", teacher, (config,),
+    case)``; geometric backend, seed 0."""
+    kind, teacher, configs, case = item
+    policy = Probe(teacher, configs) if kind == "probe" else Restricted(teacher, configs[0])
+    result = run_episode(case, policy, seed=0, backend="geometric")
+    out = {
+        "kind": kind,
+        "teacher": teacher,
+        "level": case.difficulty,
+        "overall": result.metrics.overall,
+    }
+    if kind == "probe":
+        out["hits"] = list(policy.hits)
+        out["steps"] = policy.steps
+    else:
+        out["config"] = [configs[0].rule, configs[0].k]
+    return out
+
+
+def items(
+    cases: tuple[Case, ...],
+    teachers: list[str],
+    restricted: list[str],
+    configs: tuple[ProposerConfig, ...],
+) -> list[tuple[str, str, tuple[ProposerConfig, ...], Case]]:
+    """Every episode to run, the slow planner ones first for a balanced end."""
+    out = [("probe", t, configs, c) for t in teachers for c in cases]
+    for config in configs:
+        out += [("restricted", t, (config,), c) for t in [*restricted, "first"] for c in cases]
+    return sorted(out, key=lambda it: (it[1] != "plan", it[3].difficulty != "hard"))
+
+
+def _cells(values: dict[str, list[float]], fmt: str) -> str:
+    """Per-level means and their mean; blank cells where nothing ran."""
+    if not any(values.get(level) for level in LEVELS):
+        return " | ".join(" " for _ in range(len(LEVELS) + 1))
+    means = [float(np.mean(values[level])) for level in LEVELS]
+    return " | ".join(fmt.format(m) for m in [*means, float(np.mean(means))])
+
+
+def table(results: list[dict[str, Any]], configs: tuple[ProposerConfig, ...]) -> str:
+    """Markdown rows: teacher alone, then each setting's match and restricted Overall."""
+    head = "| teacher | proposer | match easy | medium | hard | all | Overall easy | medium | "
+    lines = [head + "hard | avg |", "|---" * 10 + "|"]
+    teachers = sorted({r["teacher"] for r in results if r["kind"] == "probe"})
+    for t in [*teachers, "first"]:
+        probes = [r for r in results if r["kind"] == "probe" and r["teacher"] == t]
+        if probes:
+            alone: dict[str, list[float]] = defaultdict(list)
+            for r in probes:
+                alone[r["level"]].append(r["overall"])
+            lines.append(f"| {t} | (all placements) | | | | | {_cells(alone, '{:.3f}')} |")
+        for n, config in enumerate(configs):
+            match: dict[str, list[float]] = defaultdict(list)
+            for r in probes:
+                match[r["level"]].append(r["hits"][n] / max(r["steps"], 1))
+            overall: dict[str, list[float]] = defaultdict(list)
+            for r in results:
+                same = r["kind"] == "restricted" and r["config"] == [config.rule, config.k]
+                if same and r["teacher"] == t:
+                    overall[r["level"]].append(r["overall"])
+            m = _cells(match, "{:.1%}")
+            lines.append(
+                f"| {t} | {config.rule} K={config.k} | {m} | {_cells(overall, '{:.3f}')} |"
+            )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default="packlab-bench-v1")
+    parser.add_argument("--teachers", default="sdf,mta,plan")
+    parser.add_argument("--rules", default="lowest,lowest+largest")
+    parser.add_argument("--k", default="8,16", help="comma-separated list sizes")
+    parser.add_argument(
+        "--restricted",
+        default=None,
+        help="teachers to run restricted to the listed set (default: all of --teachers; the "
+        "planner restricted to K placements costs about K / 6 times the planner)",
+    )
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--json", default=None, help="also write the per-episode results here")
+    args = parser.parse_args()
+    configs = tuple(
+        ProposerConfig(int(k), rule) for rule in args.rules.split(",") for k in args.k.split(",")
+    )
+    cases = resolve_cases(args.cases).cases
+    teachers = args.teachers.split(",")
+    restricted = teachers if args.restricted is None else args.restricted.split(",")
+    todo = items(cases, teachers, [t for t in restricted if t], configs)
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        results = list(pool.map(run_item, todo))
+    print(
+        f"{len(results)} episodes in {time.perf_counter() - start:.0f} s ({args.cases}, "
+        "geometric backend, seed 0)"
+    )
+    print(table(results, configs))
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(results, f)
+
+
+if __name__ == "__main__":
+    main()

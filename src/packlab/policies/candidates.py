@@ -1,0 +1,214 @@
+"""A short list of valid placements for candidate action spaces, from a rule that uses no teacher.
+
+A policy that answers with an index into listed placements (the VLM's candidate mode, an RL
+agent's candidate action space) needs a proposer: something that turns an observation into K
+placements worth choosing between. This one reads only the observation and simple geometry; it
+never scores with SDF-Pack, MTA or the planner, which are the teachers such a policy learns
+from (``benchmarks/proposer_ceiling.py`` measures how much of each teacher the set keeps).
+
+The rule (deterministic: the same observation always gives the same list):
+
+1. **Pool.** Every floor-fitting placement from the shared candidate search
+   (:func:`packlab.core.feasibility.search_candidates`), restricted to the shared rim pool
+   (top within the rim, or the lowest tops when nothing fits under it), as every heuristic and
+   ``random`` use it. So every proposal is a valid action: in bounds, resting at Eq. 2's height.
+2. **Distinct shapes.** Shown boxes of identical size give identical placements, so only one of
+   them is proposed: the first in ``internal_id`` order, the shared tie-break's choice between
+   identical boxes. Rotation 1 of a square footprint repeats rotation 0 and is skipped.
+3. **Per shape, lowest first.** Each remaining (object, rotation) ranks its positions by
+   resting height z (lower first), then flushness (more of the box's side cells touching a wall
+   or a taller column), then x, then y. Its first position is the lowest, most enclosed resting
+   place of that box: a corner on an empty floor, a pocket among placed boxes.
+4. **Rounds.** Round r holds every shape's r-th position. Rounds are taken in turn until K
+   placements are listed, so every shape gets its lowest position before any gets a second
+   (all of them when there are at most K shapes). Within a round the order is set by
+   :data:`~packlab.core.choices.ProposerRule`:
+
+   - ``"lowest"`` (default): z, then flushness, then larger box volume, then shape order;
+   - ``"lowest+largest"``: two orders taken alternately, ``"lowest"``'s and larger volume first
+     (then z, flushness), so big boxes, which greedy contact rules favour, are always listed.
+
+The listed order is the selection order, so index 0 is the proposer's own first choice; the
+index is the answer (0 to K - 1). Fewer than K placements are listed only when fewer exist;
+none when no shown box fits the floor.
+
+The geometry each :class:`Candidate` carries (resting z, top, support, flushness, the empty
+space under it) is what a text rendering can show next to the index.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from packlab.core.choices import ProposerRule, require_choice
+from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
+from packlab.core.types import Action, Observation
+from packlab.policies.heuristics.select import rim_pool
+from packlab.policies.heuristics.windows import (
+    padded,
+    side_neighbours,
+    window_count_of_max,
+    window_sum,
+)
+
+#: Default number of listed placements.
+DEFAULT_K = 8
+
+
+@dataclass(frozen=True, slots=True)
+class ProposerConfig:
+    """How many placements to list (``k``) and the round order (``rule``, module docstring)."""
+
+    k: int = DEFAULT_K
+    rule: ProposerRule = "lowest"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.k, bool) or not isinstance(self.k, int) or self.k < 1:
+            raise ValueError(f"ProposerConfig.k = {self.k!r}: must be a whole number >= 1")
+        require_choice(self.rule, ProposerRule, "ProposerConfig.rule")
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """One listed placement and the geometry a prompt can show for it (all integers)."""
+
+    index: int  # place in the list: the answer that picks it
+    object_index: int  # into the shown buffer
+    rotation: int  # 0 or 1 (1 swaps l and w)
+    x: int  # footprint's minimum cell
+    y: int
+    fx: int  # footprint cells along x at this rotation
+    fy: int  # footprint cells along y
+    z_mm: int  # resting height, Eq. 2
+    top_mm: int  # z + box height
+    support_pct: int  # share of the footprint's cells at height z (what it rests on), 0-100
+    flush_pct: int  # share of its side cells against a wall or a column above z, 0-100
+    void_mm: int  # mean empty height between the surface and the box's underside
+
+    @property
+    def action(self) -> Action:
+        return Action(object_id=self.object_index, rotation=self.rotation, x=self.x, y=self.y)
+
+
+@dataclass(frozen=True, slots=True)
+class _Shape:
+    """One proposed (object, rotation): its ranked pool positions (flat candidate indices) and
+    per-position support, flush and void, indexed like the group's grid."""
+
+    group: Orientation
+    ranked: np.ndarray  # (m,) flat indices into the CandidateSet, best first, m <= k
+    support: np.ndarray  # (X', Y') cells at the window max
+    flush: np.ndarray  # (X', Y') side cells against a wall or a column above z
+    void: np.ndarray  # (X', Y') mm * cells of empty space under the box
+
+
+def _distinct_groups(cands: CandidateSet) -> list[Orientation]:
+    """The groups of step 2, in scan order: one per distinct (fx, fy, h) footprint shape."""
+    by_id = sorted(
+        cands.groups, key=lambda g: (int(cands.shown_id_order[g.object_index]), g.rotation)
+    )
+    kept: dict[tuple[int, int, int], Orientation] = {}
+    for g in by_id:
+        kept.setdefault((g.fx, g.fy, g.height_mm), g)
+    return sorted(kept.values(), key=lambda g: g.offset)
+
+
+def _shape(cands: CandidateSet, g: Orientation, in_pool: np.ndarray, k: int) -> _Shape | None:
+    """Step 3 for one group: its best ``k`` pool positions; None when none is in the pool."""
+    flat = np.arange(g.offset, g.offset + g.size)
+    mask = in_pool[flat]
+    if not mask.any():
+        return None
+    hm = cands.heightmap.astype(np.int64, copy=False)
+    support = window_count_of_max(hm, g.fx, g.fy)[1]
+    x_faces, y_faces = side_neighbours(padded(hm, cands.container_height_mm), g.fx, g.fy)
+    z = g.z[..., None]
+    flush = (x_faces > z).sum(axis=(0, -1)) + (y_faces > z).sum(axis=(0, -1))
+    void = g.fx * g.fy * g.z - window_sum(hm, g.fx, g.fy)
+    # Row-major grids list x then y, so the flat index breaks the last ties by x, then y.
+    order = np.lexsort((flat, -flush.ravel(), g.z.ravel()))
+    ranked = flat[order[mask[order]]][:k]
+    return _Shape(g, ranked, support, flush, void)
+
+
+def _round_keys(cands: CandidateSet, shapes: list[_Shape], r: int, by_volume: bool) -> list[int]:
+    """Shape positions in round ``r`` (indices into ``shapes``), in the round's order."""
+    members = [s for s in range(len(shapes)) if r < shapes[s].ranked.size]
+
+    def key(s: int) -> tuple[int, ...]:
+        shape = shapes[s]
+        i = int(shape.ranked[r])
+        g = shape.group
+        cell = (int(cands.x[i]), int(cands.y[i]))
+        volume = g.fx * g.fy * g.height_mm
+        low = (int(cands.z[i]), -_percent(int(shape.flush[cell]), 2 * (g.fx + g.fy)))
+        return (-volume, *low, s) if by_volume else (*low, -volume, s)
+
+    return sorted(members, key=key)
+
+
+def _select(cands: CandidateSet, shapes: list[_Shape], config: ProposerConfig) -> list[int]:
+    """Step 4: (shape, round) picks as flat candidate indices, in listing order."""
+    orders = [False, True] if config.rule == "lowest+largest" else [False]
+    streams: list[list[int]] = [[] for _ in orders]
+    rounds = max((s.ranked.size for s in shapes), default=0)
+    for j, by_volume in enumerate(orders):
+        for r in range(rounds):
+            if len(streams[j]) >= config.k:
+                break
+            order = _round_keys(cands, shapes, r, by_volume)
+            streams[j] += [int(shapes[s].ranked[r]) for s in order]
+    out: list[int] = []
+    for r in range(config.k):  # the streams in turn, each placement once
+        for stream in streams:
+            if r < len(stream) and stream[r] not in out:
+                out.append(stream[r])
+    return out[: config.k]
+
+
+def _percent(part: int, whole: int) -> int:
+    return round(100 * part / whole)
+
+
+def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candidate:
+    g = shape.group
+    x, y = int(cands.x[i]), int(cands.y[i])
+    area = g.fx * g.fy
+    return Candidate(
+        index=index,
+        object_index=g.object_index,
+        rotation=g.rotation,
+        x=x,
+        y=y,
+        fx=g.fx,
+        fy=g.fy,
+        z_mm=int(cands.z[i]),
+        top_mm=int(cands.top[i]),
+        support_pct=_percent(int(shape.support[x, y]), area),
+        flush_pct=_percent(int(shape.flush[x, y]), 2 * (g.fx + g.fy)),
+        void_mm=round(int(shape.void[x, y]) / area),
+    )
+
+
+def propose_from(
+    cands: CandidateSet, config: ProposerConfig = ProposerConfig()
+) -> tuple[Candidate, ...]:
+    """The listed placements of a candidate set (module docstring); empty when nothing fits."""
+    pool = rim_pool(cands)
+    in_pool = np.zeros(len(cands), dtype=bool)
+    in_pool[pool] = True
+    shapes = [
+        s for g in _distinct_groups(cands) if (s := _shape(cands, g, in_pool, config.k)) is not None
+    ]
+    owner = {int(i): s for s in shapes for i in s.ranked}
+    picks = _select(cands, shapes, config)
+    return tuple(_candidate(cands, owner[i], i, n) for n, i in enumerate(picks))
+
+
+def propose(
+    observation: Observation, config: ProposerConfig = ProposerConfig()
+) -> tuple[Candidate, ...]:
+    """The listed placements for an observation (module docstring); empty when nothing fits."""
+    return propose_from(observation_candidates(observation), config)
