@@ -46,12 +46,7 @@ from packlab.core.choices import ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
 from packlab.core.types import Action, Observation
 from packlab.policies.heuristics.select import rim_pool
-from packlab.policies.heuristics.windows import (
-    padded,
-    side_neighbours,
-    window_count_of_max,
-    window_sum,
-)
+from packlab.policies.heuristics.windows import padded, side_neighbours
 
 #: Default number of listed placements.
 DEFAULT_K = 8
@@ -95,13 +90,11 @@ class Candidate:
 @dataclass(frozen=True, slots=True)
 class _Shape:
     """One proposed (object, rotation): its ranked pool positions (flat candidate indices) and
-    per-position support, flush and void, indexed like the group's grid."""
+    the flushness of every position, indexed like the group's grid."""
 
     group: Orientation
     ranked: np.ndarray  # (m,) flat indices into the CandidateSet, best first, m <= k
-    support: np.ndarray  # (X', Y') cells at the window max
     flush: np.ndarray  # (X', Y') side cells against a wall or a column above z
-    void: np.ndarray  # (X', Y') mm * cells of empty space under the box
 
 
 def _distinct_groups(cands: CandidateSet) -> list[Orientation]:
@@ -115,22 +108,24 @@ def _distinct_groups(cands: CandidateSet) -> list[Orientation]:
     return sorted(kept.values(), key=lambda g: g.offset)
 
 
-def _shape(cands: CandidateSet, g: Orientation, in_pool: np.ndarray, k: int) -> _Shape | None:
-    """Step 3 for one group: its best ``k`` pool positions; None when none is in the pool."""
+def _shape(
+    cands: CandidateSet, g: Orientation, in_pool: np.ndarray, walled: np.ndarray, k: int
+) -> _Shape | None:
+    """Step 3 for one group: its best ``k`` pool positions; None when none is in the pool.
+
+    ``walled`` is the heightmap inside a ring of walls at the rim's height (:func:`padded`).
+    """
     flat = np.arange(g.offset, g.offset + g.size)
     mask = in_pool[flat]
     if not mask.any():
         return None
-    hm = cands.heightmap.astype(np.int64, copy=False)
-    support = window_count_of_max(hm, g.fx, g.fy)[1]
-    x_faces, y_faces = side_neighbours(padded(hm, cands.container_height_mm), g.fx, g.fy)
+    x_faces, y_faces = side_neighbours(walled, g.fx, g.fy)
     z = g.z[..., None]
     flush = (x_faces > z).sum(axis=(0, -1)) + (y_faces > z).sum(axis=(0, -1))
-    void = g.fx * g.fy * g.z - window_sum(hm, g.fx, g.fy)
     # Row-major grids list x then y, so the flat index breaks the last ties by x, then y.
     order = np.lexsort((flat, -flush.ravel(), g.z.ravel()))
     ranked = flat[order[mask[order]]][:k]
-    return _Shape(g, ranked, support, flush, void)
+    return _Shape(g, ranked, flush)
 
 
 def _round_keys(cands: CandidateSet, shapes: list[_Shape], r: int, by_volume: bool) -> list[int]:
@@ -175,7 +170,10 @@ def _percent(part: int, whole: int) -> int:
 def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candidate:
     g = shape.group
     x, y = int(cands.x[i]), int(cands.y[i])
+    z = int(cands.z[i])
     area = g.fx * g.fy
+    # Only listed placements need these, so they are read off the heightmap one by one.
+    under = cands.heightmap[x : x + g.fx, y : y + g.fy]
     return Candidate(
         index=index,
         object_index=g.object_index,
@@ -184,11 +182,11 @@ def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candid
         y=y,
         fx=g.fx,
         fy=g.fy,
-        z_mm=int(cands.z[i]),
+        z_mm=z,
         top_mm=int(cands.top[i]),
-        support_pct=_percent(int(shape.support[x, y]), area),
+        support_pct=_percent(int(np.count_nonzero(under == z)), area),
         flush_pct=_percent(int(shape.flush[x, y]), 2 * (g.fx + g.fy)),
-        void_mm=round(int(shape.void[x, y]) / area),
+        void_mm=round((area * z - int(under.sum(dtype=np.int64))) / area),
     )
 
 
@@ -199,9 +197,12 @@ def propose_from(
     pool = rim_pool(cands)
     in_pool = np.zeros(len(cands), dtype=bool)
     in_pool[pool] = True
-    shapes = [
-        s for g in _distinct_groups(cands) if (s := _shape(cands, g, in_pool, config.k)) is not None
-    ]
+    walled = padded(cands.heightmap, cands.container_height_mm)
+    shapes = []
+    for g in _distinct_groups(cands):
+        shape = _shape(cands, g, in_pool, walled, config.k)
+        if shape is not None:
+            shapes.append(shape)
     owner = {int(i): s for s in shapes for i in s.ranked}
     picks = _select(cands, shapes, config)
     return tuple(_candidate(cands, owner[i], i, n) for n, i in enumerate(picks))
