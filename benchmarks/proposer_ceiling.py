@@ -21,7 +21,8 @@ It also reports ``first``: the closed-loop Overall of always taking index 0, the
 choice (what a model that learned nothing but the listing order would score). Overall is the
 mean over the level's cases, and the last column the mean of the three levels, as in the bench.
 
-Episodes run on ``--workers`` processes (default 2); every episode is independent.
+Episodes run on ``--workers`` processes (default 2); every episode is independent. The measured
+table is in docs/candidates.md.
 """
 
 from __future__ import annotations

@@ -54,7 +54,12 @@ DEFAULT_K = 8
 
 @dataclass(frozen=True, slots=True)
 class ProposerConfig:
-    """How many placements to list (``k``) and the round order (``rule``, module docstring)."""
+    """How many placements to list (``k``) and the round order (``rule``, module docstring).
+
+    The defaults keep the most of the teachers in closed loop for the fewest tokens
+    (docs/candidates.md: K = 16 and ``"lowest+largest"`` list more of their actions, not better
+    ones).
+    """
 
     k: int = DEFAULT_K
     rule: ProposerRule = "lowest"
