@@ -113,7 +113,7 @@ def test_data_controls(fixed_state, tmp_path):
     data = _write_dataset(tmp_path / "data", fixed_state)
     examples, root = load_sft_examples(data)
     assert root == data and len(examples) == 2
-    assert examples[1].answer == '{"object_id":1,"x":6,"y":2,"rotation":1}'
+    assert examples[1].answer == '{"object_id":1,"rotation":1,"x":6,"y":2}'
     assert [e.episode_id for e in select_examples(examples, "easy")] == ["easy-0"]
     assert len(select_examples(examples, "easy+medium")) == 2
     assert len(select_examples(examples, "mixed", data_fraction=0.5, seed=3)) == 1
