@@ -79,7 +79,7 @@ def test_vlm_small_without_shipped_checkpoint_says_how_to_reproduce(monkeypatch,
     import packlab.vlm.infer.policy as vp
 
     monkeypatch.setattr(vp, "SHIPPED_MODEL_DIR", tmp_path / "vlm-small")
-    with pytest.raises(ConfigError, match="packlab train sft"):
+    with pytest.raises(ConfigError, match="packlab train candidate"):
         make_policy("vlm-small")
 
 

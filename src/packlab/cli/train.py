@@ -7,9 +7,13 @@ import json
 from functools import partial
 from typing import Any
 
+from packlab.bench.suites import resolve_cases
 from packlab.cli.options import add_field, config_kwargs
 from packlab.core.errors import PacklabError
+from packlab.policies.listed import TEACHERS
 from packlab.viz.plots import plot_loss_curve
+from packlab.viz.pointer_curves import write_curves
+from packlab.vlm.candidate.recipe import DAGGER_MODULE, DaggerConfig
 from packlab.vlm.data.sft_examples import RECIPES
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side, missing_extra
 from packlab.vlm.train.config import LR_PRETRAINED, LR_TINY, SFTConfig
@@ -92,6 +96,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'",
     )
     s.set_defaults(func=run_sft)
+    register_candidate(sub)
 
 
 def config_from_args(args: argparse.Namespace) -> SFTConfig:
@@ -118,4 +123,45 @@ def run_sft(args: argparse.Namespace) -> int:
         f"in {res.wall_time_s:.0f} s; "
         f"loss {res.losses[0]:.4f} -> {res.losses[-1]:.4f}; final model: {res.final_checkpoint}"
     )
+    return 0
+
+
+def register_candidate(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser(
+        "candidate",
+        help="train a candidate-mode pointer model: teacher rollouts, then DAgger rounds",
+        description="Round 0 labels the teacher's own trajectories; each later round plays new "
+        "cases with the current model and labels the states it reaches. Rerun to resume.",
+    )
+    field = partial(add_field, c, DaggerConfig)
+    c.add_argument("--cases", required=True, help="generated training cases (packlab generate)")
+    field("out", "--out", required=True, help="run directory (states, logs, models)")
+    field("teacher", "--teacher", choices=TEACHERS, help="default {default}")
+    field("rounds", "--rounds", help="DAgger rounds after round 0; default {default}")
+    field("cases_per_round", "--cases-per-round", help="default {default}")
+    field("eval_cases_per_level", "--eval-cases", help="per level; default {default}")
+    field("steps", "--steps", help="round 0's updates; default {default}")
+    field("round_steps", "--round-steps", help="each later round's updates; default {default}")
+    field("model", "--model", help="tiny:<family>:<size> or a pointer directory; {default}")
+    field("instructions", "--instructions", help="default {default}")
+    field("blank_map", "--blank-map", help="ablation: the map shows an empty container")
+    field("batch", "--batch", help="default {default}")
+    field("lr", "--lr", help="default {default}")
+    field("workers", "--workers", help="collection processes; default {default}")
+    field("seed", "--seed", help="default {default}")
+    field("minutes_per_round", "--minutes-per-round", help="cap on each round's training")
+    field("threads", "--threads", help="torch threads for training; default torch's")
+    c.set_defaults(func=run_candidate)
+
+
+def run_candidate(args: argparse.Namespace) -> int:
+    cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
+    try:
+        dagger = import_torch_side(DAGGER_MODULE)
+    except ModuleNotFoundError as e:
+        if missing_extra(e):
+            raise PacklabError(VLM_EXTRA_HINT) from None
+        raise
+    final = dagger.run_dagger(cfg, resolve_cases(args.cases).cases, write_curves)
+    print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")
     return 0

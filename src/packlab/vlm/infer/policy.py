@@ -26,6 +26,8 @@ from typing import Any
 from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
+from packlab.vlm.candidate.files import is_pointer_dir
+from packlab.vlm.candidate.policy import CandidateVLMPolicy
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.prompt.parse import parse_or_unparsable
@@ -33,9 +35,10 @@ from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
 
 __all__ = ["SHIPPED_MODEL_DIR", "VLMPolicy", "make_vlm", "make_vlm_small"]
 
-#: Where the package ships its own trained checkpoint (``vlm-small``), when it does.
+#: Where the package ships its own trained checkpoint (``vlm-small``, also ``vlm``'s default).
 SHIPPED_MODEL_DIR = Path(__file__).resolve().parents[2] / "data" / "models" / "vlm-small"
 #: The policy's torch side (vlm extra), imported on the first load.
+
 RUNTIME_MODULE = "packlab.vlm.infer.runtime"
 
 
@@ -229,13 +232,27 @@ class VLMPolicy:
         return action
 
 
-def make_vlm(**kwargs: Any) -> VLMPolicy:
-    """``vlm``: a local checkpoint (``model=DIR``) or a random tiny model (``model=tiny:F:S``)."""
+def make_vlm(**kwargs: Any) -> VLMPolicy | CandidateVLMPolicy:
+    """``vlm``: a local checkpoint (``model=DIR``) or a random tiny model (``model=tiny:F:S``).
+
+    A candidate-mode checkpoint (a pointer head beside the model) plays in candidate mode
+    (:mod:`packlab.vlm.candidate.policy`); without ``model`` the shipped model plays
+    (``packlab/data/models/vlm-small``, candidate mode), else a random tiny model.
+    """
+    model = kwargs.get("model", SHIPPED_MODEL_DIR)
+    if is_pointer_dir(model):
+        extra = sorted(set(kwargs) - {"model", "threads", "name"})
+        if extra:
+            raise ConfigError(
+                f"policy 'vlm': model {str(model)!r} is a candidate-mode checkpoint, which takes "
+                f"only model, threads, name; got {', '.join(extra)}"
+            )
+        return CandidateVLMPolicy(**{**kwargs, "model": str(model)})
     return VLMPolicy(**kwargs)
 
 
-def make_vlm_small(**kwargs: Any) -> VLMPolicy:
-    """``vlm-small``: the checkpoint shipped in the package (``packlab/data/models/vlm-small``)."""
+def make_vlm_small(**kwargs: Any) -> VLMPolicy | CandidateVLMPolicy:
+    """``vlm-small``: the model shipped in the package (``packlab/data/models/vlm-small``)."""
     if "model" in kwargs:
         raise ConfigError(
             "policy 'vlm-small' uses the shipped checkpoint; use policy 'vlm' with "
@@ -244,9 +261,9 @@ def make_vlm_small(**kwargs: Any) -> VLMPolicy:
     if not (SHIPPED_MODEL_DIR / "config.json").is_file():
         raise ConfigError(
             f"policy 'vlm-small': no checkpoint is shipped in this install ({SHIPPED_MODEL_DIR} "
-            "has no config.json). Reproduce it: generate a PackData set with `packlab generate`, "
-            "train with `packlab train sft --data DATA --model tiny:qwen3_5:small --out RUN`, then "
-            f"copy RUN/final to {SHIPPED_MODEL_DIR} or run policy 'vlm' with model=RUN/final"
+            "has no config.json). Reproduce it (docs/vlm.md): generate training cases with "
+            "`packlab generate`, train with `packlab train candidate --cases CASES --out RUN`, "
+            f"then copy RUN/final to {SHIPPED_MODEL_DIR} or run policy 'vlm' with model=RUN/final"
         )
     kwargs.setdefault("name", "vlm-small")
-    return VLMPolicy(model=str(SHIPPED_MODEL_DIR), **kwargs)
+    return make_vlm(model=str(SHIPPED_MODEL_DIR), **kwargs)

@@ -53,6 +53,18 @@ SIZES: dict[str, TinySize] = {
         vision_heads=2,
         vision_intermediate=64,
     ),
+    # Candidate-mode pointer models trained on 2 CPU cores (about 1 M parameters).
+    "mini": TinySize(
+        hidden=128,
+        layers=4,
+        heads=4,
+        kv_heads=2,
+        intermediate=512,
+        vision_hidden=32,
+        vision_depth=1,
+        vision_heads=2,
+        vision_intermediate=64,
+    ),
     # CPU training runs (a few M parameters).
     "small": TinySize(
         hidden=256,

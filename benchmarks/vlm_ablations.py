@@ -1,0 +1,120 @@
+"""Candidate-mode ablations, each trained with the same budget: what the model reads and learns.
+
+Usage:
+    python benchmarks/vlm_ablations.py --states RUN/r0/states.jsonl --cases TRAIN_CASES \
+        --out runs/vlm-ablations [--steps 500] [--variants plan,blank,sdf,oracle-canonical,first]
+
+Every variant trains a fresh pointer model (tiny:qwen3_vl:mini, same seed, batch, steps) on the
+same states (round 0's: the planner's own trajectories); only one thing changes per variant:
+
+- ``plan``: the planner's labels, the map shown (the reference);
+- ``blank``: the planner's labels, the map shows an empty container (boxes and listed
+  placements with their geometry still shown);
+- ``sdf``, ``mta``, ``oracle``, ``oracle-canonical``: the same states labelled by another
+  teacher (:mod:`packlab.vlm.candidate.relabel`; states the raw oracle's action is not listed
+  in are dropped, as in training).
+
+Each model then plays packlab-bench-v1 (``--backend``, default geometric; seed 0) and the table
+gives held-out match/NLL (from the last training log line) and Overall per level. Results are
+appended to OUT/results.jsonl as each variant finishes; a rerun skips finished variants.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from packlab.bench.suites import resolve_cases
+from packlab.policies.registry import make_policy
+from packlab.sim.episode import run_episode
+from packlab.vlm.candidate.relabel import relabel
+from packlab.vlm.candidate.states import STATES_FILE, append_states, read_states
+from packlab.vlm.candidate.train import LOG, PointerTrainConfig, train_pointer
+
+TEACHER_OF = {"plan": "plan", "blank": "plan"}
+
+
+def _states_for(variant: str, args: argparse.Namespace, out: Path) -> Path:
+    teacher = TEACHER_OF.get(variant, variant)
+    if teacher == "plan":
+        return Path(args.states)
+    path = out / STATES_FILE
+    if not path.is_file():
+        cases = {c.episode_id: c for c in resolve_cases(args.cases).cases}
+        append_states(path, relabel(read_states(Path(args.states)), teacher, cases))
+    return path
+
+
+def _bench(model: Path, backend: str) -> dict[str, float]:
+    policy = make_policy("vlm", model=str(model), threads=1)
+    by: dict[str, list[float]] = defaultdict(list)
+    for case in resolve_cases("packlab-bench-v1").cases:
+        by[case.difficulty].append(run_episode(case, policy, 0, backend).metrics.overall)
+    row = {d: round(float(np.mean(v)), 3) for d, v in by.items()}
+    row["average"] = round(float(np.mean(list(row.values()))), 3)
+    return row
+
+
+def run_variant(variant: str, args: argparse.Namespace) -> dict:
+    out = Path(args.out) / variant
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = PointerTrainConfig(
+        states=(str(_states_for(variant, args, out)),),
+        out=str(out / "train"),
+        blank_map=variant == "blank",
+        steps=args.steps,
+        eval_every=args.steps,
+        threads=args.threads,
+        meta={"teacher": TEACHER_OF.get(variant, variant), "ablation": variant},
+    )
+    t0 = time.perf_counter()
+    final = train_pointer(cfg)
+    trained = time.perf_counter() - t0
+    with open(out / "train" / LOG) as f:
+        last = list(csv.DictReader(f))[-1]
+    row = {"variant": variant, "train_s": round(trained), **last}
+    row["bench"] = _bench(final, args.backend)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--states", required=True)
+    ap.add_argument("--cases", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--steps", type=int, default=500)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--backend", default="geometric")
+    ap.add_argument("--variants", default="plan,blank,sdf,oracle-canonical")
+    args = ap.parse_args()
+    results = Path(args.out) / "results.jsonl"
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    done = (
+        {json.loads(x)["variant"] for x in results.read_text().splitlines()}
+        if results.is_file()
+        else set()
+    )
+    for variant in args.variants.split(","):
+        if variant not in done:
+            row = run_variant(variant, args)
+            with open(results, "a") as f:
+                f.write(json.dumps(row) + "\n")
+    rows = [json.loads(x) for x in results.read_text().splitlines()]
+    print("| variant | held-out match | held-out NLL | marginal NLL | easy | medium | hard | avg |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        b = r["bench"]
+        print(
+            f"| {r['variant']} | {r['heldout_match']} | {r['heldout_nll']} | {r['marginal_nll']} "
+            f"| {b['easy']} | {b['medium']} | {b['hard']} | {b['average']} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,126 @@
+"""Labelled states from closed-loop rollouts on generated cases (DAgger's data step).
+
+Each case is played once in the geometric backend (fast, exact Eq. 2) by an *actor*: the
+teacher itself (round 0: the teacher's own trajectories) or the current student (rounds >= 1:
+the states the student reaches, which the teacher's trajectories never show). At every step the
+proposer lists its K placements and the teacher labels the state with its pick among them, so
+the data is always "what the teacher would do here", wherever "here" came from. Steps where
+nothing fits are not recorded (the policy falls back to SDF-Pack there).
+
+Cases run in worker processes; each finished case's states are appended to the file at once, so
+a crash loses at most the cases in flight, and a rerun skips the cases already in the file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+from tqdm import tqdm
+
+from packlab.core.feasibility import observation_candidates
+from packlab.core.types import Action, Case, Observation, Unparsable
+from packlab.policies.candidates import ProposerConfig, propose_from
+from packlab.policies.listed import ListedTeacher
+from packlab.policies.registry import make_policy
+from packlab.sim.episode import run_episode
+from packlab.vlm.candidate.states import LabelledState, make_state, read_states
+
+#: (policy name, options) of the actor; ``None`` follows the teacher.
+ActorSpec = tuple[str, dict[str, Any]] | None
+DEFAULT_PROPOSER = ProposerConfig()
+
+
+@dataclass
+class Labeller:
+    """A policy that records every state it sees, labelled by the teacher, while acting as the
+    actor (or the teacher when there is none)."""
+
+    teacher: ListedTeacher
+    proposer: ProposerConfig
+    source: str
+    actor: Any = None
+    name: str = "labeller"
+    states: list[LabelledState] = field(default_factory=list)
+
+    def reset(self, case: Case, seed: int) -> None:
+        self._case = case
+        self.teacher.reset(case, seed)
+        self._fallback = make_policy("sdf")
+        self._fallback.reset(case, seed)
+        if self.actor is not None:
+            self.actor.reset(case, seed)
+        self.states = []
+
+    def act(self, observation: Observation) -> Action | Unparsable:
+        cands = observation_candidates(observation)
+        listed = propose_from(cands, self.proposer)
+        if not listed:  # nothing fits: any action ends the episode the same way
+            return self._fallback.act(observation)
+        label = self.teacher.choose(observation, cands, listed)
+        case, teacher = self._case, self.teacher.teacher
+        state = make_state(
+            case.episode_id, case.difficulty, observation, listed, teacher, label, self.source
+        )
+        self.states.append(state)
+        if self.actor is not None:
+            return self.actor.act(observation)
+        if label >= 0:
+            return listed[label].action
+        return self.teacher.own_action(observation)
+
+
+@dataclass(frozen=True)
+class _Job:
+    case: Case
+    teacher: str
+    proposer: ProposerConfig
+    source: str
+    actor: ActorSpec
+
+
+def _play(job: _Job) -> tuple[str, list[bytes], float]:
+    actor = make_policy(job.actor[0], **job.actor[1]) if job.actor is not None else None
+    labeller = Labeller(ListedTeacher(job.teacher), job.proposer, job.source, actor)
+    result = run_episode(job.case, labeller, seed=0, backend="geometric")
+    encoded = [msgspec.json.encode(s) for s in labeller.states]
+    return job.case.episode_id, encoded, result.metrics.overall
+
+
+def done_cases(path: Path) -> set[str]:
+    return {s.case_id for s in read_states(path)} if path.is_file() else set()
+
+
+def collect(
+    cases: Sequence[Case],
+    out: Path,
+    teacher: str,
+    source: str,
+    actor: ActorSpec = None,
+    proposer: ProposerConfig = DEFAULT_PROPOSER,
+    workers: int = 2,
+    progress: bool = True,
+    on_case: Callable[[str, float], None] | None = None,
+) -> int:
+    """Play every case not yet in ``out`` and append its labelled states; the number appended.
+    ``on_case(case_id, overall)`` sees each finished case (the actor's closed-loop score)."""
+    ListedTeacher(teacher)  # refuse an unknown teacher before starting workers
+    done = done_cases(out)
+    jobs = [_Job(c, teacher, proposer, source, actor) for c in cases if c.episode_id not in done]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    written = 0
+    bar = tqdm(total=len(jobs), desc=f"collect {source}", unit="case", disable=not progress)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for case_id, encoded, overall in pool.map(_play, jobs, chunksize=1):
+            with open(out, "ab") as f:
+                f.writelines(line + b"\n" for line in encoded)
+            written += len(encoded)
+            if on_case is not None:
+                on_case(case_id, overall)
+            bar.update(1)
+    bar.close()
+    return written

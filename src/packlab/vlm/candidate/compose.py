@@ -1,0 +1,88 @@
+"""Candidate-mode examples composed from labelled states, lazily (at training time) or as an export.
+
+The trainer reads :mod:`.states` files and builds each example's chat messages here when it
+needs them; :func:`export_chat_jsonl` writes the very same messages plus the answer as the
+paper-style chat JSONL (``{"messages": [system, user, assistant]}``) for other trainers. One
+function builds the messages for both, so they cannot drift apart (a test checks the tokens).
+
+``instructions``: ``"full"`` is :func:`packlab.vlm.prompt.compact.system_text` (the task and a
+legend of every field, about 250 tokens, for a pretrained model that reads instructions);
+``"short"`` is one line with the container (about 20 tokens): a model trained from random
+weights learns the fields from data, and every step then costs only its state.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, Literal
+
+from packlab.core.errors import ConfigError
+from packlab.core.types import Container
+from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
+from packlab.vlm.prompt.compact import CompactOptions, state_text, system_text
+from packlab.vlm.prompt.render import PROMPT_VERSION
+
+Instructions = Literal["full", "short"]
+INSTRUCTIONS: tuple[str, ...] = ("full", "short")
+DEFAULT_OPTIONS = CompactOptions()
+
+
+def short_system_text(container: Container) -> str:
+    nx, ny = container.cells
+    return f"Pack boxes. Container {nx} x {ny} cells, rim {round(container.height_mm / 10)} cm."
+
+
+def state_messages(
+    state: LabelledState,
+    instructions: Instructions = "short",
+    options: CompactOptions = DEFAULT_OPTIONS,
+    blank_map: bool = False,
+) -> list[dict[str, Any]]:
+    """[system, user] messages of one state; ``blank_map`` zeroes the heightmap (ablation: the
+    model then sees the boxes and the listed placements but not the container's surface)."""
+    if instructions not in INSTRUCTIONS:
+        raise ConfigError(f"instructions = {instructions!r}: expected one of {INSTRUCTIONS}")
+    obs = observation_of(state)
+    if blank_map:
+        obs.heightmap[:] = 0
+    system = (
+        system_text(obs.container, options)
+        if instructions == "full"
+        else short_system_text(obs.container)
+    )
+    user = state_text(obs, listed_of(state), options)
+    return [
+        {"role": "system", "content": [{"type": "text", "text": system}]},
+        {"role": "user", "content": [{"type": "text", "text": user}]},
+    ]
+
+
+def answer_message(state: LabelledState) -> dict[str, Any]:
+    return {"role": "assistant", "content": [{"type": "text", "text": str(state.label)}]}
+
+
+def export_chat_jsonl(
+    states: Iterable[LabelledState],
+    out: Path,
+    instructions: Instructions = "short",
+    options: CompactOptions = DEFAULT_OPTIONS,
+) -> int:
+    """Write each labelled state (label >= 0) as one chat example; the number written."""
+    n = 0
+    with open(out, "w") as f:
+        for s in states:
+            if s.label < 0:
+                continue
+            row = {
+                "messages": [*state_messages(s, instructions, options), answer_message(s)],
+                "episode_id": s.case_id,
+                "difficulty": s.difficulty,
+                "step_index": s.step,
+                "teacher": s.teacher,
+                "prompt_version": PROMPT_VERSION,
+            }
+            f.write(json.dumps(row) + "\n")
+            n += 1
+    return n

@@ -1,0 +1,87 @@
+"""The candidate-mode VLM policy: list K placements, score them with the pointer model, take
+the best. Torch-free at import (the registry imports it); the model loads on first reset.
+
+Every answer is a listed placement, so it always parses and always fits. When nothing fits (the
+proposer lists nothing) the policy hands the step to SDF-Pack, which then makes the same
+set-aside decision any policy would; such steps are counted in ``fallbacks``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.candidates import ProposerConfig, propose
+from packlab.policies.registry import make_policy
+from packlab.vlm.candidate.files import is_pointer_dir
+from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
+from packlab.vlm.prompt.render import PROMPT_VERSION
+
+#: ``model`` of a policy given its model by :meth:`CandidateVLMPolicy.use_model`.
+IN_MEMORY = "<in memory>"
+SCORING_MODULE = "packlab.vlm.candidate.scoring"
+SAVED_MODULE = "packlab.vlm.candidate.saved"
+
+
+class CandidateVLMPolicy:
+    """Picks the highest-scoring listed placement of a pointer model (``model`` = a directory)."""
+
+    def __init__(self, model: str | Path, threads: int | None = 1, name: str = "vlm") -> None:
+        if model != IN_MEMORY and not is_pointer_dir(model):
+            raise ConfigError(f"model = {str(model)!r}: not a candidate-mode checkpoint directory")
+        if threads is not None and threads < 1:
+            raise ConfigError(f"threads = {threads}: must be >= 1")
+        self.model_spec, self.threads, self.name = str(model), threads, name
+        self.fallbacks = 0
+        self.decisions = 0
+        self._model: Any = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_model": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
+    def load(self) -> None:
+        if self._model is not None:
+            return
+        try:
+            scoring = import_torch_side(SCORING_MODULE)
+            saved = import_torch_side(SAVED_MODULE)
+        except ModuleNotFoundError as exc:
+            raise ConfigError(f"policy {self.name!r}: {VLM_EXTRA_HINT} ({exc.name} missing)")
+        scoring.set_threads(self.threads)
+        self.use_model(saved.load_pointer(self.model_spec))
+
+    def use_model(self, model: Any, meta: dict[str, Any] | None = None) -> None:
+        """Play with an already loaded pointer model; ``meta`` replaces its model card (for a
+        model still in training)."""
+        scoring = import_torch_side(SCORING_MODULE)
+        self._model = model
+        meta = model.vlm.meta if meta is None else meta
+        if meta.get("prompt_version") != PROMPT_VERSION:
+            raise ConfigError(
+                f"model = {self.model_spec!r}: trained with prompt {meta.get('prompt_version')!r}"
+                f", this packlab renders {PROMPT_VERSION!r}; retrain it"
+            )
+        self._proposer = ProposerConfig(**meta["proposer"])
+        self._settings = scoring.PromptSettings(meta["instructions"], meta.get("blank_map", False))
+        self._score = scoring.score_listed
+
+    def reset(self, case: Case, seed: int) -> None:
+        self.load()
+        self._fallback = make_policy("sdf")
+        self._fallback.reset(case, seed)
+
+    def act(self, observation: Observation) -> Action:
+        listed = propose(observation, self._proposer)
+        self.decisions += 1
+        if not listed:
+            self.fallbacks += 1
+            return self._fallback.act(observation)
+        scores = self._score(self._model, observation, listed, self._settings)
+        return listed[int(np.argmax(scores))].action

@@ -1,0 +1,42 @@
+"""The candidate-mode recipe's settings (torch-free, so the CLI can build them without torch).
+What each setting does: :mod:`packlab.vlm.candidate.dagger`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from packlab.core.errors import ConfigError
+from packlab.policies.listed import TEACHERS
+from packlab.vlm.candidate.compose import Instructions
+
+#: The recipe's module (vlm extra), imported when ``packlab train candidate`` runs.
+DAGGER_MODULE = "packlab.vlm.candidate.dagger"
+
+
+@dataclass(frozen=True)
+class DaggerConfig:
+    out: str
+    teacher: str = "plan"
+    rounds: int = 1  # DAgger rounds after round 0
+    cases_per_round: int = 450
+    eval_cases_per_level: int = 5
+    steps: int = 1500  # round 0's updates
+    round_steps: int = 1000  # updates of each later round (warm start)
+    model: str = "tiny:qwen3_vl:mini"
+    instructions: Instructions = "short"
+    blank_map: bool = False
+    batch: int = 16
+    lr: float = 1e-3
+    workers: int = 2
+    seed: int = 0
+    minutes_per_round: float | None = None
+    threads: int | None = None  # torch threads for training (None: torch's default)
+
+    def __post_init__(self) -> None:
+        if self.teacher not in TEACHERS:
+            raise ConfigError(f"teacher = {self.teacher!r}: expected one of {', '.join(TEACHERS)}")
+        for name in ("cases_per_round", "steps", "round_steps", "batch", "workers"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} = {getattr(self, name)}: must be >= 1")
+        if self.rounds < 0:
+            raise ConfigError(f"rounds = {self.rounds}: must be >= 0")

@@ -1,0 +1,43 @@
+"""Saving and loading a pointer model: a Qwen-VL checkpoint directory plus the pointer head.
+
+The directory is an ordinary checkpoint (:func:`packlab.vlm.model.checkpoint.save_model`) with
+``pointer_head.safetensors`` beside it and ``packlab_model.json`` saying
+``"action_format": "candidate"`` with the proposer, the instructions and the teacher it was
+trained with, so the policy rebuilds exactly the training-time prompt.
+Imports torch: only the vlm extra may import this module.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from packlab.core.errors import ConfigError
+from packlab.vlm.candidate.files import CANDIDATE_FORMAT, HEAD_FILE, is_pointer_dir
+from packlab.vlm.candidate.pointer import PointerModel
+from packlab.vlm.model.checkpoint import PACKLAB_META, load_model, save_model
+
+
+def save_pointer(model: PointerModel, path: Path, meta: dict[str, Any]) -> Path:
+    save_model(model.vlm, path, extra_meta={**meta, "action_format": CANDIDATE_FORMAT})
+    save_file({k: v.detach().contiguous() for k, v in model.head.state_dict().items()},
+              str(path / HEAD_FILE))  # fmt: skip
+    return path
+
+
+def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
+    path = Path(path)
+    if not is_pointer_dir(path):
+        raise ConfigError(f"{path}: no {HEAD_FILE} (not a candidate-mode checkpoint)")
+    vlm = load_model(path, dtype=torch.float32, device=device)
+    if vlm.meta.get("action_format") != CANDIDATE_FORMAT:
+        raise ConfigError(
+            f"{path / PACKLAB_META}: action_format = {vlm.meta.get('action_format')!r}: "
+            f"expected {CANDIDATE_FORMAT!r}"
+        )
+    model = PointerModel(vlm)
+    model.head.load_state_dict(load_file(str(path / HEAD_FILE)))
+    return model.to(device).eval()

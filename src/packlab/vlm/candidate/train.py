@@ -1,0 +1,220 @@
+"""Training a pointer model on labelled states: seeded, resumable, evaluated while it trains.
+
+Held-out states are those of every tenth case (by a hash of the case id), never trained on.
+Every ``eval_every`` updates the log (``log.csv``) gets the held-out answer NLL (nats; the
+answer has one field, the index), its exact match, the same for two baselines (the label's
+marginal distribution over list positions, and always index 0), and the closed-loop Overall of
+the model on held-out generated cases (geometric backend), and ``curves.png`` is redrawn. A
+checkpoint (model, optimizer, schedule, step) is written at the same time; a rerun with the same
+``out`` resumes from it. Batches are drawn by a generator seeded with (seed, step), so a resumed
+run draws the same batches as an uninterrupted one.
+Imports torch: only the vlm extra may import this module.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from packlab.core.types import Case
+from packlab.policies.candidates import ProposerConfig
+from packlab.vlm.candidate.compose import Instructions
+from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
+from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate, encode
+from packlab.vlm.candidate.saved import load_pointer, save_pointer
+from packlab.vlm.candidate.states import read_states
+from packlab.vlm.model.spec import make_model
+
+CHECKPOINT = "checkpoint.pt"
+LOG = "log.csv"
+
+
+@dataclass(frozen=True)
+class PointerTrainConfig:
+    states: tuple[str, ...]  # states.jsonl files
+    out: str
+    model: str = "tiny:qwen3_vl:mini"  # a tiny spec, or a pointer directory to start from
+    instructions: Instructions = "short"
+    blank_map: bool = False
+    steps: int = 3000
+    batch: int = 16
+    lr: float = 1e-3
+    warmup: int = 100
+    weight_decay: float = 0.01
+    eval_every: int = 250
+    heldout_every: int = 10  # every n-th case (by hash) is held out
+    seed: int = 0
+    threads: int | None = None
+    minutes: float | None = None  # stop early (with a checkpoint) after this long
+    #: Stop (with a checkpoint) once this many updates are done, counted like ``steps`` (which
+    #: alone sets the schedule): a rerun with a larger ``stop_after`` or none goes on exactly.
+    stop_after: int | None = None
+    meta: dict[str, Any] = field(default_factory=dict)  # recorded in the model card
+
+
+def is_heldout(case_id: str, every: int) -> bool:
+    return zlib.crc32(case_id.encode()) % every == 0
+
+
+def load_encoded(cfg: PointerTrainConfig, tokenizer: Any) -> tuple[list[Encoded], list[Encoded]]:
+    train, held = [], []
+    for path in cfg.states:
+        for s in read_states(Path(path)):
+            if s.label < 0:
+                continue
+            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map)
+            (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
+    if not train:
+        raise ValueError(f"{', '.join(cfg.states)}: no labelled training states")
+    return train, held
+
+
+def _model(cfg: PointerTrainConfig) -> PointerModel:
+    torch.manual_seed(cfg.seed)
+    if Path(cfg.model).is_dir():
+        return load_pointer(cfg.model).train()
+    spec = cfg.model.removeprefix("tiny:")
+    family, size = spec.split(":")
+    return PointerModel(make_model(f"tiny:{family}:{size}", seed=cfg.seed)).train()
+
+
+def _schedule(cfg: PointerTrainConfig):
+    def factor(step: int) -> float:
+        if step < cfg.warmup:
+            return (step + 1) / cfg.warmup
+        done = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+        return 0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, done)))
+
+    return factor
+
+
+def _batch(train: Sequence[Encoded], cfg: PointerTrainConfig, step: int, pad: int) -> dict:
+    rng = np.random.default_rng([cfg.seed, step])
+    picks = rng.choice(len(train), size=min(cfg.batch, len(train)), replace=False)
+    return collate([train[i] for i in picks], pad)
+
+
+@dataclass
+class _State:
+    model: PointerModel
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LambdaLR
+    step: int = 0
+    seconds: float = 0.0
+
+
+def _setup(cfg: PointerTrainConfig) -> _State:
+    model = _model(cfg)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, _schedule(cfg))
+    st = _State(model, opt, sched)
+    ckpt = Path(cfg.out) / CHECKPOINT
+    if ckpt.is_file():
+        saved = torch.load(ckpt, weights_only=False)
+        model.load_state_dict(saved["model"])
+        opt.load_state_dict(saved["opt"])
+        sched.load_state_dict(saved["sched"])
+        st.step, st.seconds = saved["step"], saved["seconds"]
+    return st
+
+
+def _save(cfg: PointerTrainConfig, st: _State) -> None:
+    ckpt = Path(cfg.out) / CHECKPOINT
+    tmp = ckpt.with_suffix(".tmp")
+    torch.save(
+        {
+            "model": st.model.state_dict(),
+            "opt": st.opt.state_dict(),
+            "sched": st.sched.state_dict(),
+            "step": st.step,
+            "seconds": st.seconds,
+        },
+        tmp,
+    )
+    tmp.replace(ckpt)  # atomic: a crash leaves the previous checkpoint whole
+
+
+def _update(st: _State, batch: dict) -> float:
+    scores = st.model(batch["ids"], batch["mask"], batch["ends"], batch["valid"])
+    loss = torch.nn.functional.cross_entropy(scores, batch["labels"])
+    st.opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(st.model.parameters(), 1.0)
+    st.opt.step()
+    st.sched.step()
+    return loss.item()
+
+
+#: Called with (log.csv, curves.png) after each evaluation (the CLI draws the curves there).
+OnLog = Callable[[Path, Path], None]
+
+
+def _evaluate(
+    cfg, st: _State, held: Heldout, cases: Sequence[Case], loss: float, on_log: OnLog | None
+) -> None:
+    st.model.eval()
+    row = {"step": st.step, "seconds": round(st.seconds, 1), "train_loss": round(loss, 4)}
+    row.update(heldout_metrics(st.model, held))
+    row.update(closed_loop(st.model, cases, _card(cfg)))
+    st.model.train()
+    log = Path(cfg.out) / LOG
+    new = not log.is_file()
+    with open(log, "a") as f:
+        if new:
+            f.write(",".join(row) + "\n")
+        f.write(",".join(str(v) for v in row.values()) + "\n")
+    if on_log is not None:
+        on_log(log, Path(cfg.out) / "curves.png")
+
+
+def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
+    return {
+        "proposer": asdict(ProposerConfig()),
+        "instructions": cfg.instructions,
+        "blank_map": cfg.blank_map,
+        "pointer_train": {k: v for k, v in asdict(cfg).items() if k != "meta"},
+        **cfg.meta,
+    }
+
+
+def train_pointer(
+    cfg: PointerTrainConfig, eval_cases: Sequence[Case] = (), on_log: OnLog | None = None
+) -> Path:
+    """Train (or resume) and write ``out/final``; returns that directory."""
+    torch.set_num_threads(cfg.threads) if cfg.threads else None
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    st = _setup(cfg)
+    train, held_list = load_encoded(cfg, st.model.vlm.tokenizer)
+    held = Heldout.of(held_list, train)
+    pad = st.model.vlm.tokenizer.pad_token_id
+    bar = tqdm(total=cfg.steps, initial=st.step, desc="train pointer", unit="step")
+    losses: list[float] = []
+    start = time.perf_counter() - st.seconds
+    end = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
+    while st.step < end:
+        losses.append(_update(st, _batch(train, cfg, st.step, pad)))
+        st.step += 1
+        st.seconds = time.perf_counter() - start
+        bar.update(1)
+        over = cfg.minutes is not None and st.seconds > 60 * cfg.minutes
+        if st.step % cfg.eval_every == 0 or st.step == end or over:
+            loss = float(np.mean(losses[-cfg.eval_every :]))
+            _evaluate(cfg, st, held, eval_cases, loss, on_log)
+            _save(cfg, st)
+        if over:
+            break
+    bar.close()
+    st.model.eval()
+    card = {**_card(cfg), "trained_steps": st.step, "train_seconds": round(st.seconds, 1),
+            "train_states": len(train), "heldout_states": len(held_list)}  # fmt: skip
+    return save_pointer(st.model, out / "final", card)
