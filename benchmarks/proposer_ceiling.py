@@ -38,55 +38,14 @@ from typing import Any
 import numpy as np
 
 from packlab.bench.suites import resolve_cases
-from packlab.core.feasibility import CandidateSet, observation_candidates
+from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.candidates import Candidate, ProposerConfig, propose_from
-from packlab.policies.heuristics.policy import SCORERS
-from packlab.policies.heuristics.select import object_rank
-from packlab.policies.plan.evaluate import Weights, smallest_footprints
-from packlab.policies.plan.search import Budget, Problem, search
+from packlab.policies.candidates import ProposerConfig, propose_from
+from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 
 LEVELS = ("easy", "medium", "hard")
-
-
-def flat_index(cands: CandidateSet, cand: Candidate) -> int:
-    """The index of a listed placement in the candidate search it came from."""
-    for g in cands.groups:
-        if g.object_index == cand.object_index and g.rotation == cand.rotation:
-            return g.offset + cand.x * g.z.shape[1] + cand.y
-    raise KeyError(f"no group for object {cand.object_index} rotation {cand.rotation}")
-
-
-def best_by_keys(cands: CandidateSet, teacher: str, listed: np.ndarray) -> int:
-    """The listed candidate SDF-Pack or MTA ranks first: its keys, then the default tie-break
-    (larger object first, then scan order)."""
-    keys = [np.asarray(k)[listed] for k in SCORERS[teacher](cands)]
-    rank = object_rank(cands.shown_sizes_mm, cands.shown_id_order)[cands.obj[listed]]
-    # np.lexsort sorts by its last key first: the teacher's keys, then object rank, then scan.
-    return int(listed[np.lexsort((listed, rank, *reversed(keys)))[0]])
-
-
-def best_by_plan(observation: Observation, listed: np.ndarray) -> int:
-    """The listed candidate whose rollout the planner (default budget) finds cheapest."""
-    seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
-    problem = Problem(
-        observation.shown,
-        observation.container.height_mm,
-        observation.container.cell_xy_mm,
-        smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in seen]),
-        Weights(),
-    )
-    placement = search(observation.heightmap, problem, Budget(), firsts=listed.tolist()).placement
-    assert placement is not None  # the listed set is not empty
-    cands = observation_candidates(observation)
-    g = next(
-        g
-        for g in cands.groups
-        if (g.object_index, g.rotation) == (placement.object_index, placement.rotation)
-    )
-    return g.offset + placement.x * g.z.shape[1] + placement.y
 
 
 @dataclass
@@ -99,20 +58,15 @@ class Restricted:
 
     def reset(self, case: Case, seed: int) -> None:
         self._fallback = make_policy("sdf")  # nothing listed: nothing fits, any action will do
+        self._teacher = ListedTeacher(self.teacher)
+        self._teacher.reset(case, seed)
 
     def act(self, observation: Observation) -> Action:
         cands = observation_candidates(observation)
         proposed = propose_from(cands, self.config)
         if not proposed:
             return self._fallback.act(observation)
-        if self.teacher == "first":
-            return proposed[0].action
-        listed = np.array([flat_index(cands, c) for c in proposed], dtype=np.int64)
-        if self.teacher == "plan":
-            i = best_by_plan(observation, listed)
-        else:
-            i = best_by_keys(cands, self.teacher, listed)
-        return Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
+        return proposed[self._teacher.choose(observation, cands, proposed)].action
 
 
 @dataclass
