@@ -10,6 +10,10 @@ same states (round 0's: the planner's own trajectories); only one thing changes 
 - ``plan``: the planner's labels, the map shown (the reference);
 - ``blank``: the planner's labels, the map shows an empty container (boxes and listed
   placements with their geometry still shown);
+- ``json``: the planner's labels, the map shown, but the answer is the chosen placement as free
+  JSON (rotation first) generated token by token with the language model's own head, instead of
+  the pointer over the listed lines (the answer-format ablation; its policy may answer an
+  unparsable or invalid action);
 - ``sdf``, ``mta``, ``oracle``, ``oracle-canonical``: the same states labelled by another
   teacher (:mod:`packlab.vlm.candidate.relabel`; states the raw oracle's action is not listed
   in are dropped, as in training).
@@ -37,7 +41,7 @@ from packlab.vlm.candidate.relabel import relabel
 from packlab.vlm.candidate.states import STATES_FILE, append_states, read_states
 from packlab.vlm.candidate.train import LOG, PointerTrainConfig, train_pointer
 
-TEACHER_OF = {"plan": "plan", "blank": "plan"}
+TEACHER_OF = {"plan": "plan", "blank": "plan", "json": "plan"}
 
 
 def _states_for(variant: str, args: argparse.Namespace, out: Path) -> Path:
@@ -68,6 +72,7 @@ def run_variant(variant: str, args: argparse.Namespace) -> dict:
         states=(str(_states_for(variant, args, out)),),
         out=str(out / "train"),
         blank_map=variant == "blank",
+        answer="json" if variant == "json" else "index",
         steps=args.steps,
         eval_every=args.steps,
         threads=args.threads,

@@ -35,13 +35,14 @@ from packlab.vlm.candidate.train import (
     CHECKPOINT,
     LOG,
     PointerTrainConfig,
+    is_heldout,
     load_encoded,
     train_pointer,
 )
 from packlab.vlm.model.checkpoint import save_model
 from packlab.vlm.model.tiny import build_tiny_model
 from packlab.vlm.prompt.compact import candidate_line
-from packlab.vlm.prompt.render import PROMPT_VERSION
+from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
 pytestmark = pytest.mark.torch
 
@@ -119,7 +120,7 @@ def test_padding_in_a_batch_changes_no_score(pointer, states):
     assert len({len(e.ids) for e in encoded}) > 1 and len({len(e.ends) for e in encoded}) > 1
     batch = collate(encoded, pointer.vlm.tokenizer.pad_token_id)
     with torch.inference_mode():
-        scores = pointer(batch["ids"], batch["mask"], batch["ends"], batch["valid"])
+        scores = pointer.score(batch)
     for row, s in zip(scores, states, strict=True):
         alone = score_listed(pointer, observation_of(s), listed_of(s), PromptSettings("short"))
         np.testing.assert_allclose(row[: len(alone)].numpy(), alone, rtol=0, atol=1e-5)
@@ -250,3 +251,41 @@ def test_a_few_updates_beat_the_marginal_baseline_on_heldout_cases(tmp_path):
     assert last["heldout_match"] > 0.45 > last["first_match"], (first, last)
     (logged,) = _log(tmp_path / "run")  # the trainer's own evaluation of the same model
     assert float(logged["heldout_nll"]) == pytest.approx(last["heldout_nll"], abs=1e-3)
+
+
+def test_free_json_answer_tokens_decode_to_the_action_and_name_their_fields(pointer, states):
+    s = next(s for s in states if s.label >= 0)
+    enc = encode(pointer.vlm.tokenizer, s, "short", answer="json")
+    text = pointer.vlm.tokenizer.decode(enc.answer_ids)
+    assert text == action_text(listed_of(s)[s.label].action) + "<|im_end|>"
+    a = listed_of(s)[s.label].action
+    for name, value in (("object_id", a.object_id), ("x", a.x), ("y", a.y)):
+        digits = [
+            pointer.vlm.tokenizer.decode([t])
+            for t, f in zip(enc.answer_ids, enc.answer_fields, strict=True)
+            if f == name
+        ]
+        assert "".join(digits) == str(value)
+    assert enc.answer_fields[-1] == "end"
+
+
+def _split_every(states) -> int:
+    """A held-out stride that holds out some of these states' cases but not all."""
+    ids = {s.case_id for s in states}
+    return next(n for n in range(2, 50) if 0 < sum(is_heldout(i, n) for i in ids) < len(ids))
+
+
+def test_free_json_mode_trains_and_plays_without_raising(states, cases, tmp_path):
+    path = tmp_path / "states.jsonl"
+    append_states(path, states)
+    cfg = PointerTrainConfig(
+        states=(str(path),), out=str(tmp_path / "run"), model=TINY, steps=4, eval_every=2,
+        batch=4, warmup=1, answer="json", heldout_every=_split_every(states),
+    )  # fmt: skip
+    final = train_pointer(cfg)
+    with open(tmp_path / "run" / LOG) as f:
+        row = list(csv.DictReader(f))[-1]
+    assert {"nll_object_id", "nll_rotation", "nll_x", "nll_y"} <= set(row)
+    policy = make_policy("vlm", model=str(final))
+    result = run_episode(cases[0], policy, seed=0, backend="geometric")
+    assert len(result.steps) == len(cases[0].objects)  # unparsable answers are recorded, not raised

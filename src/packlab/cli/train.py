@@ -145,6 +145,7 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
     field("model", "--model", help="tiny:<family>:<size> or a pointer directory; {default}")
     field("instructions", "--instructions", help="default {default}")
     field("blank_map", "--blank-map", help="ablation: the map shows an empty container")
+    field("pool", "--pool", choices=("last", "mean"), help="default {default}")
     field("batch", "--batch", help="default {default}")
     field("lr", "--lr", help="default {default}")
     field("workers", "--workers", help="collection processes; default {default}")

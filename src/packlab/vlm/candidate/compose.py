@@ -22,10 +22,15 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Container
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.prompt.compact import CompactOptions, state_text, system_text
-from packlab.vlm.prompt.render import PROMPT_VERSION
+from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
 Instructions = Literal["full", "short"]
 INSTRUCTIONS: tuple[str, ...] = ("full", "short")
+#: The answer: the listed index (candidate mode) or the chosen placement as free JSON, rotation
+#: first (:func:`packlab.vlm.prompt.render.action_text`), generated token by token (the
+#: format ablation: the same states and labels, only the answer's form changes).
+Answer = Literal["index", "json"]
+ANSWERS: tuple[str, ...] = ("index", "json")
 DEFAULT_OPTIONS = CompactOptions()
 
 
@@ -59,8 +64,15 @@ def state_messages(
     ]
 
 
-def answer_message(state: LabelledState) -> dict[str, Any]:
-    return {"role": "assistant", "content": [{"type": "text", "text": str(state.label)}]}
+def answer_text(state: LabelledState, answer: Answer = "index") -> str:
+    """The assistant target of a labelled state (label >= 0)."""
+    if answer == "json":
+        return action_text(listed_of(state)[state.label].action)
+    return str(state.label)
+
+
+def answer_message(state: LabelledState, answer: Answer = "index") -> dict[str, Any]:
+    return {"role": "assistant", "content": [{"type": "text", "text": answer_text(state, answer)}]}
 
 
 def export_chat_jsonl(
@@ -68,6 +80,7 @@ def export_chat_jsonl(
     out: Path,
     instructions: Instructions = "short",
     options: CompactOptions = DEFAULT_OPTIONS,
+    answer: Answer = "index",
 ) -> int:
     """Write each labelled state (label >= 0) as one chat example; the number written."""
     n = 0
@@ -76,7 +89,7 @@ def export_chat_jsonl(
             if s.label < 0:
                 continue
             row = {
-                "messages": [*state_messages(s, instructions, options), answer_message(s)],
+                "messages": [*state_messages(s, instructions, options), answer_message(s, answer)],
                 "episode_id": s.case_id,
                 "difficulty": s.difficulty,
                 "step_index": s.step,

@@ -46,20 +46,43 @@ def _baselines(held: Heldout) -> dict[str, float]:
     }
 
 
-def heldout_metrics(model: PointerModel, held: Heldout) -> dict[str, float]:
-    """Mean answer NLL (nats) and exact match of the pointer on the held-out states."""
+def _pointer_rows(model: PointerModel, b: dict) -> tuple[list[float], list[bool]]:
+    scores = model.score(b)
+    logp = torch.log_softmax(scores, dim=-1)
+    nll = (-logp.gather(1, b["labels"][:, None]).squeeze(1)).tolist()
+    return nll, (scores.argmax(-1) == b["labels"]).tolist()
+
+
+def _json_rows(model: PointerModel, b: dict, states: Sequence[Encoded], fields: dict) -> tuple:
+    """Answer NLL per example (summed over its tokens), teacher-forced exact match, and the
+    per-field sums added to ``fields``."""
+    nll, right = model.answer_nll(b)
+    for n, e in enumerate(states):
+        start = len(e.ids) - 1  # the logit at position p predicts token p + 1
+        for j, name in enumerate(e.answer_fields):
+            fields[name].append((n, float(nll[n, start + j])))
+    return nll.sum(1).tolist(), right.all(1).tolist()
+
+
+def heldout_metrics(model: PointerModel, held: Heldout, answer: str = "index") -> dict:
+    """Mean answer NLL (nats per answer) and exact match on the held-out states; for free-JSON
+    answers also the NLL of each field (object, rotation, x, y and the JSON syntax)."""
     if not held.states:
         return {}
     pad = model.vlm.tokenizer.pad_token_id
-    nll, hit = [], []
+    nll, hit, fields = [], [], defaultdict(list)
     with torch.inference_mode():
         for i in range(0, len(held.states), EVAL_BATCH):
-            b = collate(held.states[i : i + EVAL_BATCH], pad)
-            scores = model(b["ids"], b["mask"], b["ends"], b["valid"])
-            logp = torch.log_softmax(scores, dim=-1)
-            nll.extend((-logp.gather(1, b["labels"][:, None]).squeeze(1)).tolist())
-            hit.extend((scores.argmax(-1) == b["labels"]).tolist())
+            part = held.states[i : i + EVAL_BATCH]
+            b = collate(part, pad)
+            seen: dict = defaultdict(list)
+            rows = _json_rows(model, b, part, seen) if answer == "json" else _pointer_rows(model, b)
+            nll.extend(rows[0])
+            hit.extend(rows[1])
+            for name, vals in seen.items():
+                fields[name].append(sum(v for _, v in vals) / len(part))
     out = {"heldout_nll": round(float(np.mean(nll)), 4), "heldout_match": round(np.mean(hit), 4)}
+    out.update({f"nll_{k}": round(float(np.mean(v)), 4) for k, v in sorted(fields.items())})
     return {**out, **_baselines(held)}
 
 

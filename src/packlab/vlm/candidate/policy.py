@@ -14,11 +14,12 @@ from typing import Any
 import numpy as np
 
 from packlab.core.errors import ConfigError
-from packlab.core.types import Action, Case, Observation
+from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose
 from packlab.policies.registry import make_policy
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
+from packlab.vlm.prompt.parse import parse_or_unparsable
 from packlab.vlm.prompt.render import PROMPT_VERSION
 
 #: ``model`` of a policy given its model by :meth:`CandidateVLMPolicy.use_model`.
@@ -69,19 +70,26 @@ class CandidateVLMPolicy:
                 f", this packlab renders {PROMPT_VERSION!r}; retrain it"
             )
         self._proposer = ProposerConfig(**meta["proposer"])
-        self._settings = scoring.PromptSettings(meta["instructions"], meta.get("blank_map", False))
+        self._settings = scoring.PromptSettings(
+            meta["instructions"], meta.get("blank_map", False), meta.get("answer", "index")
+        )
         self._score = scoring.score_listed
+        self._generate = scoring.generate_answer
 
     def reset(self, case: Case, seed: int) -> None:
         self.load()
         self._fallback = make_policy("sdf")
         self._fallback.reset(case, seed)
 
-    def act(self, observation: Observation) -> Action:
+    def act(self, observation: Observation) -> Action | Unparsable:
         listed = propose(observation, self._proposer)
         self.decisions += 1
         if not listed:
             self.fallbacks += 1
             return self._fallback.act(observation)
+        if self._settings.answer == "json":  # the format ablation: free text, may not parse
+            return parse_or_unparsable(
+                self._generate(self._model, observation, listed, self._settings)
+            )
         scores = self._score(self._model, observation, listed, self._settings)
         return listed[int(np.argmax(scores))].action

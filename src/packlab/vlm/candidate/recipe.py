@@ -25,6 +25,7 @@ class DaggerConfig:
     model: str = "tiny:qwen3_vl:mini"
     instructions: Instructions = "short"
     blank_map: bool = False
+    pool: str = "last"  # how a listed line becomes one vector: "last" token or "mean"
     batch: int = 16
     lr: float = 1e-3
     workers: int = 2

@@ -38,6 +38,6 @@ def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
             f"{path / PACKLAB_META}: action_format = {vlm.meta.get('action_format')!r}: "
             f"expected {CANDIDATE_FORMAT!r}"
         )
-    model = PointerModel(vlm)
+    model = PointerModel(vlm, vlm.meta.get("pool", "last"))
     model.head.load_state_dict(load_file(str(path / HEAD_FILE)))
     return model.to(device).eval()

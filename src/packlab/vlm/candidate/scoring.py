@@ -11,9 +11,10 @@ import torch
 
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
-from packlab.vlm.candidate.compose import Instructions
+from packlab.vlm.candidate.compose import Answer, Instructions
 from packlab.vlm.candidate.pointer import PointerModel, collate, encode
 from packlab.vlm.candidate.states import make_state
+from packlab.vlm.model.tokenizer import IM_END
 
 
 @dataclass(frozen=True, slots=True)
@@ -22,6 +23,7 @@ class PromptSettings:
 
     instructions: Instructions = "short"
     blank_map: bool = False
+    answer: Answer = "index"
 
 
 def score_listed(
@@ -35,8 +37,35 @@ def score_listed(
     enc = encode(model.vlm.tokenizer, state, settings.instructions, settings.blank_map)
     batch = collate([enc], model.vlm.tokenizer.pad_token_id)
     with torch.inference_mode():
-        scores = model(batch["ids"], batch["mask"], batch["ends"], batch["valid"])
+        scores = model.score(batch)
     return scores[0].float().numpy()
+
+
+#: Longest free-JSON answer generated (an action is about 20 tokens).
+MAX_ANSWER_TOKENS = 32
+
+
+def generate_answer(
+    model: PointerModel,
+    observation: Observation,
+    listed: Sequence[Candidate],
+    settings: PromptSettings,
+) -> str:
+    """The model's greedy free-JSON answer text (the format ablation's policy)."""
+    state = make_state("-", "-", observation, listed, "-", -1, "inference")
+    enc = encode(model.vlm.tokenizer, state, settings.instructions, settings.blank_map)
+    ids = torch.from_numpy(enc.ids)[None]
+    end = model.vlm.tokenizer.convert_tokens_to_ids(IM_END)
+    with torch.inference_mode():
+        out = model.vlm.model.generate(
+            input_ids=ids,
+            attention_mask=torch.ones_like(ids),
+            max_new_tokens=MAX_ANSWER_TOKENS,
+            do_sample=False,
+            eos_token_id=end,
+            pad_token_id=model.vlm.tokenizer.pad_token_id,
+        )
+    return model.vlm.tokenizer.decode(out[0, ids.shape[1] :], skip_special_tokens=True)
 
 
 def set_threads(threads: int | None) -> None:

@@ -25,10 +25,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.policies.candidates import ProposerConfig
 from packlab.vlm.candidate.compose import Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
+from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate, encode
 from packlab.vlm.candidate.saved import load_pointer, save_pointer
 from packlab.vlm.candidate.states import read_states
@@ -45,6 +47,8 @@ class PointerTrainConfig:
     model: str = "tiny:qwen3_vl:mini"  # a tiny spec, or a pointer directory to start from
     instructions: Instructions = "short"
     blank_map: bool = False
+    pool: str = "last"  # pointer.POOLS
+    answer: str = "index"  # compose.ANSWERS: pointer over the listed lines, or free JSON tokens
     steps: int = 3000
     batch: int = 16
     lr: float = 1e-3
@@ -71,7 +75,7 @@ def load_encoded(cfg: PointerTrainConfig, tokenizer: Any) -> tuple[list[Encoded]
         for s in read_states(Path(path)):
             if s.label < 0:
                 continue
-            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map)
+            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer)
             (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
     if not train:
         raise ValueError(f"{', '.join(cfg.states)}: no labelled training states")
@@ -79,12 +83,14 @@ def load_encoded(cfg: PointerTrainConfig, tokenizer: Any) -> tuple[list[Encoded]
 
 
 def _model(cfg: PointerTrainConfig) -> PointerModel:
+    """A pointer directory continues (DAgger rounds); a tiny spec or a plain Qwen-VL checkpoint
+    directory gets a fresh pointer head (seeded)."""
     torch.manual_seed(cfg.seed)
-    if Path(cfg.model).is_dir():
+    if is_pointer_dir(cfg.model):
         return load_pointer(cfg.model).train()
-    spec = cfg.model.removeprefix("tiny:")
-    family, size = spec.split(":")
-    return PointerModel(make_model(f"tiny:{family}:{size}", seed=cfg.seed)).train()
+    if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
+        raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
+    return PointerModel(make_model(cfg.model, seed=cfg.seed), cfg.pool).train()
 
 
 def _schedule(cfg: PointerTrainConfig):
@@ -143,9 +149,16 @@ def _save(cfg: PointerTrainConfig, st: _State) -> None:
     tmp.replace(ckpt)  # atomic: a crash leaves the previous checkpoint whole
 
 
-def _update(st: _State, batch: dict) -> float:
-    scores = st.model(batch["ids"], batch["mask"], batch["ends"], batch["valid"])
-    loss = torch.nn.functional.cross_entropy(scores, batch["labels"])
+def _loss(model: PointerModel, batch: dict, answer: str) -> torch.Tensor:
+    """Pointer: cross-entropy over the listed lines. Free JSON: mean NLL of the answer tokens."""
+    if answer == "json":
+        nll, _ = model.answer_nll(batch)
+        return nll.sum() / (batch["answer"][:, 1:] >= 0).sum()
+    return torch.nn.functional.cross_entropy(model.score(batch), batch["labels"])
+
+
+def _update(st: _State, batch: dict, answer: str) -> float:
+    loss = _loss(st.model, batch, answer)
     st.opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(st.model.parameters(), 1.0)
@@ -163,7 +176,7 @@ def _evaluate(
 ) -> None:
     st.model.eval()
     row = {"step": st.step, "seconds": round(st.seconds, 1), "train_loss": round(loss, 4)}
-    row.update(heldout_metrics(st.model, held))
+    row.update(heldout_metrics(st.model, held, cfg.answer))
     row.update(closed_loop(st.model, cases, _card(cfg)))
     st.model.train()
     log = Path(cfg.out) / LOG
@@ -181,6 +194,8 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
         "proposer": asdict(ProposerConfig()),
         "instructions": cfg.instructions,
         "blank_map": cfg.blank_map,
+        "pool": cfg.pool,
+        "answer": cfg.answer,
         "pointer_train": {k: v for k, v in asdict(cfg).items() if k != "meta"},
         **cfg.meta,
     }
@@ -202,7 +217,7 @@ def train_pointer(
     start = time.perf_counter() - st.seconds
     end = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
     while st.step < end:
-        losses.append(_update(st, _batch(train, cfg, st.step, pad)))
+        losses.append(_update(st, _batch(train, cfg, st.step, pad), cfg.answer))
         st.step += 1
         st.seconds = time.perf_counter() - start
         bar.update(1)
