@@ -10,6 +10,8 @@ same states (round 0's: the planner's own trajectories); only one thing changes 
 - ``plan``: the planner's labels, the map shown (the reference);
 - ``blank``: the planner's labels, the map shows an empty container (boxes and listed
   placements with their geometry still shown);
+- ``shuffle``, ``shuffle-blank``: the planner's labels with the listed placements in a random
+  order per state (so position says nothing; only a line's content does), map shown / blank;
 - ``json``: the planner's labels, the map shown, but the answer is the chosen placement as free
   JSON (rotation first) generated token by token with the language model's own head, instead of
   the pointer over the listed lines (the answer-format ablation; its policy may answer an
@@ -41,7 +43,8 @@ from packlab.vlm.candidate.relabel import relabel
 from packlab.vlm.candidate.states import STATES_FILE, append_states, read_states
 from packlab.vlm.candidate.train import LOG, PointerTrainConfig, train_pointer
 
-TEACHER_OF = {"plan": "plan", "blank": "plan", "json": "plan"}
+TEACHER_OF = {"plan": "plan", "blank": "plan", "json": "plan", "shuffle": "plan",
+              "shuffle-blank": "plan"}  # fmt: skip
 
 
 def _states_for(variant: str, args: argparse.Namespace, out: Path) -> Path:
@@ -71,7 +74,8 @@ def run_variant(variant: str, args: argparse.Namespace) -> dict:
     cfg = PointerTrainConfig(
         states=(str(_states_for(variant, args, out)),),
         out=str(out / "train"),
-        blank_map=variant == "blank",
+        blank_map=variant in ("blank", "shuffle-blank"),
+        shuffle=variant.startswith("shuffle"),
         answer="json" if variant == "json" else "index",
         steps=args.steps,
         eval_every=args.steps,

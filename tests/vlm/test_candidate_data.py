@@ -27,6 +27,7 @@ from packlab.vlm.candidate.states import (
     make_state,
     observation_of,
     read_states,
+    shuffled,
 )
 
 
@@ -172,3 +173,16 @@ def test_split_cases_gives_disjoint_rounds_and_evaluation(cases):
     assert [c.difficulty for c in rounds[0]] == ["easy", "medium"] * 2
     with pytest.raises(ValueError, match="6 rounds of 4 cases need 15 cases per level; easy has 7"):
         split_cases(many, per_round=4, rounds=5, eval_per_level=3)
+
+
+def test_shuffled_moves_the_label_with_its_placement_and_is_reproducible(cases):
+    obs = _mid_episode(cases[3])
+    listed = propose(obs)
+    state = make_state("c", "medium", obs, listed, "sdf", 1, "teacher")
+    a, b = shuffled(state, 0), shuffled(state, 0)
+    assert a == b
+    assert [p.index for p in a.listed] == list(range(len(listed)))
+    assert listed_of(a)[a.label].action == listed[1].action
+    assert {c.action for c in listed_of(a)} == {c.action for c in listed}
+    orders = {tuple(c.action for c in listed_of(shuffled(state, s))) for s in range(6)}
+    assert len(orders) > 1  # the seed changes the order

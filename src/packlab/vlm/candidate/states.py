@@ -170,3 +170,17 @@ def read_states(path: Path) -> Iterator[LabelledState]:
         if state.format != STATES_FORMAT:
             raise ConfigError(f"{path}:{n}: format = {state.format!r}: expected {STATES_FORMAT!r}")
         yield state
+
+
+def shuffled(state: LabelledState, seed: int = 0) -> LabelledState:
+    """The state with its listed placements in a random order (renumbered) and the label moved
+    with its placement. The order is fixed by (seed, case, step), so it is reproducible. Why: in
+    the proposer's order, index 0 alone matches most teachers' picks, so a model can score well
+    by position without reading a line; shuffled, only a line's content tells them apart."""
+    rng = np.random.default_rng([seed, zlib.crc32(state.case_id.encode()), state.step])
+    order = rng.permutation(len(state.listed))
+    listed = tuple(
+        msgspec.structs.replace(state.listed[int(o)], index=n) for n, o in enumerate(order)
+    )
+    label = int(np.flatnonzero(order == state.label)[0]) if state.label >= 0 else -1
+    return msgspec.structs.replace(state, listed=listed, label=label)

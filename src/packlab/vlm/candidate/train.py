@@ -33,7 +33,7 @@ from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate, encode
 from packlab.vlm.candidate.saved import load_pointer, save_pointer
-from packlab.vlm.candidate.states import read_states
+from packlab.vlm.candidate.states import read_states, shuffled
 from packlab.vlm.model.spec import make_model
 
 CHECKPOINT = "checkpoint.pt"
@@ -49,6 +49,7 @@ class PointerTrainConfig:
     blank_map: bool = False
     pool: str = "last"  # pointer.POOLS
     answer: str = "index"  # compose.ANSWERS: pointer over the listed lines, or free JSON tokens
+    shuffle: bool = False  # list the placements in a random order per state (states.shuffled)
     steps: int = 3000
     batch: int = 16
     lr: float = 1e-3
@@ -75,6 +76,7 @@ def load_encoded(cfg: PointerTrainConfig, tokenizer: Any) -> tuple[list[Encoded]
         for s in read_states(Path(path)):
             if s.label < 0:
                 continue
+            s = shuffled(s, cfg.seed) if cfg.shuffle else s
             e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer)
             (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
     if not train:
@@ -196,6 +198,7 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
         "blank_map": cfg.blank_map,
         "pool": cfg.pool,
         "answer": cfg.answer,
+        "shuffle": cfg.shuffle,
         "pointer_train": {k: v for k, v in asdict(cfg).items() if k != "meta"},
         **cfg.meta,
     }
