@@ -44,7 +44,8 @@ import numpy as np
 
 from packlab.core.choices import ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
-from packlab.core.types import Action, Observation
+from packlab.core.types import Action, Case, Observation
+from packlab.policies.heuristics.policy import make_sdf
 from packlab.policies.heuristics.select import rim_pool
 from packlab.policies.heuristics.windows import padded, side_neighbours
 
@@ -218,3 +219,25 @@ def propose(
 ) -> tuple[Candidate, ...]:
     """The listed placements for an observation (module docstring); empty when nothing fits."""
     return propose_from(observation_candidates(observation), config)
+
+
+class ProposerPolicy:
+    """``proposer``: always the proposer's own pick (index 0 of its list), the floor a
+    candidate-mode model starts from; SDF-Pack's action when nothing is listed."""
+
+    name = "proposer"
+
+    def __init__(self, k: int = DEFAULT_K, rule: str = "lowest") -> None:
+        self.config = ProposerConfig(k=k, rule=rule)  # type: ignore[arg-type]
+
+    def reset(self, case: Case, seed: int) -> None:
+        self._fallback = make_sdf()
+        self._fallback.reset(case, seed)
+
+    def act(self, observation: Observation) -> Action:
+        listed = propose(observation, self.config)
+        return listed[0].action if listed else self._fallback.act(observation)
+
+
+def make_proposer(**kwargs: object) -> ProposerPolicy:
+    return ProposerPolicy(**kwargs)  # type: ignore[arg-type]

@@ -13,6 +13,8 @@ DISPLAY_NAMES = {
     "sdf": "SDF-Pack",
     "plan": "Plan (lookahead)",
     "plan-fast": "Plan (lookahead, fast)",
+    "proposer": "Proposer (index 0)",
+    "vlm-small": "PackLab-VLM (vlm-small, candidate mode)",
     "random": "Random",
     "oracle": "Oracle (gt plan)",
 }
