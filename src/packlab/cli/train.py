@@ -99,6 +99,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     register_candidate(sub)
 
 
+def _torch_side(module: str):
+    """A trainer module of the vlm extra, or the install hint when the extra is missing."""
+    try:
+        return import_torch_side(module)
+    except ModuleNotFoundError as e:
+        if missing_extra(e):
+            raise PacklabError(VLM_EXTRA_HINT) from None
+        raise
+
+
 def config_from_args(args: argparse.Namespace) -> SFTConfig:
     """The SFTConfig the flags describe; a flag left out leaves the field's default."""
     return SFTConfig(**config_kwargs(args, "train sft", SFTConfig))
@@ -106,12 +116,7 @@ def config_from_args(args: argparse.Namespace) -> SFTConfig:
 
 def run_sft(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    try:
-        trainer = import_torch_side(TRAINER_MODULE)
-    except ModuleNotFoundError as e:
-        if missing_extra(e):
-            raise PacklabError(VLM_EXTRA_HINT) from None
-        raise
+    trainer = _torch_side(TRAINER_MODULE)
     res = trainer.train_sft(cfg)
     if not res.is_main_process:
         return 0  # under accelerate/torchrun only rank 0 reports
@@ -157,12 +162,7 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
 
 def run_candidate(args: argparse.Namespace) -> int:
     cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
-    try:
-        dagger = import_torch_side(DAGGER_MODULE)
-    except ModuleNotFoundError as e:
-        if missing_extra(e):
-            raise PacklabError(VLM_EXTRA_HINT) from None
-        raise
+    dagger = _torch_side(DAGGER_MODULE)
     final = dagger.run_dagger(cfg, resolve_cases(args.cases).cases, write_curves)
     print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")
     return 0
