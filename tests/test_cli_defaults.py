@@ -25,6 +25,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "generate": ["generate", "--out", "data"],
     "inspect-data": ["inspect-data", "data"],
     "train sft": ["train", "sft", "--data", "data", "--out", "runs/sft"],
+    "train candidate": ["train", "candidate", "--cases", "cases", "--out", "runs/cand"],
     "serve": ["serve"],
     "viz episode": [
         "viz",
@@ -50,6 +51,7 @@ CLI_ONLY: dict[str, set[str]] = {
     "generate": set(),
     "inspect-data": {"--plots", "--json"},
     "train sft": set(),
+    "train candidate": {"--cases"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
 }
@@ -132,6 +134,7 @@ def test_literal_fields_take_their_choices_from_core_choices():
             core.LayoutFamily,
             core.SFTExport,
             core.Precision,
+            core.PromptInstructions,
         )
     }
     for option in FIELD_OPTIONS.values():

@@ -40,6 +40,8 @@ ErrorKind = Literal["exception", "timeout", "transport"]
 ActionFormat = Literal["json", "candidate"]
 #: Round order of the candidate proposer (``packlab.policies.candidates``).
 ProposerRule = Literal["lowest", "lowest+largest"]
+#: Candidate mode's system turn: the full legend or one line (``packlab.vlm.candidate.compose``).
+PromptInstructions = Literal["full", "short"]
 
 
 def choices(choice_type: object) -> tuple[str, ...]:

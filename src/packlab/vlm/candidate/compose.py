@@ -18,14 +18,15 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal
 
+from packlab.core.choices import PromptInstructions, choices
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.prompt.compact import CompactOptions, state_text, system_text
 from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
-Instructions = Literal["full", "short"]
-INSTRUCTIONS: tuple[str, ...] = ("full", "short")
+Instructions = PromptInstructions
+INSTRUCTIONS: tuple[str, ...] = choices(PromptInstructions)
 #: The answer: the listed index (candidate mode) or the chosen placement as free JSON, rotation
 #: first (:func:`packlab.vlm.prompt.render.action_text`), generated token by token (the
 #: format ablation: the same states and labels, only the answer's form changes).
