@@ -28,8 +28,9 @@ from packlab.policies.candidates import Candidate
 from packlab.policies.heuristics.policy import SCORERS
 from packlab.policies.heuristics.select import object_rank
 from packlab.policies.oracle import OraclePolicy
-from packlab.policies.plan.evaluate import Weights, smallest_footprints
-from packlab.policies.plan.search import Budget, Problem, search
+from packlab.policies.plan.evaluate import Weights
+from packlab.policies.plan.policy import observation_problem
+from packlab.policies.plan.search import Budget, search
 
 TEACHERS = ("plan", "sdf", "mta", "oracle", "oracle-canonical", "first")
 
@@ -57,14 +58,7 @@ def best_by_keys(cands: CandidateSet, teacher: str, listed: Sequence[Candidate])
 
 def best_by_plan(observation: Observation, cands: CandidateSet, listed: Sequence[Candidate]) -> int:
     """The listed index whose rollout the planner (default budget) finds cheapest."""
-    seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
-    problem = Problem(
-        observation.shown,
-        observation.container.height_mm,
-        observation.container.cell_xy_mm,
-        smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in seen]),
-        Weights(),
-    )
+    problem = observation_problem(observation, Weights())
     flat = _listed_flat(cands, listed)
     placement = search(observation.heightmap, problem, Budget(), firsts=flat.tolist()).placement
     if placement is None:  # listed placements always fit; keep the proposer's pick regardless

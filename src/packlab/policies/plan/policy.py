@@ -25,9 +25,17 @@ from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.search import Budget, Problem, search
 
 
-def _seen_footprints(observation: Observation) -> tuple[tuple[int, int], ...]:
+def observation_problem(observation: Observation, weights: Weights) -> Problem:
+    """The search problem of one step: the shown objects, the container, and the smallest
+    footprints seen so far (history included) for the cost's unfillable-gap term."""
     items = [s for h in observation.history for s in h.shown] + list(observation.shown)
-    return smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items])
+    return Problem(
+        observation.shown,
+        observation.container.height_mm,
+        observation.container.cell_xy_mm,
+        smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items]),
+        weights,
+    )
 
 
 @dataclass
@@ -47,13 +55,7 @@ class PlanPolicy:
         """Nothing to prepare: the plan never reads the case (its future objects)."""
 
     def act(self, observation: Observation) -> Action:
-        problem = Problem(
-            observation.shown,
-            observation.container.height_mm,
-            observation.container.cell_xy_mm,
-            _seen_footprints(observation),
-            self.weights,
-        )
+        problem = observation_problem(observation, self.weights)
         outcome = search(
             observation.heightmap, problem, self.budget, check_support=self.stability == "support"
         )

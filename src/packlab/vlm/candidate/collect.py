@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgspec
 from tqdm import tqdm
 
 from packlab.core.feasibility import observation_candidates
@@ -28,7 +27,7 @@ from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
-from packlab.vlm.candidate.states import LabelledState, make_state, read_states
+from packlab.vlm.candidate.states import LabelledState, append_states, make_state, read_states
 
 #: (policy name, options) of the actor; ``None`` follows the teacher.
 ActorSpec = tuple[str, dict[str, Any]] | None
@@ -83,12 +82,11 @@ class _Job:
     actor: ActorSpec
 
 
-def _play(job: _Job) -> tuple[str, list[bytes], float]:
+def _play(job: _Job) -> tuple[str, list[LabelledState], float]:
     actor = make_policy(job.actor[0], **job.actor[1]) if job.actor is not None else None
     labeller = Labeller(ListedTeacher(job.teacher), job.proposer, job.source, actor)
     result = run_episode(job.case, labeller, seed=0, backend="geometric")
-    encoded = [msgspec.json.encode(s) for s in labeller.states]
-    return job.case.episode_id, encoded, result.metrics.overall
+    return job.case.episode_id, labeller.states, result.metrics.overall
 
 
 def done_cases(path: Path) -> set[str]:
@@ -115,10 +113,8 @@ def collect(
     written = 0
     bar = tqdm(total=len(jobs), desc=f"collect {source}", unit="case", disable=not progress)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for case_id, encoded, overall in pool.map(_play, jobs, chunksize=1):
-            with open(out, "ab") as f:
-                f.writelines(line + b"\n" for line in encoded)
-            written += len(encoded)
+        for case_id, states, overall in pool.map(_play, jobs, chunksize=1):
+            written += append_states(out, states)
             if on_case is not None:
                 on_case(case_id, overall)
             bar.update(1)

@@ -14,13 +14,17 @@ weights learns the fields from data, and every step then costs only its state.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from packlab.core.choices import PromptInstructions, choices
 from packlab.core.errors import ConfigError
-from packlab.core.types import Container
+from packlab.core.types import Container, Observation
+from packlab.policies.candidates import Candidate
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.prompt.compact import CompactOptions, state_text, system_text
 from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
@@ -40,29 +44,40 @@ def short_system_text(container: Container) -> str:
     return f"Pack boxes. Container {nx} x {ny} cells, rim {round(container.height_mm / 10)} cm."
 
 
+def observation_messages(
+    observation: Observation,
+    listed: Sequence[Candidate],
+    instructions: Instructions = "short",
+    options: CompactOptions = DEFAULT_OPTIONS,
+    blank_map: bool = False,
+) -> list[dict[str, Any]]:
+    """[system, user] messages of one step; ``blank_map`` shows an empty heightmap (ablation:
+    the model then sees the boxes and the listed placements but not the container's surface)."""
+    if instructions not in INSTRUCTIONS:
+        raise ConfigError(f"instructions = {instructions!r}: expected one of {INSTRUCTIONS}")
+    if blank_map:
+        observation = replace(observation, heightmap=np.zeros_like(observation.heightmap))
+    container = observation.container
+    system = (
+        system_text(container, options) if instructions == "full" else short_system_text(container)
+    )
+    user = state_text(observation, listed, options)
+    return [
+        {"role": "system", "content": [{"type": "text", "text": system}]},
+        {"role": "user", "content": [{"type": "text", "text": user}]},
+    ]
+
+
 def state_messages(
     state: LabelledState,
     instructions: Instructions = "short",
     options: CompactOptions = DEFAULT_OPTIONS,
     blank_map: bool = False,
 ) -> list[dict[str, Any]]:
-    """[system, user] messages of one state; ``blank_map`` zeroes the heightmap (ablation: the
-    model then sees the boxes and the listed placements but not the container's surface)."""
-    if instructions not in INSTRUCTIONS:
-        raise ConfigError(f"instructions = {instructions!r}: expected one of {INSTRUCTIONS}")
-    obs = observation_of(state)
-    if blank_map:
-        obs.heightmap[:] = 0
-    system = (
-        system_text(obs.container, options)
-        if instructions == "full"
-        else short_system_text(obs.container)
+    """:func:`observation_messages` of a stored state (what training and the export read)."""
+    return observation_messages(
+        observation_of(state), listed_of(state), instructions, options, blank_map
     )
-    user = state_text(obs, listed_of(state), options)
-    return [
-        {"role": "system", "content": [{"type": "text", "text": system}]},
-        {"role": "user", "content": [{"type": "text", "text": user}]},
-    ]
 
 
 def answer_text(state: LabelledState, answer: Answer = "index") -> str:

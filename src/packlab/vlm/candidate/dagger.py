@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Sequence
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 
 from packlab.core.types import Case
@@ -59,7 +59,7 @@ def run_dagger(cfg: DaggerConfig, cases: Sequence[Case], on_log: OnLog | None = 
                 workers=cfg.workers)  # fmt: skip
         final = Path(train_cfg.out) / "final"
         if not (final / "pointer_head.safetensors").is_file():
-            final = train_pointer(replace(train_cfg), evals, on_log)
+            final = train_pointer(train_cfg, evals, on_log)
     assert final is not None
     shutil.copytree(final, out / "final", dirs_exist_ok=True)
     return out / "final"

@@ -16,14 +16,22 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from packlab.vlm.candidate.compose import Answer, Instructions, answer_text, state_messages
+from packlab.core.types import Observation
+from packlab.policies.candidates import Candidate
+from packlab.vlm.candidate.compose import (
+    Answer,
+    Instructions,
+    answer_text,
+    observation_messages,
+    state_messages,
+)
 from packlab.vlm.candidate.states import LabelledState, listed_of
 from packlab.vlm.model.checkpoint import VLM
 from packlab.vlm.model.tokenizer import IM_END
@@ -78,6 +86,21 @@ def answer_tokens(tokenizer: Any, text: str) -> tuple[np.ndarray, tuple[str, ...
     return np.asarray(ids, dtype=np.int64), (*fields, "end")
 
 
+def _encode_text(tokenizer: Any, text: str, listed: Sequence[Candidate], label: int) -> Encoded:
+    """Token ids of a prompt text and the tokens holding each listed line's first and last
+    character."""
+    enc = tokenizer(text, add_special_tokens=False, return_offsets_mapping=True)
+    owner = np.full(len(text), -1, dtype=np.int64)
+    for t, (a, b) in enumerate(enc["offset_mapping"]):
+        owner[a:b] = t
+    firsts, lasts = line_chars(text, [candidate_line(c) for c in listed])
+    ends = owner[np.array(lasts, dtype=np.int64)]
+    starts = owner[np.array(firsts, dtype=np.int64)]
+    if (ends < 0).any() or (starts < 0).any():
+        raise ValueError("a placement line has no token")
+    return Encoded(np.asarray(enc["input_ids"], dtype=np.int64), ends, starts, label)
+
+
 def encode(
     tokenizer: Any,
     state: LabelledState,
@@ -87,20 +110,26 @@ def encode(
 ) -> Encoded:
     """Tokens of a state's prompt (the same text as the export) and its listed lines' ends."""
     text = prompt_text(tokenizer, state_messages(state, instructions, blank_map=blank_map))
-    enc = tokenizer(text, add_special_tokens=False, return_offsets_mapping=True)
-    owner = np.full(len(text), -1, dtype=np.int64)
-    for t, (a, b) in enumerate(enc["offset_mapping"]):
-        owner[a:b] = t
-    firsts, lasts = line_chars(text, [candidate_line(c) for c in listed_of(state)])
-    ends = owner[np.array(lasts, dtype=np.int64)]
-    starts = owner[np.array(firsts, dtype=np.int64)]
-    if (ends < 0).any() or (starts < 0).any():
-        raise ValueError(f"{state.case_id} step {state.step}: a placement line has no token")
-    ids = np.asarray(enc["input_ids"], dtype=np.int64)
+    try:
+        enc = _encode_text(tokenizer, text, listed_of(state), state.label)
+    except ValueError as exc:
+        raise ValueError(f"{state.case_id} step {state.step}: {exc}") from None
     if answer == "json" and state.label >= 0:
         answer_ids, fields = answer_tokens(tokenizer, answer_text(state, "json"))
-        return Encoded(ids, ends, starts, state.label, answer_ids, fields)
-    return Encoded(ids, ends, starts, state.label)
+        return replace(enc, answer_ids=answer_ids, answer_fields=fields)
+    return enc
+
+
+def encode_observation(
+    tokenizer: Any,
+    observation: Observation,
+    listed: Sequence[Candidate],
+    instructions: Instructions,
+    blank_map: bool = False,
+) -> Encoded:
+    """:func:`encode` of a live step (inference): the same text, unlabelled."""
+    messages = observation_messages(observation, listed, instructions, blank_map=blank_map)
+    return _encode_text(tokenizer, prompt_text(tokenizer, messages), listed, -1)
 
 
 def text_stack(vlm: VLM) -> nn.Module:

@@ -12,8 +12,7 @@ import torch
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
 from packlab.vlm.candidate.compose import Answer, Instructions
-from packlab.vlm.candidate.pointer import PointerModel, collate, encode
-from packlab.vlm.candidate.states import make_state
+from packlab.vlm.candidate.pointer import PointerModel, collate, encode_observation
 from packlab.vlm.model.tokenizer import IM_END
 
 
@@ -33,8 +32,8 @@ def score_listed(
     settings: PromptSettings,
 ) -> np.ndarray:
     """One score per listed placement (higher is better)."""
-    state = make_state("-", "-", observation, listed, "-", -1, "inference")
-    enc = encode(model.vlm.tokenizer, state, settings.instructions, settings.blank_map)
+    tok = model.vlm.tokenizer
+    enc = encode_observation(tok, observation, listed, settings.instructions, settings.blank_map)
     batch = collate([enc], model.vlm.tokenizer.pad_token_id)
     with torch.inference_mode():
         scores = model.score(batch)
@@ -52,8 +51,8 @@ def generate_answer(
     settings: PromptSettings,
 ) -> str:
     """The model's greedy free-JSON answer text (the format ablation's policy)."""
-    state = make_state("-", "-", observation, listed, "-", -1, "inference")
-    enc = encode(model.vlm.tokenizer, state, settings.instructions, settings.blank_map)
+    tok = model.vlm.tokenizer
+    enc = encode_observation(tok, observation, listed, settings.instructions, settings.blank_map)
     ids = torch.from_numpy(enc.ids)[None]
     end = model.vlm.tokenizer.convert_tokens_to_ids(IM_END)
     with torch.inference_mode():

@@ -104,7 +104,7 @@ def make_state(
             StoredShown(s.shown_index, s.internal_id, s.size_mm, s.size_cells, s.type_id)
             for s in observation.shown
         ),
-        listed=tuple(StoredPlacement(*msgspec.structs.astuple(_as_struct(p))) for p in listed),
+        listed=tuple(_as_struct(p) for p in listed),
         teacher=teacher,
         label=label,
         source=source,
