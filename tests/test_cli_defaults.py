@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import typing
 
 import pytest
 
@@ -26,6 +27,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "inspect-data": ["inspect-data", "data"],
     "train sft": ["train", "sft", "--data", "data", "--out", "runs/sft"],
     "train candidate": ["train", "candidate", "--cases", "cases", "--out", "runs/cand"],
+    "train rl": ["train", "rl"],
     "serve": ["serve"],
     "viz episode": [
         "viz",
@@ -52,6 +54,7 @@ CLI_ONLY: dict[str, set[str]] = {
     "inspect-data": {"--plots", "--json"},
     "train sft": set(),
     "train candidate": {"--cases"},
+    "train rl": {"--cases"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
 }
@@ -123,19 +126,7 @@ def test_literal_fields_take_their_choices_from_core_choices():
     from packlab.core import choices as core
 
     literals = {
-        core.choices(t): t
-        for t in (
-            core.PhysicsBackend,
-            core.Executor,
-            core.ImageMode,
-            core.HistoryMode,
-            core.Difficulty,
-            core.TieBreak,
-            core.LayoutFamily,
-            core.SFTExport,
-            core.Precision,
-            core.PromptInstructions,
-        )
+        core.choices(t): t for t in vars(core).values() if typing.get_origin(t) is typing.Literal
     }
     for option in FIELD_OPTIONS.values():
         allowed = field_choices(option.config, option.field)

@@ -9,6 +9,7 @@ from typing import Any
 
 from packlab.bench.suites import resolve_cases
 from packlab.cli.options import add_field, config_kwargs
+from packlab.cli.train_rl import register_rl
 from packlab.core.errors import PacklabError
 from packlab.policies.listed import TEACHERS
 from packlab.viz.plots import plot_loss_curve
@@ -97,6 +98,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     s.set_defaults(func=run_sft)
     register_candidate(sub)
+    register_rl(sub)
 
 
 def _torch_side(module: str):

@@ -43,6 +43,16 @@ ProposerRule = Literal["lowest", "lowest+largest"]
 #: Candidate mode's system turn: the full legend or one line (``packlab.vlm.candidate.compose``).
 PromptInstructions = Literal["full", "short"]
 
+#: The RL agents of ``packlab train rl``: IR-BPP-style (choose one of K proposed placements) and
+#: TAP-Net-style (choose which shown object; a fixed rule places it).
+RLAgent = Literal["irbpp", "tapnet"]
+#: What an RL env pays per step: ``overall`` (potential-based, the change in Overall-so-far, so
+#: the return is the final Overall), ``overall-terminal`` (0 until the last step, then Overall)
+#: or ``success`` (the change in packed-volume fraction, return = Success Ratio, as Pack-v0).
+RLReward = Literal["overall", "overall-terminal", "success"]
+#: How an RL trainer runs its environment copies: one process each (``subproc``) or in-process.
+VecKind = Literal["subproc", "dummy"]
+
 
 def choices(choice_type: object) -> tuple[str, ...]:
     """The allowed values of a ``Literal`` choice type, in declaration order."""

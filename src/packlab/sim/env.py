@@ -42,7 +42,7 @@ def demo_cases_path() -> str:
     return str(resources.files("packlab") / "data" / "demo_cases.jsonl")
 
 
-class _InsideVolume:
+class InsideVolume:
     """Incremental reward bookkeeping: the inside volume, updated only for boxes that moved.
 
     A step's reward is the change in Success Ratio (``metrics.success_ratio`` of the inside
@@ -58,7 +58,7 @@ class _InsideVolume:
         #: (n, 3) float mm, settled centres after the last step; NaN rows: not in the container.
         self._positions = np.full((len(case.objects), 3), np.nan)
         self._inside = np.zeros(len(case.objects), dtype=bool)  # (n,) judged on self._positions
-        self._volume = 0  # mm^3 of the inside boxes
+        self.volume = 0  # mm^3 of the inside boxes
         self._fraction = 0.0  # Success Ratio after the last step
 
     def update(self, positions_mm: np.ndarray) -> float:
@@ -69,10 +69,10 @@ class _InsideVolume:
         now_inside = inside_mask(positions_mm[moved], self._container)
         for i, inside in zip(moved.tolist(), now_inside.tolist()):
             if inside != self._inside[i]:
-                self._volume += self._volumes[i] if inside else -self._volumes[i]
+                self.volume += self._volumes[i] if inside else -self._volumes[i]
                 self._inside[i] = inside
         self._positions = positions_mm.copy()
-        fraction = success_ratio(self._volume, self._total)
+        fraction = success_ratio(self.volume, self._total)
         reward, self._fraction = fraction - self._fraction, fraction
         return reward
 
@@ -121,7 +121,7 @@ class PackEnv(gym.Env):
         self.action_space = spaces.Discrete(n_actions)
         self._episode = Episode(backend, physics)
         self._case: Case | None = None
-        self._reward = _InsideVolume()
+        self._reward = InsideVolume()
 
     # -- encoding --------------------------------------------------------------------------
     def decode_action(self, index: int) -> Action:

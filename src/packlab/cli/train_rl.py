@@ -1,0 +1,98 @@
+"""``packlab train rl``: train an RL baseline (irbpp or tapnet) with MaskablePPO (rl extra)."""
+
+from __future__ import annotations
+
+import argparse
+from functools import partial
+from typing import Any
+
+from packlab.bench.suites import SUITES, resolve_cases
+from packlab.cases import cases_sha256
+from packlab.cli.options import add_field, config_kwargs
+from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.types import Case
+from packlab.datagen.config import RECIPES
+from packlab.datagen.generator import generate_cases
+from packlab.rl.config import RLTrainConfig
+from packlab.rl.extra import RLExtraMissing, import_rl
+from packlab.viz.rl_curves import write_rl_curves
+
+TRAINER_MODULE = "packlab.rl.train"
+
+
+def training_cases(spec: str) -> tuple[list[Case], dict[str, Any]]:
+    """The cases ``--cases`` names and their source record.
+
+    A dataset recipe name (``packdata-20k``, ``packdata-mini``) generates its cases in the
+    training seed domain without the physics replay (agents train on the geometric backend);
+    a path loads a case file or ``packlab generate`` output. Bench suites are refused: they are
+    for evaluation only.
+    """
+    if spec in SUITES:
+        raise ConfigError(
+            f"cases = {spec!r} is a bench suite; train on generated cases (a recipe: "
+            f"{', '.join(RECIPES)}, or a packlab generate directory)"
+        )
+    if spec in RECIPES:
+        recipe = RECIPES[spec]
+        print(f"generating {sum(recipe.episodes):,} training cases ({spec}) ...", flush=True)
+        cases = [
+            case
+            for level, n in zip(recipe.difficulties, recipe.episodes)
+            for case in generate_cases(level, n, recipe.seed, validate=False, domain="train")
+        ]
+        return cases, {"cases": f"recipe:{spec}", "cases_sha256": cases_sha256(cases)}
+    source = resolve_cases(spec)
+    return list(source.cases), {"cases": source.origin, "cases_sha256": source.sha256}
+
+
+def register_rl(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser(
+        "rl",
+        help="train an RL baseline: irbpp (pick a listed placement) or tapnet (pick the object)",
+        description="MaskablePPO (sb3-contrib) on the geometric backend, one agent over all "
+        "levels; held-out evaluation, checkpoints, log.csv and curves.png under --out. "
+        "Rerun the same command to resume.",
+    )
+    field = partial(add_field, r, RLTrainConfig)
+    field("agent", "--agent", help="default {default}")
+    r.add_argument(
+        "--cases",
+        default="packdata-20k",
+        help="a dataset recipe (generated now) or generated cases on disk; default %(default)s",
+    )
+    field("steps", "--steps", help="env steps in total; default {default}")
+    field("out", "--out", help="run directory; default {default}")
+    field("minutes", "--minutes", help="wall-time cap across resumes (0: none)")
+    field("envs", "--envs", help="environment copies; default {default}")
+    field("vec", "--vec", help="default {default}")
+    field("reward", "--reward", help="default {default}")
+    field("k", "--k", help="irbpp: placements listed per step; default {default}")
+    field("n_steps", "--n-steps", help="steps per env per rollout; default {default}")
+    field("batch", "--batch", help="default {default}")
+    field("epochs", "--epochs", help="default {default}")
+    field("lr", "--lr", help="default {default}")
+    field("gamma", "--gamma", help="default {default}")
+    field("ent_coef", "--ent-coef", help="default {default}")
+    field("width", "--width", help="default {default}")
+    field("eval_every", "--eval-every", help="env steps; default {default}")
+    field("eval_cases_per_level", "--eval-cases", help="held out per level; default {default}")
+    field("seed", "--seed", help="default {default}")
+    field("threads", "--threads", help="torch threads of the learner; default {default}")
+    r.set_defaults(func=run_rl)
+
+
+def run_rl(args: argparse.Namespace) -> int:
+    cfg = RLTrainConfig(**config_kwargs(args, "train rl", RLTrainConfig))
+    try:
+        trainer = import_rl(TRAINER_MODULE)
+    except RLExtraMissing as e:
+        raise PacklabError(str(e)) from None
+    cases, source = training_cases(args.cases)
+    res = trainer.train_rl(cfg, cases, source, write_rl_curves)
+    print(
+        f"{cfg.agent}: {res.env_steps:,} env steps in {res.wall_time_s / 60:.1f} min; "
+        f"held-out Overall best {res.best.get('avg', float('nan')):.3f} (model {res.out}/best), "
+        f"final {res.final.get('avg', float('nan')):.3f} (model {res.out}/final)"
+    )
+    return 0

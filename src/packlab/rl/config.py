@@ -1,0 +1,65 @@
+"""``RLTrainConfig``: everything ``packlab train rl`` decides, validated on creation and saved
+beside the run as ``config.json`` (torch-free, so the CLI reads its defaults without the extra).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from packlab.core.choices import RLAgent, RLReward, VecKind, require_choice
+from packlab.core.errors import ConfigError
+
+
+@dataclass(frozen=True, slots=True)
+class RLTrainConfig:
+    """One training run of an RL agent (docs/rl.md explains each choice)."""
+
+    agent: RLAgent = "irbpp"
+    out: str = "runs/rl"
+    steps: int = 500_000  # env steps (decisions) in total, across resumes
+    minutes: float = 0.0  # stop after this much training wall time (0: no cap), across resumes
+    envs: int = 2  # environment copies
+    vec: VecKind = "subproc"
+    reward: RLReward = "overall"
+    k: int = 8  # irbpp: placements listed per step (tapnet: one per buffer slot)
+    n_steps: int = 256  # steps per env per PPO rollout
+    batch: int = 256
+    epochs: int = 4
+    lr: float = 3e-4
+    gamma: float = 1.0  # episodes are 4-32 decisions; the return is the final Overall
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.01
+    clip_range: float = 0.2
+    width: int = 64  # hidden width of the feature extractor and heads
+    eval_every: int = 20_000  # env steps between held-out evaluations and checkpoints
+    eval_cases_per_level: int = 10  # generated cases per level kept out of training
+    seed: int = 0
+    threads: int = 1  # torch threads of the learner
+
+    def __post_init__(self) -> None:
+        require_choice(self.agent, RLAgent, "agent")
+        require_choice(self.reward, RLReward, "reward")
+        require_choice(self.vec, VecKind, "vec")
+        positive = ("steps", "envs", "k", "n_steps", "batch", "epochs", "width", "eval_every")
+        for name in positive:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"{name} = {value!r}: must be a whole number >= 1")
+        if self.eval_cases_per_level < 1:
+            raise ConfigError(
+                f"eval_cases_per_level = {self.eval_cases_per_level!r}: must be at least 1"
+            )
+        for name in ("lr", "gae_lambda", "clip_range"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ConfigError(f"{name} = {getattr(self, name)!r}: must be in (0, 1]")
+        if not 0 <= self.gamma <= 1 or self.ent_coef < 0 or self.minutes < 0:
+            raise ConfigError(
+                f"gamma = {self.gamma}, ent_coef = {self.ent_coef}, minutes = {self.minutes}: "
+                "gamma must be in [0, 1], the others not negative"
+            )
+        if self.threads < 1:
+            raise ConfigError(f"threads = {self.threads!r}: must be at least 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

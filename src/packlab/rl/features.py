@@ -1,0 +1,202 @@
+"""What an RL agent sees: fixed-size arrays made from a packing :class:`Observation` (pure).
+
+Both agents see the same three arrays, so one network family serves both, across every
+container size and buffer size the levels use:
+
+- ``heightmap``: (1, G, G) float32, the container's heightmap resampled to a G x G grid
+  (nearest cell) in units of the container height. Resampling instead of padding keeps a 20 x 20
+  easy container and a 57 x 57 hard one equally visible to a small CNN; exact geometry goes in
+  the item rows below.
+- ``globals``: (:data:`N_GLOBALS`,) float32 scalars of the state (:func:`global_row`).
+- ``items``: (N, :data:`N_ITEM_FEATURES`) float32, one row per choosable item, zero rows for
+  padding; column 0 is 1 for a real item, which is also the action mask. An item is a placement
+  (object, rotation, x, y) with its geometry (:func:`placement_row`):
+
+  - ``irbpp``: the K placements listed by the shared proposer
+    (:func:`packlab.policies.candidates.propose`): the IR-BPP-style candidate action space;
+  - ``tapnet``: one per shown object, placed by :func:`rule_placement` (DBLF's rule for that
+    object alone): the TAP-Net-style object-choice action space.
+
+The action is the row index. Rows list items in the proposer's order or the shown order (shuffled
+every step by the episode); the networks score each row with shared weights, so an agent cannot
+learn an index, only what a row's geometry is worth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from packlab.core.choices import RLAgent, require_choice
+from packlab.core.feasibility import CandidateSet, observation_candidates
+from packlab.core.types import Action, Observation
+from packlab.policies.candidates import ProposerConfig, propose_from
+from packlab.policies.heuristics.select import object_rank
+
+#: Side of the resampled heightmap.
+GRID = 32
+#: Columns of an item row (see :func:`placement_row`).
+N_ITEM_FEATURES = 16
+#: Entries of the globals row (see :func:`global_row`).
+N_GLOBALS = 8
+#: Scale for counts (steps, objects): the hard level has at most 32 objects.
+COUNT_SCALE = 32.0
+#: Scale for container sides in cells and buffer sizes.
+SIDE_SCALE = 64.0
+BUFFER_SCALE = 10.0
+#: Upper clip of every feature, so the spaces are bounded (a box can stick out over the rim).
+FEATURE_MAX = 4.0
+#: The largest buffer of any level: the tapnet item count.
+MAX_BUFFER = 10
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureSpec:
+    """Which action space and how many item rows (``n_items``)."""
+
+    agent: RLAgent
+    n_items: int
+
+    def __post_init__(self) -> None:
+        require_choice(self.agent, RLAgent, "agent")
+        if isinstance(self.n_items, bool) or not isinstance(self.n_items, int) or self.n_items < 1:
+            raise ValueError(f"FeatureSpec.n_items = {self.n_items!r}: must be an int >= 1")
+
+    @classmethod
+    def default(cls, agent: RLAgent, k: int = 8) -> FeatureSpec:
+        """irbpp: ``k`` listed placements; tapnet: one row per buffer slot of the largest level."""
+        return cls(agent, k if agent == "irbpp" else MAX_BUFFER)
+
+
+@dataclass(frozen=True, slots=True)
+class Encoded:
+    """One observation as arrays, and the action each real item row stands for."""
+
+    arrays: dict[str, np.ndarray]  # heightmap (1, G, G), globals (N_GLOBALS,), items (N, F)
+    actions: tuple[Action, ...]  # one per real row, rows 0 .. len - 1
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(N,) bool: rows an agent may choose."""
+        return self.arrays["items"][:, 0] > 0
+
+
+def resampled_heightmap(heightmap: np.ndarray, height_mm: int, grid: int = GRID) -> np.ndarray:
+    """(1, grid, grid) float32: nearest-cell resample in container heights."""
+    nx, ny = heightmap.shape
+    xs = np.minimum(((np.arange(grid) + 0.5) * nx / grid).astype(np.int64), nx - 1)
+    ys = np.minimum(((np.arange(grid) + 0.5) * ny / grid).astype(np.int64), ny - 1)
+    out = heightmap[np.ix_(xs, ys)].astype(np.float32) / float(height_mm)
+    return np.clip(out, 0.0, FEATURE_MAX)[None]
+
+
+def global_row(observation: Observation) -> np.ndarray:
+    """(N_GLOBALS,) float32: step, remaining objects, peak and mean height, container sides,
+    container height (m), shown count."""
+    hm = observation.heightmap
+    height = float(observation.container.height_mm)
+    nx, ny = observation.container.cells
+    row = [
+        observation.step_index / COUNT_SCALE,
+        observation.remaining / COUNT_SCALE,
+        float(hm.max()) / height,
+        float(hm.mean()) / height,
+        nx / SIDE_SCALE,
+        ny / SIDE_SCALE,
+        height / 1000.0,
+        len(observation.shown) / BUFFER_SCALE,
+    ]
+    return np.clip(np.asarray(row, dtype=np.float32), 0.0, FEATURE_MAX)
+
+
+def placement_row(cands: CandidateSet, index: int, rank: int) -> np.ndarray:
+    """(N_ITEM_FEATURES,) float32 for candidate ``index``; ``rank`` is its object's place when
+    the shown objects are sorted larger first (:func:`object_rank`).
+
+    Columns: valid, x0/X, y0/Y, x1/X, y1/Y, footprint area share, h/H, z/H, top/H, over rim,
+    support share (footprint cells at z), flush share (side cells against a wall or a column
+    above z), mean void under the box / H, box volume share of the container, rotation,
+    size rank / buffer size.
+    """
+    hm = cands.heightmap
+    nx, ny = hm.shape
+    height = float(cands.container_height_mm)
+    x, y = int(cands.x[index]), int(cands.y[index])
+    fx, fy = int(cands.fx[index]), int(cands.fy[index])
+    z, h = int(cands.z[index]), int(cands.h[index])
+    under = hm[x : x + fx, y : y + fy]
+    walled = np.pad(hm, 1, constant_values=cands.container_height_mm)
+    sides = np.concatenate(
+        [
+            walled[x, y + 1 : y + fy + 1],
+            walled[x + fx + 1, y + 1 : y + fy + 1],
+            walled[x + 1 : x + fx + 1, y],
+            walled[x + 1 : x + fx + 1, y + fy + 1],
+        ]
+    )
+    area = fx * fy
+    row = [
+        1.0,
+        x / nx,
+        y / ny,
+        (x + fx) / nx,
+        (y + fy) / ny,
+        area / (nx * ny),
+        h / height,
+        z / height,
+        (z + h) / height,
+        float(z + h > cands.container_height_mm),
+        np.count_nonzero(under == z) / area,
+        np.count_nonzero(sides > z) / sides.size,
+        (area * z - float(under.sum())) / area / height,
+        area * h / (nx * ny * height),
+        float(cands.rotation[index]),
+        rank / BUFFER_SCALE,
+    ]
+    return np.clip(np.asarray(row, dtype=np.float32), 0.0, FEATURE_MAX)
+
+
+def rule_placement(cands: CandidateSet, object_index: int) -> int | None:
+    """DBLF's choice for one shown object: lowest z, then x, then y, rotation 0 before 1, among
+    its placements within the rim (else its lowest-top ones); None when it fits nowhere."""
+    own = np.flatnonzero(cands.obj == object_index)
+    if own.size == 0:
+        return None
+    in_rim = own[cands.fits_in_rim[own]]
+    pool = in_rim if in_rim.size else own[cands.top[own] == cands.top[own].min()]
+    # lexsort is stable and the pool is in scan order, so rotation 0 wins a full tie.
+    return int(pool[np.lexsort((cands.y[pool], cands.x[pool], cands.z[pool]))[0]])
+
+
+def _listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
+    """Flat candidate indices of the item rows, in row order."""
+    if spec.agent == "tapnet":
+        picks = (rule_placement(cands, j) for j in range(min(cands.buffer_size, spec.n_items)))
+        return [i for i in picks if i is not None]
+    listed = propose_from(cands, ProposerConfig(k=spec.n_items))
+    flat = {(g.object_index, g.rotation): g for g in cands.groups}
+    out = []
+    for c in listed:
+        g = flat[(c.object_index, c.rotation)]
+        out.append(g.offset + c.x * (cands.heightmap.shape[1] - g.fy + 1) + c.y)
+    return out
+
+
+def encode(observation: Observation, spec: FeatureSpec) -> Encoded:
+    """The arrays an agent sees for ``observation`` and the actions of its item rows."""
+    cands = observation_candidates(observation)
+    ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
+    items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
+    actions = []
+    for row, i in enumerate(_listed_indices(cands, spec)):
+        items[row] = placement_row(cands, i, int(ranks[int(cands.obj[i])]))
+        actions.append(
+            Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
+        )
+    arrays = {
+        "heightmap": resampled_heightmap(observation.heightmap, observation.container.height_mm),
+        "globals": global_row(observation),
+        "items": items,
+    }
+    return Encoded(arrays, tuple(actions))

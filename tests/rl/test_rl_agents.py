@@ -1,0 +1,170 @@
+"""Training, saving, resuming and playing the RL agents (rl extra: torch, sb3, sb3-contrib)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sb3_contrib")
+
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from packlab.cases import save_cases
+from packlab.cli.main import main
+from packlab.core.errors import ConfigError
+from packlab.datagen.generator import generate_cases
+from packlab.policies import make_policy
+from packlab.rl.agent import AgentCard, choose_row, load_agent
+from packlab.rl.config import RLTrainConfig
+from packlab.rl.envs import SET_ASIDE, ListedActionEnv
+from packlab.rl.evaluate import play
+from packlab.rl.features import FeatureSpec, encode
+from packlab.rl.train import make_model, save_model_dir, train_rl
+from packlab.sim.episode import Episode, run_episode
+
+AGENTS = ("irbpp", "tapnet")
+#: A small run: short rollouts so a few hundred steps make several updates.
+SMALL = {"n_steps": 64, "batch": 32, "envs": 1, "vec": "dummy", "eval_cases_per_level": 1}
+
+
+@pytest.fixture(scope="module")
+def cases():
+    return [c for level in ("easy", "medium", "hard") for c in generate_cases(level, 3, 11, False)]
+
+
+@pytest.fixture(scope="module")
+def cases_file(cases, tmp_path_factory):
+    return str(save_cases(cases, tmp_path_factory.mktemp("cases") / "train.jsonl"))
+
+
+def _random_mean(agent: str, case, episodes: int = 40) -> float:
+    env = ListedActionEnv(agent, [case])
+    rng = np.random.default_rng(0)
+    returns = []
+    for i in range(episodes):
+        env.reset(seed=i, options={"case_index": 0})
+        total, done = 0.0, False
+        while not done:
+            _, r, done, _, _ = env.step(int(rng.choice(np.flatnonzero(env.action_masks()))))
+            total += r
+        returns.append(total)
+    return float(np.mean(returns))
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_a_few_hundred_steps_beat_random_on_one_case(agent, cases, tmp_path):
+    case = cases[3]  # a medium case: buffer 5, enough choice for random to be poor
+    cfg = RLTrainConfig(agent=agent, out=str(tmp_path), lr=1e-3, **SMALL)
+    venv = DummyVecEnv([lambda: ListedActionEnv(agent, [case])])
+    venv.seed(0)
+    model = make_model(cfg, venv, tmp_path)
+    untrained = play(model, FeatureSpec.default(agent), case).overall
+    model.learn(640)
+    trained = play(model, FeatureSpec.default(agent), case).overall
+    baseline = _random_mean(agent, case)
+    assert trained > baseline + 0.02, (untrained, trained, baseline)
+
+
+def _greedy_rows(model, spec, cases) -> list[int]:
+    """The rows a model picks along its own greedy episodes of ``cases`` (geometric)."""
+    rows = []
+    for case in cases:
+        episode = Episode("geometric")
+        observation = episode.reset(case, 0)
+        while not episode.done:
+            encoded = encode(observation, spec)
+            row = choose_row(model, encoded) if encoded.actions else -1
+            rows.append(row)
+            episode.step(encoded.actions[row] if row >= 0 else SET_ASIDE)
+            if not episode.done:
+                observation = episode.observe()
+    return rows
+
+
+def test_save_then_load_gives_identical_actions(cases, tmp_path):
+    cfg = RLTrainConfig(agent="irbpp", out=str(tmp_path), **SMALL)
+    venv = DummyVecEnv([lambda: ListedActionEnv("irbpp", cases)])
+    model = make_model(cfg, venv, tmp_path)
+    model.learn(128)
+    save_model_dir(model, tmp_path / "m", AgentCard("irbpp", 8, "overall"))
+    loaded = load_agent(tmp_path / "m")
+    spec = loaded.card.spec
+    assert _greedy_rows(loaded.model, spec, cases) == _greedy_rows(model, spec, cases)
+
+
+def _rows(path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_train_rl_evaluates_checkpoints_and_resumes(cases, tmp_path):
+    source = {"cases": "test", "cases_sha256": "abc"}
+    cfg = RLTrainConfig(agent="tapnet", out=str(tmp_path / "run"), steps=128, eval_every=64,
+                        **SMALL)  # fmt: skip
+    first = train_rl(cfg, cases, source)
+    assert first.env_steps == 128
+    assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [64, 128]
+    for name in ("checkpoint.zip", "state.json", "best/model.zip", "final/card.json"):
+        assert (tmp_path / "run" / name).is_file(), name
+    more = train_rl(replace(cfg, steps=192), cases, source)  # the same run, trained further
+    assert more.env_steps == 192
+    assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [64, 128, 192]
+    card = json.loads((tmp_path / "run" / "final" / "card.json").read_text())
+    assert card["env_steps"] == 192 and card["agent"] == "tapnet"
+    with pytest.raises(ConfigError, match="agent"):
+        train_rl(replace(cfg, agent="irbpp"), cases, source)
+    with pytest.raises(ConfigError, match="other cases"):
+        train_rl(cfg, cases, {"cases": "other", "cases_sha256": "def"})
+
+
+def test_cli_trains_and_the_policy_plays_the_model(cases, cases_file, tmp_path, capsys):
+    out = tmp_path / "cli"
+    argv = ["train", "rl", "--agent", "irbpp", "--cases", cases_file, "--steps", "96",
+            "--eval-every", "64", "--eval-cases", "1", "--n-steps", "32", "--batch", "32",
+            "--envs", "2", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    assert "held-out Overall" in capsys.readouterr().out
+    assert (out / "curves.png").stat().st_size > 0
+    policy = make_policy("irbpp", model=str(out / "final"))
+    result = run_episode(cases[4], policy, seed=0, backend="geometric")
+    assert all(s.valid for s in result.steps) and result.metrics.overall > 0
+    wrong = make_policy("tapnet", model=str(out / "final"))
+    with pytest.raises(ConfigError, match="'irbpp' agent"):
+        wrong.reset(cases[0], 0)
+
+
+def test_cli_refuses_a_bench_suite_as_training_cases(tmp_path, capsys):
+    assert main(["train", "rl", "--cases", "packlab-bench-v1", "--out", str(tmp_path)]) == 2
+    assert "bench suite" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_from_its_checkpoint(cases_file, tmp_path):
+    """SIGKILL mid-run, rerun the same command: it resumes and finishes."""
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "packlab.cli.main", "train", "rl", "--agent", "tapnet",
+           "--cases", cases_file, "--steps", "20000", "--eval-every", "64", "--eval-cases", "1",
+           "--n-steps", "32", "--batch", "32", "--envs", "1", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 120
+    while not (out / "state.json").is_file() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(1.0)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    reached = json.loads((out / "state.json").read_text())["env_steps"]
+    assert 0 < reached < 20000
+    finish = [*cmd, "--steps", str(reached + 128)]  # the last --steps wins
+    done = subprocess.run(finish, capture_output=True, text=True, check=True)
+    assert f"resuming at {reached:,} steps" in done.stdout
+    steps = [int(r["env_steps"]) for r in _rows(out / "log.csv")]
+    assert steps == sorted(set(steps)) and steps[-1] == reached + 128
