@@ -112,12 +112,13 @@ def test_train_rl_evaluates_checkpoints_and_resumes(cases, tmp_path):
                         **SMALL)  # fmt: skip
     first = train_rl(cfg, cases, source)
     assert first.env_steps == 128
-    assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [64, 128]
+    assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [0, 64, 128]
     for name in ("checkpoint.zip", "state.json", "best/model.zip", "final/card.json"):
         assert (tmp_path / "run" / name).is_file(), name
     more = train_rl(replace(cfg, steps=192), cases, source)  # the same run, trained further
     assert more.env_steps == 192
-    assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [64, 128, 192]
+    rows = _rows(tmp_path / "run" / "log.csv")
+    assert [int(r["env_steps"]) for r in rows] == [0, 64, 128, 192]
     card = json.loads((tmp_path / "run" / "final" / "card.json").read_text())
     assert card["env_steps"] == 192 and card["agent"] == "tapnet"
     with pytest.raises(ConfigError, match="agent"):
@@ -168,3 +169,18 @@ def test_a_killed_run_resumes_from_its_checkpoint(cases_file, tmp_path):
     assert f"resuming at {reached:,} steps" in done.stdout
     steps = [int(r["env_steps"]) for r in _rows(out / "log.csv")]
     assert steps == sorted(set(steps)) and steps[-1] == reached + 128
+
+
+def test_same_seed_same_agent(cases, tmp_path):
+    """Two trainings with one seed end with identical weights (in-process envs)."""
+
+    def trained() -> dict:
+        cfg = RLTrainConfig(agent="tapnet", out=str(tmp_path), seed=5, **SMALL)
+        venv = DummyVecEnv([lambda: ListedActionEnv("tapnet", cases)])
+        venv.seed(cfg.seed)
+        model = make_model(cfg, venv, tmp_path)
+        model.learn(128)
+        return model.policy.state_dict()
+
+    first, second = trained(), trained()
+    assert all(np.array_equal(first[k].numpy(), second[k].numpy()) for k in first)

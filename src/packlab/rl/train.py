@@ -161,6 +161,12 @@ class _Run:
             held_out=scores,
         )
 
+    def log_untrained(self, model: Any) -> None:
+        """Row 0 of a new run's log: the untrained agent on the held-out cases (a near-uniform
+        choice, so the curve starts from its action space's random-row level)."""
+        scores = evaluate(model, self.spec, self.held)
+        _append_log(self.out / "log.csv", {"env_steps": 0, "wall_s": 0.0, **scores})
+
     def checkpoint(self, model: Any, wall: float, rate: float) -> dict[str, float]:
         steps = int(model.num_timesteps)
         scores = evaluate(model, self.spec, self.held)
@@ -236,6 +242,8 @@ def train_rl(
             print(f"[{cfg.agent}] resuming at {run.state['env_steps']:,} steps", flush=True)
         else:
             model = make_model(cfg, venv, out)
+            (out / "log.csv").unlink(missing_ok=True)  # rows of a start that never checkpointed
+            run.log_untrained(model)
         callback = _Progress(run)
         left = cfg.steps - int(model.num_timesteps)
         if left > 0 and not (cfg.minutes and run.state_wall >= cfg.minutes * 60):
