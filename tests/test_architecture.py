@@ -36,6 +36,8 @@ LAZY_IMPORTS_ALLOWED = frozenset(
         "sb3_contrib",
         "openai",
         "jinja2",
+        "rerun",
+        "plotly",
     }
 )
 MAX_FUNCTION_LINES = 80

@@ -40,14 +40,15 @@ MINIMAL_ARGV: dict[str, list[str]] = {
         "--out",
         "x.png",
     ],
+    "viz rerun": ["viz", "rerun", "runs/x", "--case", "c", "--policy", "dblf"],
 }
 
 #: Options that set no config field: what a command does (--describe), what it prints or draws,
 #: or commands without a config dataclass (reading a run, the test server).
 CLI_ONLY: dict[str, set[str]] = {
-    "bench": {"--describe", "--no-figures"},
-    "bench report": {"--case", "--seed", "--no-figures"},
-    "bench compare": {"--labels", "--out"},
+    "bench": {"--describe", "--no-figures", "--no-html"},
+    "bench report": {"--case", "--seed", "--no-figures", "--html"},
+    "bench compare": {"--labels", "--out", "--html"},
     "cases validate": set(),
     "cases export": {"--format", "--out"},
     "generate": set(),
@@ -57,6 +58,21 @@ CLI_ONLY: dict[str, set[str]] = {
     "train rl": {"--cases"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
+    # Live episodes take the bench's RunConfig; absent flags leave its defaults (stated there).
+    "viz rerun": {
+        "--case",
+        "--policy",
+        "--seed",
+        "--cases",
+        "--resimulate",
+        "--live",
+        "--backend",
+        "--physics",
+        "--policy-arg",
+        "--out",
+        "--spawn",
+        "--connect",
+    },
 }
 
 

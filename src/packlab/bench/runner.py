@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Self
 
 from packlab.bench.config import ResolvedRun, RunConfig, check_resumable, resolve
+from packlab.bench.html_report import ReportUnavailable, write_run_html
 from packlab.bench.records import (
     CASES_FILE,
     CONFIG_FILE,
@@ -68,6 +69,7 @@ class BenchOutcome:
     recorded: int = 0  # episodes of the configuration with a record (ok or error) now
     errors: int = 0  # of those, failed (this and earlier invocations)
     aborted: str = ""  # why the run stopped early (breaker, deadline); "" when it ran to the end
+    notes: tuple[str, ...] = ()  # one line each for the user (an output skipped, and why)
 
 
 def task_keys(run: ResolvedRun) -> dict[RecordKey, Task]:
@@ -312,8 +314,10 @@ def run_bench(
     *,
     on_record: Callable[[EpisodeRecord], None] | None = None,
     figures: bool = True,
+    html: bool = True,
 ) -> BenchOutcome:
-    """Run (or resume) a bench configuration and write its records, summary, table and figures.
+    """Run (or resume) a bench configuration and write its records, summary, table and figures,
+    and (``html``) the interactive report.html; without plotly that is skipped with a note.
 
     ``on_record`` is called after each new record is safely written (tests use it to interrupt
     a run part-way, exactly where a kill would land). A run stopped early by the circuit
@@ -324,7 +328,7 @@ def run_bench(
     run = resolve(config)
     preflight_policies(run.policies, run.policy_kwargs())
     with RunLock(run.out):
-        return _run_locked(run, on_record, figures, deadline)
+        return _run_locked(run, on_record, figures, deadline, html)
 
 
 def _run_locked(
@@ -332,6 +336,7 @@ def _run_locked(
     on_record: Callable[[EpisodeRecord], None] | None,
     figures: bool,
     deadline: float | None,
+    html: bool = True,
 ) -> BenchOutcome:
     config = run.config
     # Every record of this configuration by key, as a report would read the file: a new record
@@ -377,6 +382,12 @@ def _run_locked(
     summary, table_md, outputs = write_outputs(
         run.out, run.to_json(), records, run.cases, figures=figures
     )
+    notes: list[str] = []
+    if html and records:
+        try:
+            outputs.append(write_run_html(run.out, run.to_json(), records, run.cases, summary))
+        except ReportUnavailable as exc:
+            notes.append(f"report.html skipped: {exc}")
     errors = sum(1 for r in records if isinstance(r, EpisodeError))
     return BenchOutcome(
         run.out,
@@ -391,6 +402,7 @@ def _run_locked(
         len(records),
         errors,
         aborted,
+        tuple(notes),
     )
 
 

@@ -24,6 +24,12 @@ from packlab.bench.config import (
     time_limit_arg,
 )
 from packlab.bench.describe import describe_cases, format_description
+from packlab.bench.html_report import (
+    COMPARE_HTML,
+    REPORT_HTML,
+    build_html_report,
+    write_compare_html,
+)
 from packlab.bench.report import build_report
 from packlab.bench.runner import BenchOutcome, run_bench
 from packlab.bench.suites import resolve_cases
@@ -45,6 +51,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_limit_options(p)
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument(
+        "--no-html",
+        action="store_true",
+        help="skip report.html, the interactive report (written by default; needs plotly, "
+        "the report extra)",
+    )
     p.set_defaults(func=run)
     _add_subcommands(p)
 
@@ -197,7 +209,12 @@ def _add_report_parser(sub: argparse._SubParsersAction) -> None:
         help="episode id for the side-by-side packing figure (default: a typical hard case)",
     )
     r.add_argument("--seed", type=int, help="run seed of that figure (default: the first seed)")
-    r.add_argument("--no-figures", action="store_true", help="tables only")
+    r.add_argument("--no-figures", action="store_true", help="tables only (no PNG figures)")
+    r.add_argument(
+        "--html",
+        action="store_true",
+        help="also write DIR/report.html, the interactive report (needs plotly, the report extra)",
+    )
     r.set_defaults(func=run_report)
 
 
@@ -211,6 +228,14 @@ def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("dirs", nargs="+", help="bench run directories")
     c.add_argument("--labels", help="comma-separated row labels (default: the directory names)")
     c.add_argument("--out", help="also write the Markdown to this file")
+    c.add_argument(
+        "--html",
+        nargs="?",
+        const="",
+        metavar="FILE",
+        help=f"also write the interactive report over the runs to FILE (default: --out with "
+        f".html, else {COMPARE_HTML}; needs plotly, the report extra)",
+    )
     c.set_defaults(func=run_compare)
 
 
@@ -234,8 +259,14 @@ def run(args: argparse.Namespace) -> int:
     if args.describe:
         return describe(args.cases)
     config = config_from_args(args)  # every flag checked before anything is loaded or written
-    outcome = run_bench(config, figures=not args.no_figures)
+    outcome = run_bench(config, figures=not args.no_figures, html=not args.no_html)
     print(outcome.table_md)
+    # The report's path and any note first: the run's line and the exit reason stay the last.
+    for path in outcome.outputs:
+        if path.name == REPORT_HTML:
+            print(f"interactive report: {path}", file=sys.stderr)
+    for note in outcome.notes:
+        print(f"packlab bench: note: {note}", file=sys.stderr)
     resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
     failed = f", {outcome.failed} failed" if outcome.failed else ""
     print(
@@ -275,6 +306,8 @@ def run_report(args: argparse.Namespace) -> int:
     _, table_md, paths = build_report(
         args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed
     )
+    if args.html:
+        paths.append(build_html_report(args.dir))
     print(table_md)
     for path in paths:
         print(f"wrote {path}", file=sys.stderr)
@@ -293,8 +326,14 @@ def run_compare(args: argparse.Namespace) -> int:
     if out is not None and out.is_dir():  # checked before the work, not after it
         raise ConfigError(f"out = {args.out!r}: is a directory; give the Markdown file to write")
     text = compare_markdown(args.dirs, labels)
+    html = None
+    if args.html is not None:
+        html = Path(args.html or (out.with_suffix(".html") if out is not None else COMPARE_HTML))
+        html = write_compare_html(args.dirs, html, labels)
     print(text)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text, encoding="utf-8")
+    if html is not None:
+        print(f"wrote {html}", file=sys.stderr)
     return 0

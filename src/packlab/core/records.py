@@ -55,7 +55,8 @@ from packlab.core.types import Action, Unparsable
 #: run-1 directory therefore cannot be resumed (its heuristic episodes were played under the old
 #: tie rule); the identity check refuses it by this field. Reports still read run-1 records.
 #: Episode records carry this value in their ``format`` field (issue 11; an added key, which
-#: every earlier reader ignores, so the version stays 2).
+#: every earlier reader ignores, so the version stays 2). Steps carry their boxes' pose changes
+#: in ``poses`` since issue 16 (an added key likewise; see ``StepRecord.poses``).
 RUN_FORMAT = "packlab-bench-run-2"
 RUN_FORMAT_1 = "packlab-bench-run-1"
 #: Run-directory formats a report reads (the records of run-1 migrate; see ``migrate_episode``).
@@ -82,6 +83,9 @@ JsonObject = dict[str, JsonValue]
 
 #: An object's id as the case file gives it (the reference's ids are strings).
 RecordId = int | str
+
+#: A box's logged pose at a step: object index, centre (mm), quaternion (w, x, y, z).
+PoseEntry = tuple[int, float, float, float, float, float, float, float]
 
 
 # -- episode records (episodes.jsonl) ---------------------------------------------------------
@@ -135,6 +139,13 @@ class StepRecord(Struct, frozen=True):
     max_linear_speed_mps: float
     max_angular_speed_radps: float
     wall_time_s: float
+    #: The boxes placed or moved at this step (``packlab.sim.pose_log``): ``(object index into
+    #: the case's objects, x, y, z centre mm to 0.1, qw, qx, qy, qz to 1e-4)`` for each box whose
+    #: settled pose differs from the last one written for it by more than 0.5 mm or 1e-3; the
+    #: poses after a step are the latest written. Added in issue 16 (an added key: the version
+    #: stays run-2); absent from older records (a replay then rebuilds them from ``drop_mm`` on
+    #: the geometric backend, or shows final poses only; ``packlab.viz.report_data``).
+    poses: tuple[PoseEntry, ...] | UnsetType = UNSET
 
 
 class MetricsRecord(Struct, frozen=True):
@@ -647,6 +658,7 @@ __all__ = [
     "MetricsRecord",
     "NotJSON",
     "PolicyCounts",
+    "PoseEntry",
     "RecordFormatError",
     "RunConfigHead",
     "RunSummary",

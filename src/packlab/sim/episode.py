@@ -27,6 +27,7 @@ from packlab.core.types import (
 from packlab.metrics import EpisodeMetrics, score_final_state
 from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
+from packlab.sim.pose_log import pose_updates
 
 #: Reasons a step can be invalid.
 INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")
@@ -53,7 +54,8 @@ class StepResult:
     wall_time_s: float
     #: Settled poses of *all* boxes after this step, indexed like ``case.objects``: centres
     #: (n, 3) float mm and quaternions (n, 4) wxyz; NaN rows for boxes not in the container
-    #: (not yet placed, or set aside). Kept out of ``to_record`` to keep records compact.
+    #: (not yet placed, or set aside). Records keep only their changes from step to step
+    #: (``EpisodeResult.to_record``, ``packlab.sim.pose_log``).
     positions_mm: np.ndarray = field(default=None, repr=False, compare=False)
     quaternions: np.ndarray = field(default=None, repr=False, compare=False)
     #: Largest linear (m/s) and angular (rad/s) speed of any box when the placement's settle
@@ -297,6 +299,14 @@ class EpisodeResult:
     policy_time_s: float = 0.0
 
     def to_record(self) -> dict[str, Any]:
+        # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
+        # after every step without records growing by steps x boxes.
+        steps = [s.to_record() for s in self.steps]
+        if all(s.positions_mm is not None for s in self.steps):
+            moved = pose_updates(
+                [s.positions_mm for s in self.steps], [s.quaternions for s in self.steps]
+            )
+            steps = [{**rec, "poses": m} for rec, m in zip(steps, moved)]
         return {
             "case_id": self.case_id,
             "seed": self.seed,
@@ -304,7 +314,7 @@ class EpisodeResult:
             "backend": self.backend,
             "metrics": self.metrics.to_dict(),
             "policy_time_s": round(self.policy_time_s, 6),
-            "steps": [s.to_record() for s in self.steps],
+            "steps": steps,
             "final_poses": {
                 str(k): None
                 if p is None

@@ -1,0 +1,149 @@
+"""``report.html``: the interactive report of a run (or of several, ``bench compare --html``).
+
+Built from the run directory's files alone, like the rest of the report (``packlab.bench.
+report``): config.json, cases.jsonl and episodes.jsonl, through ``packlab.viz.report_data``
+and ``packlab.viz.report_html``. Written at the end of every ``packlab bench`` run (unless
+``--no-html``) and by ``packlab bench report DIR --html``. Without plotly (the ``report``
+extra) nothing is written and the caller gets ``ReportUnavailable`` to turn into a note.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+
+from packlab.bench.compare import merge_summaries
+from packlab.bench.records import EPISODES_FILE
+from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
+from packlab.bench.table import headline
+from packlab.core.errors import ConfigError
+from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary
+from packlab.core.types import Case
+from packlab.viz.report_data import Method, ReportRun, method_name, report_data, row_colours
+from packlab.viz.report_html import ReportUnavailable, render_report_html
+
+REPORT_HTML = "report.html"
+COMPARE_HTML = "compare.html"
+NO_CASES = "The run directory has no cases.jsonl: episodes are scored but cannot be replayed."
+
+
+def now_stamp() -> str:
+    """The build time as the page shows it (UTC, to the second)."""
+    return datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def _write_atomic(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def run_html(
+    config: RunConfigHead | Mapping[str, object],
+    records: Sequence[EpisodeRecord],
+    cases: Sequence[Case],
+    summary: RunSummary | None = None,
+    generated: str | None = None,
+) -> str:
+    """The report page of one run (``summary``: the run's, computed when not given)."""
+    head = config_head(config)
+    summary = summary if summary is not None else summary_of(head, records)
+    policies = list(summary.policies)
+    colours = row_colours(policies, distinct=False)
+    methods = [
+        Method(method_name("", p, len(policies)), 0, p, colour)
+        for p, colour in zip(policies, colours)
+    ]
+    data = report_data(
+        [ReportRun("", summary, tuple(records), tuple(cases))],
+        methods,
+        title=f"packlab bench report: {head.suite or 'cases'}",
+        subtitle=headline(summary),
+        initial_case=pick_showcase_case(summary, cases),
+        notes=[] if cases else [NO_CASES],
+    )
+    return render_report_html(data, generated or now_stamp())
+
+
+def write_run_html(
+    run_dir: str | os.PathLike[str],
+    config: RunConfigHead | Mapping[str, object],
+    records: Sequence[EpisodeRecord],
+    cases: Sequence[Case],
+    summary: RunSummary | None = None,
+    generated: str | None = None,
+) -> Path:
+    """Write ``report.html`` into the run directory; ReportUnavailable without plotly."""
+    text = run_html(config, records, cases, summary, generated)
+    return _write_atomic(Path(run_dir) / REPORT_HTML, text)
+
+
+def build_html_report(run_dir: str | os.PathLike[str], generated: str | None = None) -> Path:
+    """``packlab bench report DIR --html``: the page of a run directory, from its files."""
+    run = load_run(run_dir)
+    if not run.records:
+        raise ConfigError(f"{run.run_dir / EPISODES_FILE}: no records; nothing to report")
+    return write_run_html(run.run_dir, run.config, run.records, run.cases, generated=generated)
+
+
+def compare_html(
+    run_dirs: Sequence[str | os.PathLike[str]],
+    labels: Sequence[str] | None = None,
+    generated: str | None = None,
+) -> str:
+    """One page over several runs (same cases, seeds and backend, as ``bench compare``): rows
+    are ``"<run>: <method>"``, named and checked as the Markdown comparison names them."""
+    names = list(labels) if labels else [Path(d).name for d in run_dirs]
+    runs: list[RunFiles] = [load_run(d) for d in run_dirs]
+    summaries = [summary_of(r.config, r.records) for r in runs]
+    merged = merge_summaries(summaries, names)  # checks labels and that the runs compare
+    pairs = [(i, p) for i, s in enumerate(summaries) for p in s.policies]
+    colours = row_colours([p for _, p in pairs], distinct=True)
+    methods = [
+        Method(method_name(names[i], p, len(summaries[i].policies)), i, p, colour)
+        for (i, p), colour in zip(pairs, colours)
+    ]
+    assert [m.name for m in methods] == list(merged.policies)
+    report_runs = [
+        ReportRun(name, s, tuple(r.records), r.cases) for name, s, r in zip(names, summaries, runs)
+    ]
+    listed = ", ".join(f"{n} ({r.run_dir})" for n, r in zip(names, runs))
+    data = report_data(
+        report_runs,
+        methods,
+        title="packlab bench compare: " + ", ".join(names),
+        subtitle=f"{headline(merged)}; runs: {listed}",
+        initial_case=pick_showcase_case(summaries[0], runs[0].cases),
+        notes=[f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases],
+    )
+    return render_report_html(data, generated or now_stamp())
+
+
+def write_compare_html(
+    run_dirs: Sequence[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    labels: Sequence[str] | None = None,
+    generated: str | None = None,
+) -> Path:
+    """Write the comparison page to ``out``; ReportUnavailable without plotly."""
+    out = Path(out)
+    if out.is_dir():
+        raise ConfigError(f"html = {str(out)!r}: is a directory; give the HTML file to write")
+    return _write_atomic(out, compare_html(run_dirs, labels, generated))
+
+
+__all__ = [
+    "COMPARE_HTML",
+    "REPORT_HTML",
+    "ReportUnavailable",
+    "build_html_report",
+    "compare_html",
+    "now_stamp",
+    "run_html",
+    "write_compare_html",
+    "write_run_html",
+]
