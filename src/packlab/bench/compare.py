@@ -2,7 +2,8 @@
 
 Used for ablations, where each variant is its own run directory (``vlm`` with ``image=blank`` and
 ``vlm`` with the full context both record under the policy name ``vlm``). Runs are only comparable
-on the same cases, seeds and physics backend, so a mismatch is an error naming the run and field.
+on the same cases, seeds, physics backend and observation / execution modes (issue 15), so a
+mismatch is an error naming the run and field.
 Each summary.json is read as a typed ``RunSummary`` with its version checked (older ones
 migrate; see ``packlab.core.records``).
 """
@@ -17,11 +18,19 @@ import msgspec
 
 from packlab.bench.table import render_markdown
 from packlab.core.errors import PacklabError
-from packlab.core.records import MetricCells, NotJSON, PolicyCounts, RunSummary, summary_from_json
+from packlab.core.records import (
+    MetricCells,
+    NotJSON,
+    PolicyCounts,
+    RunSummary,
+    SensingModes,
+    summary_from_json,
+)
 from packlab.viz.labels import display_name
 
 #: Summary fields that must agree for rows of different runs to share one table.
-MUST_MATCH = ("cases_sha256", "seeds", "backend", "difficulties")
+#: ``sensing`` (observation / execution / noise, issue 15) is absent for exact runs.
+MUST_MATCH = ("cases_sha256", "seeds", "backend", "difficulties", "sensing")
 
 
 def load_summary(run_dir: str | os.PathLike[str]) -> RunSummary:
@@ -38,6 +47,8 @@ def load_summary(run_dir: str | os.PathLike[str]) -> RunSummary:
 
 def _field(summary: RunSummary, name: str) -> object:
     value = getattr(summary, name)
+    if name == "sensing" and value in (None, msgspec.UNSET):
+        return "exact"  # both modes exact: written nowhere, shown as such
     return None if value is msgspec.UNSET else value
 
 
@@ -73,6 +84,7 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         format=first.format,
         suite=first.suite,
         backend=first.backend,
+        sensing=first.sensing,
         n_cases=first.n_cases,
         policies=tuple(policies),
         seeds=first.seeds,
@@ -85,6 +97,8 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
 
 def _show(value: object) -> str:
     """A field's value as the JSON it was read from (lists, not tuples)."""
+    if isinstance(value, SensingModes):
+        return repr(msgspec.structs.asdict(value))
     return repr(list(value)) if isinstance(value, tuple) else repr(value)
 
 

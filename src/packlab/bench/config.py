@@ -19,12 +19,20 @@ from typing import Any
 
 from packlab.bench.describe import difficulty_order
 from packlab.bench.suites import DEFAULT_SUITE, CaseSource, resolve_cases
-from packlab.core.choices import Executor, PhysicsBackend, require_choice
+from packlab.core.choices import (
+    ExecutionMode,
+    Executor,
+    NoisePreset,
+    ObservationMode,
+    PhysicsBackend,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
 from packlab.policies import available_policies
 from packlab.policies.heuristics import SCORERS
+from packlab.sim.modes import DEFAULT_NOISE, EpisodeModes, episode_modes
 from packlab.sim.physics.mujoco_backend import PhysicsConfig
 
 #: RUN_FORMAT (packlab.core.records, with the record types): the version of the run-directory
@@ -57,6 +65,9 @@ IDENTITY_KEYS = (
     "backend",
     "difficulties",
     "physics",
+    # Written only when observation or execution is not exact (issue 15), so the config.json
+    # of an exact run, and resuming runs made before these modes existed, are unchanged.
+    "sensing",
 )
 
 
@@ -190,6 +201,14 @@ class RunConfig:
     max_transport_failures: int = DEFAULT_MAX_TRANSPORT_FAILURES
     #: Wall-clock limit of this invocation (None: none): no new work after it, workers stopped.
     deadline_s: float | None = None
+    #: What policies observe (issue 15): the exact state, or what the simulated depth cameras
+    #: perceive under the ``noise`` preset. Part of the identity when not exact.
+    observation: ObservationMode = "exact"
+    #: How placements are executed: exactly, or with the ``noise`` preset's robot noise (mujoco
+    #: backend only). Part of the identity when not exact.
+    execution: ExecutionMode = "exact"
+    #: The sensor and robot noise preset of the two modes above (``packlab.sim.modes``).
+    noise: NoisePreset = DEFAULT_NOISE
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -235,11 +254,36 @@ class RunConfig:
                 raise ConfigError(
                     f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run"
                 )
+        _check_sensing(self)
         if self.physics_overrides and self.backend != "mujoco":
             raise ConfigError(
                 f"physics = {dict(self.physics_overrides)!r}: "
                 "only the mujoco backend has physics settings"
             )
+
+
+def _check_sensing(config: RunConfig) -> None:
+    """The issue-15 modes: known names, noise only where a mode uses it, noisy on mujoco."""
+    require_choice(config.observation, ObservationMode, "observation")
+    require_choice(config.execution, ExecutionMode, "execution")
+    require_choice(config.noise, NoisePreset, "noise")
+    if config.execution == "noisy" and config.backend != "mujoco":
+        raise ConfigError(
+            f"execution = 'noisy': the {config.backend} backend places boxes on whole cells "
+            "and cannot execute noisy drops; use --backend mujoco"
+        )
+    exact = config.observation == "exact" and config.execution == "exact"
+    if exact and config.noise != DEFAULT_NOISE:
+        raise ConfigError(
+            f"noise = {config.noise!r}: only used with --observation perceived or --execution noisy"
+        )
+
+
+def sensing_identity(config: RunConfig) -> dict[str, str] | None:
+    """config.json's ``sensing`` entry: None (left out) when both modes are exact."""
+    if config.observation == "exact" and config.execution == "exact":
+        return None
+    return {"observation": config.observation, "execution": config.execution, "noise": config.noise}
 
 
 @dataclass(frozen=True, slots=True)
@@ -269,6 +313,7 @@ class ResolvedRun:
             "backend": self.config.backend,
             "difficulties": list(self.difficulties),
             "physics": self.physics,
+            **({"sensing": sensing} if (sensing := sensing_identity(self.config)) else {}),
             "execution": {
                 "workers": self.workers,
                 "executor": self.config.executor,
@@ -284,6 +329,11 @@ class ResolvedRun:
         for name, key, value in self.config.policy_args:
             out.setdefault(name, {})[key] = value
         return out
+
+    def episode_modes(self) -> EpisodeModes:
+        """The perceiver and execution noise episodes run with (both None when exact)."""
+        c = self.config
+        return episode_modes(c.observation, c.execution, c.noise)
 
     def physics_config(self) -> Any:
         """The PhysicsConfig to build backends with (None for the geometric backend)."""
@@ -458,5 +508,6 @@ __all__ = [
     "parse_seeds",
     "physics_from_json",
     "resolve",
+    "sensing_identity",
     "time_limit_arg",
 ]

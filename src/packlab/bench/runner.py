@@ -49,6 +49,7 @@ from packlab.core.records import EpisodeError, EpisodeRecord, RunSummary, Timing
 from packlab.core.types import Case
 from packlab.executors import Context, Lost, Results, progress_bar, run_items
 from packlab.policies import make_policy
+from packlab.sim.modes import EXACT_MODES, EpisodeModes
 
 INVOCATIONS_FILE = "invocations.jsonl"
 
@@ -92,6 +93,7 @@ class EpisodeWork:
     physics: Any
     policy_kwargs: dict[str, dict[str, Any]]
     timeout_s: float | None
+    modes: EpisodeModes = EXACT_MODES  # issue 15's observation / execution (exact: empty)
 
     def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
         # ctx.deadline is set only in this process: there the episode's alarm is the only stop.
@@ -104,6 +106,7 @@ class EpisodeWork:
             self.policy_kwargs.get(task.policy),
             timeout_s=self.timeout_s,
             deadline=ctx.deadline,
+            modes=self.modes,
         )
 
     def lost(self, task: Task, lost: Lost) -> EpisodeError:
@@ -150,6 +153,7 @@ def execute(
         run.physics_config(),
         run.policy_kwargs(),
         config.episode_timeout_s,
+        run.episode_modes(),
     )
     return run_items(
         work,

@@ -103,7 +103,25 @@ def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
         decision_ms=1000.0 * policy_s / decisions if decisions else None,
         step_ms=1000.0 * env_s / decisions if decisions else None,
         episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
+        **_perception_counts(mine),
     )
+
+
+def _perception_counts(mine: list[EpisodeOk]) -> dict[str, float | None]:
+    """Perceived runs' counters (issue 15); none for exact runs: their summary is unchanged."""
+    replans = [r.metrics.replans for r in mine if r.metrics.replans is not UNSET]
+    if not replans:
+        return {}
+    seen = [s.perception for r in mine for s in r.steps if s.perception is not UNSET]
+    dims = [v for p in seen for v in p.dims_error_mm]
+    yaws = [v for p in seen for v in p.yaw_error_deg]
+    maes = [p.heightmap_mae_mm for p in seen if p.heightmap_mae_mm is not None]
+    return {
+        "replans_per_episode": math.fsum(replans) / len(replans),
+        "dims_error_mm": _number(_mean(dims)),
+        "yaw_error_deg": _number(_mean(yaws)),
+        "heightmap_mae_mm": _number(_mean(maes)),
+    }
 
 
 #: Scores by (policy, difficulty) -> case -> seed -> metric.
@@ -192,6 +210,8 @@ def summarize(
             "backend": meta.backend,
             "n_cases": meta.n_cases,
             "cases_sha256": meta.cases_sha256,
+            # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
+            **({} if meta.sensing is None else {"sensing": meta.sensing}),
         }
     )
     return RunSummary(

@@ -38,6 +38,7 @@ from packlab.core.types import Case
 from packlab.executors import DeadlineReached
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
+from packlab.sim.modes import EXACT_MODES, EpisodeModes
 
 #: Values of a failed record's ``error_kind``.
 ERROR_KINDS = choices(ErrorKind)
@@ -154,13 +155,15 @@ def run_task(
     *,
     timeout_s: float | None = None,
     deadline: float | None = None,
+    modes: EpisodeModes = EXACT_MODES,
 ) -> EpisodeRecord:
     """The record of one episode (``EpisodeOk``), or of its failure (``EpisodeError``).
 
     A fresh policy per episode (``make_policy(policy, **policy_kwargs)``), so no state leaks
     between episodes; policies that hold heavy models cache them per process themselves.
     ``timeout_s`` limits this episode; ``deadline`` (``time.monotonic()``) is the run's end:
-    reaching it raises DeadlineReached instead of producing a record.
+    reaching it raises DeadlineReached instead of producing a record. ``modes`` are issue 15's
+    observation and execution modes (exact by default).
     """
     started, started_cpu = time.perf_counter(), time.process_time()
     head = _header(case, policy, seed, backend)
@@ -174,6 +177,8 @@ def run_task(
                 seed,
                 backend=backend,
                 physics=physics,
+                perceiver=modes.perceiver,
+                execution=modes.execution,
             )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).

@@ -49,6 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_case_options(p)
     _add_run_options(p)
     _add_limit_options(p)
+    _add_sensing_options(p)
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument(
@@ -96,6 +97,33 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
         "--difficulty",
         parse=partial(parse_names, flag="difficulty"),
         help="comma-separated difficulties to run (default: all)",
+    )
+
+
+def _add_sensing_options(p: argparse.ArgumentParser) -> None:
+    """Issue 15's modes: perceived observations and noisy execution (part of the identity)."""
+    add_field(
+        p,
+        RunConfig,
+        "observation",
+        "--observation",
+        help="what policies observe: the exact state or what simulated depth cameras "
+        "perceive (under --noise); default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "execution",
+        "--execution",
+        help="execute placements exactly or with --noise's robot noise (mujoco only); "
+        "default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "noise",
+        "--noise",
+        help="sensor and robot noise preset of the two modes above; default {default}",
     )
 
 

@@ -53,6 +53,19 @@ RLReward = Literal["overall", "overall-terminal", "success"]
 #: How an RL trainer runs its environment copies: one process each (``subproc``) or in-process.
 VecKind = Literal["subproc", "dummy"]
 
+#: What a policy observes (issue 15): the exact heightmap and box sizes, or those perceived by
+#: the simulated depth cameras (``packlab.sim.sensing``).
+ObservationMode = Literal["exact", "perceived"]
+#: How a chosen placement is executed: exactly, or with the robot noise of the ``NoisePreset``
+#: (``packlab.sim.execution``; mujoco backend only).
+ExecutionMode = Literal["exact", "noisy"]
+#: Named sensor + robot noise levels: ``none`` (zero noise), ``structured-light`` (about 1 mm
+#: depth noise), ``stereo`` (a consumer stereo camera, about 5-10 mm).
+NoisePreset = Literal["none", "structured-light", "stereo"]
+#: How perceived buffer objects are segmented (``packlab.sim.sensing``): from the ground-truth
+#: per-pixel ids (the "SAM-perfect" setting) or by connected components above the table plane.
+Segmentation = Literal["truth", "depth"]
+
 
 def choices(choice_type: object) -> tuple[str, ...]:
     """The allowed values of a ``Literal`` choice type, in declaration order."""

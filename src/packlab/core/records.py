@@ -124,6 +124,14 @@ class ActionRecord(Struct, frozen=True):
         return Action(*fields)  # type: ignore[arg-type]
 
 
+class PerceptionErrors(Struct, frozen=True):
+    """A step's perception errors (``packlab.sim.replan.Perception``), shown order."""
+
+    dims_error_mm: tuple[float, ...]  # largest |estimated - true| of (l, w, h) per object
+    yaw_error_deg: tuple[float, ...]  # |estimated - true| yaw per object
+    heightmap_mae_mm: float | None  # mean |perceived - exact| over the container's cells
+
+
 class StepRecord(Struct, frozen=True):
     """One step of an episode (``packlab.sim.episode.StepResult.to_record``)."""
 
@@ -146,6 +154,14 @@ class StepRecord(Struct, frozen=True):
     #: stays run-2); absent from older records (a replay then rebuilds them from ``drop_mm`` on
     #: the geometric backend, or shows final poses only; ``packlab.viz.report_data``).
     poses: tuple[PoseEntry, ...] | UnsetType = UNSET
+    #: Issue 15, perceived observation only (added keys, the version stays): the perceived
+    #: heightmap after this step departed from its Eq. 2 prediction (a re-plan event).
+    replan: bool | UnsetType = UNSET
+    #: Issue 15, noisy execution only: the executed drop's deviation from the planned one,
+    #: (dx mm, dy mm, extra yaw degrees, release height mm).
+    executed: tuple[float, float, float, float] | UnsetType = UNSET
+    #: Issue 15, perceived observation only: errors of the perception this step decided on.
+    perception: PerceptionErrors | UnsetType = UNSET
 
 
 class MetricsRecord(Struct, frozen=True):
@@ -168,6 +184,8 @@ class MetricsRecord(Struct, frozen=True):
     residual_linear_mps: float
     residual_angular_radps: float
     wall_time_s: float
+    #: Issue 15, perceived observation only: steps with a re-plan event.
+    replans: int | UnsetType = UNSET
 
 
 class FinalPose(Struct, frozen=True):
@@ -280,6 +298,13 @@ class PolicyCounts(Struct, frozen=True):
     decision_ms: float | None  # None: no decisions
     step_ms: float | None
     episode_s: float | None  # None: no finished episode
+    #: Issue 15, perceived runs only (absent otherwise): re-plan events per episode, and the
+    #: mean perception errors over every shown object of every step (dims mm, yaw degrees)
+    #: and over every step (heightmap mean absolute error, mm).
+    replans_per_episode: float | UnsetType = UNSET
+    dims_error_mm: float | None | UnsetType = UNSET
+    yaw_error_deg: float | None | UnsetType = UNSET
+    heightmap_mae_mm: float | None | UnsetType = UNSET
 
 
 class ErrorEntry(Struct, frozen=True):
@@ -290,6 +315,14 @@ class ErrorEntry(Struct, frozen=True):
     policy: str
     error: str
     run: str | UnsetType = UNSET
+
+
+class SensingModes(Struct, frozen=True):
+    """A run's issue-15 modes (config.json ``sensing``; ``packlab.bench.config``)."""
+
+    observation: str  # core.choices.ObservationMode
+    execution: str  # core.choices.ExecutionMode
+    noise: str  # core.choices.NoisePreset
 
 
 class RunSummary(Struct, frozen=True, kw_only=True):
@@ -314,6 +347,9 @@ class RunSummary(Struct, frozen=True, kw_only=True):
     per_case: dict[str, dict[str, CaseCells]] = {}
     counts: dict[str, PolicyCounts]
     errors: tuple[ErrorEntry, ...] = ()
+    #: Issue 15: the run's observation / execution / noise (config.json ``sensing``); absent
+    #: when both modes are exact.
+    sensing: SensingModes | None | UnsetType = UNSET
 
 
 class RunConfigHead(Struct, frozen=True, kw_only=True):
@@ -327,6 +363,7 @@ class RunConfigHead(Struct, frozen=True, kw_only=True):
     policies: tuple[str, ...]
     seeds: tuple[int, ...]
     difficulties: tuple[str, ...]
+    sensing: SensingModes | None = None
 
 
 # -- the dataset info (PackData meta/info.json) -----------------------------------------------
@@ -657,11 +694,13 @@ __all__ = [
     "MetricCells",
     "MetricsRecord",
     "NotJSON",
+    "PerceptionErrors",
     "PolicyCounts",
     "PoseEntry",
     "RecordFormatError",
     "RunConfigHead",
     "RunSummary",
+    "SensingModes",
     "StepRecord",
     "Timing",
     "check_version",

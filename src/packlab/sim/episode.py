@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
     Action,
@@ -26,9 +27,20 @@ from packlab.core.types import (
 )
 from packlab.metrics import EpisodeMetrics, score_final_state
 from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
+from packlab.sim.execution import ExecutedDrop, ExecutionNoise, perturb_drop
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
 from packlab.sim.pose_log import pose_updates
+from packlab.sim.replan import (
+    Perceiver,
+    Perception,
+    ReplanRule,
+    Scene,
+    deviates,
+    predict_heightmap,
+)
 
+#: The re-plan threshold of perceived-mode episodes (``packlab.sim.replan.ReplanRule``).
+DEFAULT_REPLAN = ReplanRule()
 #: Reasons a step can be invalid.
 INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")
 
@@ -62,6 +74,13 @@ class StepResult:
     #: stopped: under the rest thresholds when ``settled``, the residual motion when not.
     max_linear_speed: float = 0.0
     max_angular_speed: float = 0.0
+    #: Perceived mode only (else None): the heightmap perceived after this step departed from
+    #: its Eq. 2 prediction (``packlab.sim.replan``), a re-plan event.
+    replan: bool | None = None
+    #: Noisy execution only (else None): how the drop was really executed.
+    executed: ExecutedDrop | None = None
+    #: Perceived mode only (else None): the perception this step's decision was made on.
+    perception: Perception | None = None
 
     def to_record(self) -> dict[str, Any]:
         action = (
@@ -82,7 +101,31 @@ class StepResult:
             "max_linear_speed_mps": round(self.max_linear_speed, 6),
             "max_angular_speed_radps": round(self.max_angular_speed, 6),
             "wall_time_s": round(self.wall_time_s, 6),
+            # Opt-in modes add keys; exact runs write exactly the keys above.
+            **({} if self.replan is None else {"replan": self.replan}),
+            **({} if self.executed is None else {"executed": _executed_record(self.executed)}),
+            **({} if self.perception is None else {"perception": _errors(self.perception)}),
         }
+
+
+def _errors(perception: Perception) -> dict[str, Any]:
+    """The perception errors of a step record (lists in shown order; mae None if unknown)."""
+    mae = perception.heightmap_mae_mm
+    return {
+        "dims_error_mm": [round(v, 3) for v in perception.dims_error_mm],
+        "yaw_error_deg": [round(v, 4) for v in perception.yaw_error_deg],
+        "heightmap_mae_mm": None if mae is None else round(mae, 4),
+    }
+
+
+def _executed_record(drop: ExecutedDrop) -> list[float]:
+    """(dx mm, dy mm, extra yaw degrees, release mm), rounded for the record."""
+    return [
+        round(drop.offset_mm[0], 3),
+        round(drop.offset_mm[1], 3),
+        round(drop.yaw_deg, 4),
+        round(drop.release_mm, 3),
+    ]
 
 
 def _cells(mm: int, cell: int) -> int:
@@ -90,11 +133,27 @@ def _cells(mm: int, cell: int) -> int:
 
 
 class Episode:
-    """One closed-loop packing episode over a case on a transition backend."""
+    """One closed-loop packing episode over a case on a transition backend.
 
-    def __init__(self, backend: str | TransitionBackend = "mujoco", physics: Any = None) -> None:
+    Opt-in (issue 15): a ``perceiver`` makes the observation the perceived one and logs re-plan
+    events by ``replan``; ``execution`` noise executes each drop off-plan (mujoco only). Without
+    them the episode is exactly the exact-mode loop.
+    """
+
+    def __init__(
+        self,
+        backend: str | TransitionBackend = "mujoco",
+        physics: Any = None,
+        *,
+        perceiver: Perceiver | None = None,
+        execution: ExecutionNoise | None = None,
+        replan: ReplanRule = DEFAULT_REPLAN,
+    ) -> None:
         self._backend_spec = backend
         self._physics = physics
+        self._perceiver = perceiver
+        self._execution = execution
+        self._replan_rule = replan
         self.backend: TransitionBackend | None = None
         self.case: Case | None = None
         self.steps: list[StepResult] = []
@@ -105,9 +164,23 @@ class Episode:
             self.backend = make_backend(self._backend_spec, self._physics)
         else:
             self.backend = self._backend_spec
+        if self._execution is not None and not getattr(
+            self.backend, "supports_noisy_execution", False
+        ):
+            raise ConfigError(
+                f"execution = 'noisy': the {self.backend.name} backend places boxes on whole "
+                "cells and cannot execute noisy drops; use the mujoco backend"
+            )
         self.case = case
         self.seed = seed
         self._rng = episode_rng(case.seed, seed)
+        # Own streams for execution noise and perception, spawned from the episode's seeds so
+        # the buffer shuffle (self._rng) stays the exact-mode sequence.
+        execution_seed, perception_seed = np.random.SeedSequence(
+            [int(case.seed) & 0xFFFFFFFF, int(seed) & 0xFFFFFFFF]
+        ).spawn(2)
+        self._execution_rng = np.random.default_rng(execution_seed)
+        self._perception_rng = np.random.default_rng(perception_seed)
         self._heightmap = self.backend.reset(case.container, case.objects)
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
@@ -118,6 +191,40 @@ class Episode:
         self.final_settle_steps = 0
         self._reshuffle()
         return self.observe()
+
+    def _perceive(self) -> None:
+        """Perceived mode: look at the scene after the buffer was refilled (no-op otherwise)."""
+        if self._perceiver is None:
+            return
+        positions, quaternions = self.backend.poses()
+        scene = Scene(
+            container=self.case.container,
+            sizes_mm=np.array([b.size_mm for b in self.case.objects], dtype=np.int64),
+            positions_mm=positions,
+            quaternions=quaternions,
+            heightmap=self._heightmap,
+            shown=tuple(self._shown_indices),
+        )
+        self._perception = self._perceiver(scene, self._perception_rng)
+        if len(self._perception.sizes_mm) != len(self._shown):
+            raise ValueError(
+                f"perceiver returned {len(self._perception.sizes_mm)} sizes for "
+                f"{len(self._shown)} shown objects"
+            )
+        # The policy is shown the perceived sizes (cells rounded up, as for exact sizes).
+        c = self.case.container
+        self._shown = tuple(
+            replace(
+                item,
+                size_mm=tuple(int(v) for v in size),
+                size_cells=(
+                    _cells(int(size[0]), c.cell_xy_mm),
+                    _cells(int(size[1]), c.cell_xy_mm),
+                    _cells(int(size[2]), c.cell_z_mm),
+                ),
+            )
+            for item, size in zip(self._shown, self._perception.sizes_mm)
+        )
 
     @property
     def done(self) -> bool:
@@ -145,6 +252,7 @@ class Episode:
             )
             for i, idx in enumerate(self._shown_indices)
         )
+        self._perceive()
 
     def observe(self) -> Observation:
         if self.case is None:
@@ -152,7 +260,7 @@ class Episode:
         return Observation(
             step_index=len(self.steps),
             container=self.case.container,
-            heightmap=self._heightmap.copy(),
+            heightmap=self.observed_heightmap.copy(),
             shown=self._shown,
             history=tuple(self._history),
             remaining=len(self._pending),
@@ -192,8 +300,10 @@ class Episode:
             )
         started = time.perf_counter()
         reason, index = self._check(action)
-        heightmap_before = self._heightmap
-        drop = None
+        seen_before, shown_before = self.observed_heightmap, self._shown
+        perception_before = self._perception if self._perceiver is not None else None
+        predicted = seen_before  # what the policy expects to see next (perceived mode)
+        drop = executed = None
         placed: Transition | None = None
         if not reason:
             rotation, x, y = int(action.rotation), int(action.x), int(action.y)
@@ -201,8 +311,11 @@ class Episode:
             z = placement_height(self._heightmap, x, y, fx, fy)
             cell = self.case.container.cell_xy_mm
             drop = (x * cell, y * cell, z)
-            placed = self._last_settle = self.backend.place(index, rotation, drop)
+            executed = self._executed_drop(index, rotation, drop)
+            placed = self._last_settle = self._place(index, rotation, drop, executed)
             self._heightmap = placed.heightmap
+            if self._perceiver is not None:
+                predicted = self._predicted(shown_before[int(action.object_id)], rotation, x, y)
         else:
             self._set_aside.add(index)
         settle_steps = placed.settle_steps if placed else 0
@@ -212,13 +325,20 @@ class Episode:
             self.final_settle_steps = final.settle_steps
             settle_steps += final.settle_steps
         positions, quaternions = self.backend.poses()
+        self._history.append(HistoryEntry(seen_before, shown_before, action, not reason))
+        self._pending.remove(index)
+        if self._pending:
+            self._reshuffle()
+        else:
+            self._shown_indices, self._shown = [], ()
+            self._perceive()
         result = StepResult(
             step_index=len(self.steps),
             action=action,
             valid=not reason,
             reason=reason,
             internal_id=self.case.objects[index].internal_id,
-            shown=self._shown,
+            shown=shown_before,
             drop_mm=drop,
             settle_steps=settle_steps,
             settled=placed.settled if placed else True,
@@ -227,15 +347,53 @@ class Episode:
             quaternions=quaternions,
             max_linear_speed=placed.max_linear_speed if placed else 0.0,
             max_angular_speed=placed.max_angular_speed if placed else 0.0,
+            replan=None
+            if self._perceiver is None
+            else deviates(predicted, self._perception.heightmap, self._replan_rule),
+            executed=executed,
+            perception=perception_before,
         )
-        self._history.append(HistoryEntry(heightmap_before, self._shown, action, not reason))
         self.steps.append(result)
-        self._pending.remove(index)
-        if self._pending:
-            self._reshuffle()
-        else:
-            self._shown_indices, self._shown = [], ()
         return result
+
+    @property
+    def observed_heightmap(self) -> np.ndarray:
+        """The heightmap the policy sees: the perceived one in perceived mode, else the exact."""
+        return self._heightmap if self._perceiver is None else self._perception.heightmap
+
+    def _executed_drop(
+        self, index: int, rotation: int, drop: tuple[int, int, int]
+    ) -> ExecutedDrop | None:
+        """Noisy execution: the drop as the robot executes it (None in exact execution)."""
+        if self._execution is None:
+            return None
+        c = self.case.container
+        footprint = self.case.objects[index].footprint_mm(rotation)
+        return perturb_drop(
+            self._execution, drop, footprint, (c.size_mm[0], c.size_mm[1]), self._execution_rng
+        )
+
+    def _place(
+        self, index: int, rotation: int, drop: tuple[int, int, int], executed: ExecutedDrop | None
+    ) -> Transition:
+        if executed is None or executed.is_exact:
+            return self.backend.place(index, rotation, drop)
+        return self.backend.place(
+            index,
+            rotation,
+            drop,
+            offset_mm=executed.offset_mm,
+            yaw_deg=executed.yaw_deg,
+            release_mm=executed.release_mm,
+            comply_mm=executed.comply_mm,
+        )
+
+    def _predicted(self, item: ShownItem, rotation: int, x: int, y: int) -> np.ndarray:
+        """Eq. 2 prediction of the intended placement on the perceived heightmap it was chosen
+        on, with the perceived size the policy was shown."""
+        l, w, _ = item.size_cells
+        footprint = (w, l) if rotation == 1 else (l, w)
+        return predict_heightmap(self._perception.heightmap, x, y, footprint, item.size_mm[2])
 
     # -- outcome ---------------------------------------------------------------------------
     def final_poses(self) -> dict[InternalId, Pose | None]:
@@ -297,6 +455,8 @@ class EpisodeResult:
     metrics: EpisodeMetrics
     poses: dict[InternalId, Pose | None] = field(default_factory=dict)
     policy_time_s: float = 0.0
+    #: Perceived mode only (else None): steps with a re-plan event (``StepResult.replan``).
+    replans: int | None = None
 
     def to_record(self) -> dict[str, Any]:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
@@ -307,12 +467,15 @@ class EpisodeResult:
                 [s.positions_mm for s in self.steps], [s.quaternions for s in self.steps]
             )
             steps = [{**rec, "poses": m} for rec, m in zip(steps, moved)]
+        metrics = self.metrics.to_dict()
+        if self.replans is not None:  # an added key, only in perceived mode
+            metrics["replans"] = self.replans
         return {
             "case_id": self.case_id,
             "seed": self.seed,
             "policy": self.policy,
             "backend": self.backend,
-            "metrics": self.metrics.to_dict(),
+            "metrics": metrics,
             "policy_time_s": round(self.policy_time_s, 6),
             "steps": steps,
             "final_poses": {
@@ -333,9 +496,16 @@ def run_episode(
     seed: int = 0,
     backend: str | TransitionBackend = "mujoco",
     physics: Any = None,
+    *,
+    perceiver: Perceiver | None = None,
+    execution: ExecutionNoise | None = None,
 ) -> EpisodeResult:
-    """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result."""
-    episode = Episode(backend, physics)
+    """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result.
+
+    ``perceiver`` and ``execution`` select the opt-in modes (see ``Episode``;
+    ``packlab.sim.modes.episode_modes`` builds them by name).
+    """
+    episode = Episode(backend, physics, perceiver=perceiver, execution=execution)
     observation = episode.reset(case, seed)
     policy.reset(case, seed)
     policy_time = 0.0
@@ -355,4 +525,5 @@ def run_episode(
         metrics=episode.metrics(),
         poses=episode.final_poses(),
         policy_time_s=policy_time,
+        replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
     )

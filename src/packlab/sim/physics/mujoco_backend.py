@@ -24,6 +24,7 @@ Design choices (measured on a 2-core CPU; see benchmarks/physics_placement.py):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -39,6 +40,7 @@ _MM = 1e-3  # metres per millimetre
 _REUSE_MM = 0.02  # see MujocoBackend._rasterise
 _REUSE_QUAT = 1e-5
 _LIFT_TOLERANCE_MM = 0.1
+_COMPLY_STEP_MM = 0.5  # ring spacing of MujocoBackend._comply's search
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,6 +139,12 @@ def _net_squared_speeds(before: np.ndarray, after: np.ndarray, span_s: float) ->
     return np.stack([dist2, angle**2], axis=1) / span_s**2
 
 
+def _yawed_quaternion(rotation: int, yaw_deg: float) -> np.ndarray:
+    """Quaternion (wxyz) of the action's yaw (0 or 90 degrees) plus ``yaw_deg`` about z."""
+    angle = math.radians(90.0 * rotation + yaw_deg)
+    return np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])
+
+
 def _fmt(values: Sequence[float]) -> str:
     return " ".join(f"{v:.9g}" for v in values)
 
@@ -233,7 +241,24 @@ class MujocoBackend:
         adr = self._model.jnt_dofadr[self._model.body_jntadr[self._body_ids[index]]]
         return slice(adr, adr + 6)
 
-    def place(self, index: int, rotation: int, min_corner_mm: tuple[int, int, int]) -> Transition:
+    #: ``place`` takes execution noise (an xy offset, a yaw error, a release height).
+    supports_noisy_execution = True
+
+    def place(
+        self,
+        index: int,
+        rotation: int,
+        min_corner_mm: tuple[int, int, int],
+        offset_mm: tuple[float, float] = (0.0, 0.0),
+        yaw_deg: float = 0.0,
+        release_mm: float = 0.0,
+        comply_mm: float = 0.0,
+    ) -> Transition:
+        """Drop box ``index`` and settle. ``offset_mm`` (centre shift in x, y), ``yaw_deg``
+        (added to the rotation's yaw) and ``release_mm`` (added drop height) execute the drop
+        with robot noise (``packlab.sim.execution``); a box that would start inside another
+        slides up to ``comply_mm`` aside first (``_comply``). At their zero defaults the drop
+        is computed exactly as without them, so exact runs keep their scores bit for bit."""
         model, data, cfg = self._model, self._data, self.config
         assert model is not None and data is not None and self._container is not None, (
             "reset() first"
@@ -242,6 +267,9 @@ class MujocoBackend:
         fx, fy = (w, l) if rotation == 1 else (l, w)
         x, y, z = min_corner_mm
         centre = np.array([x + fx / 2, y + fy / 2, z + h / 2 + cfg.clearance_mm]) * _MM
+        noisy = offset_mm != (0.0, 0.0) or yaw_deg != 0.0 or release_mm != 0.0
+        if noisy:  # a separate branch: no float operation touches an exact drop
+            centre = centre + np.array([offset_mm[0], offset_mm[1], release_mm]) * _MM
 
         body, geom = self._body_ids[index], self._geom_ids[index]
         model.body_gravcomp[body] = 0.0
@@ -249,10 +277,13 @@ class MujocoBackend:
         # The broad phase filters on the per-body masks, which compile from the geoms.
         model.body_contype[body] = model.body_conaffinity[body] = 1
         qpos = self._qpos_slice(index)
-        data.qpos[qpos] = np.concatenate([centre, yaw_quaternion(rotation)])
+        quat = _yawed_quaternion(rotation, yaw_deg) if noisy else yaw_quaternion(rotation)
+        data.qpos[qpos] = np.concatenate([centre, quat])
         data.qvel[self._qvel_slice(index)] = 0.0
         self._placed[index] = True
-        self._lift_clear(index, rotation)
+        if noisy and comply_mm > 0:
+            self._comply(index, rotation, yaw_deg, comply_mm)
+        self._lift_clear(index, rotation, yaw_deg)
         return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
 
     def finish(self) -> Transition:
@@ -263,7 +294,7 @@ class MujocoBackend:
             self.config.final_settle_window_steps, self.config.final_max_settle_steps
         )
 
-    def _lift_clear(self, index: int, rotation: int) -> None:
+    def _lift_clear(self, index: int, rotation: int, yaw_deg: float = 0.0) -> None:
         """Raise a just-placed box out of any box it would start inside.
 
         Eq. 2 heights come from a heightmap sampled at cell centres, so the edge of a tilted or
@@ -279,7 +310,7 @@ class MujocoBackend:
         geom = self._geom_ids[index]
         z_adr = self._qpos_slice(index).start + 2
         tol = _LIFT_TOLERANCE_MM * _MM
-        if self._clear_below(index, rotation) or self._penetration(geom) <= tol:
+        if self._clear_below(index, rotation, yaw_deg) or self._penetration(geom) <= tol:
             return
         low = self._data.qpos[z_adr]
         high = self._highest_top(index) + self._sizes_mm[index, 2] / 2 * _MM
@@ -291,10 +322,39 @@ class MujocoBackend:
                 low = mid
         self._data.qpos[z_adr] = high + cfg.clearance_mm * _MM
 
-    def _clear_below(self, index: int, rotation: int) -> bool:
+    def _comply(self, index: int, rotation: int, yaw_deg: float, limit_mm: float) -> None:
+        """Slide a just-placed noisy box aside (at most ``limit_mm``) until it touches nothing.
+
+        A noisy drop beside a neighbour that itself landed off-plan can start a few mm inside
+        it; a robot's compliant wrist lets the box slide off the neighbour's side as it goes
+        down rather than set it on top (what ``_lift_clear`` would do). The nearest clear
+        position is searched on rings of ``_COMPLY_STEP_MM`` in 16 directions, first with the
+        box's yaw error, then squared up (a box turned a degree in a tight slot is turned
+        straight by its walls as it goes down). When nothing is clear within the limit the
+        box keeps its noisy pose and ``_lift_clear`` raises it.
+        """
+        geom, tol = self._geom_ids[index], _LIFT_TOLERANCE_MM * _MM
+        pose = self._qpos_slice(index)
+        if self._penetration(geom) <= tol:
+            return
+        noisy_pose = self._data.qpos[pose].copy()
+        angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+        directions = np.stack([np.cos(angles), np.sin(angles), np.zeros(16)], axis=1)
+        quats = [_yawed_quaternion(rotation, yaw_deg), np.asarray(yaw_quaternion(rotation))]
+        for quat in quats[: 2 if yaw_deg else 1]:
+            self._data.qpos[pose.start + 3 : pose.stop] = quat
+            for radius in np.arange(0.0, limit_mm + 1e-9, _COMPLY_STEP_MM):
+                for d in directions[: 1 if radius == 0 else 16]:
+                    self._data.qpos[pose.start : pose.start + 3] = noisy_pose[:3] + d * radius * _MM
+                    if self._penetration(geom) <= tol:
+                        return
+        self._data.qpos[pose] = noisy_pose
+
+    def _clear_below(self, index: int, rotation: int, yaw_deg: float = 0.0) -> bool:
         """Cheap sufficient test that box ``index`` starts clear: every placed box whose planar
         extent overlaps its footprint tops out below its bottom (the usual drop onto a flat
-        stack). Uses the poses of the last step; ``_LIFT_TOLERANCE_MM`` covers their lag."""
+        stack). Uses the poses of the last step; ``_LIFT_TOLERANCE_MM`` covers their lag.
+        A noisy drop's extra ``yaw_deg`` widens the footprint to its axis-aligned bound."""
         model, data = self._model, self._data
         others = self._geom_ids[self._placed & (np.arange(len(self._placed)) != index)]
         if others.size == 0:
@@ -302,6 +362,9 @@ class MujocoBackend:
         centre = self._data.qpos[self._qpos_slice(index)][:3]
         half = model.geom_size[self._geom_ids[index]]
         half_x, half_y = (half[1], half[0]) if rotation == 1 else (half[0], half[1])
+        if yaw_deg != 0.0:
+            c, s = abs(math.cos(math.radians(yaw_deg))), abs(math.sin(math.radians(yaw_deg)))
+            half_x, half_y = c * half_x + s * half_y, s * half_x + c * half_y
         pos = data.geom_xpos[others]
         extent = np.einsum(
             "nij,nj->ni", np.abs(data.geom_xmat[others].reshape(-1, 3, 3)), model.geom_size[others]

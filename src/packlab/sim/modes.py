@@ -1,0 +1,78 @@
+"""The episode's observation and execution modes (issue 15) by name, as the bench selects them.
+
+``observation``: ``exact`` (the true heightmap and sizes) or ``perceived`` (what the simulated
+depth cameras and perception of ``packlab.sim.sensing`` recover under the ``noise`` preset's
+sensor). ``execution``: ``exact`` or ``noisy`` (the preset's robot noise,
+``packlab.sim.execution``). Both exact: no perceiver, no noise, the exact-mode loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, require_choice
+from packlab.sim.execution import ExecutionNoise, execution_noise
+from packlab.sim.replan import Perceiver, Perception, Scene
+from packlab.sim.sensing import perceive_state
+
+#: The noise preset when none is named: the structured-light camera the issue targets.
+DEFAULT_NOISE: NoisePreset = "structured-light"
+
+
+@dataclass(frozen=True, slots=True)
+class SensingPerceiver:
+    """A ``Perceiver`` over ``packlab.sim.sensing.perceive_state`` with one sensor preset."""
+
+    preset: NoisePreset
+
+    def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception:
+        shown = scene.sizes_mm[list(scene.shown)].reshape(-1, 3)
+        state = perceive_state(
+            scene.container,
+            scene.sizes_mm,
+            scene.positions_mm,
+            scene.quaternions,
+            shown,
+            self.preset,
+            rng,
+        )
+        sizes = tuple(tuple(int(v) for v in row) for row in np.asarray(state.shown_sizes_mm))
+        return Perception(
+            np.asarray(state.heightmap, dtype=np.int32),
+            sizes,  # type: ignore[arg-type]
+            dims_error_mm=tuple(float(v) for v in state.stats.dims_error_mm),
+            yaw_error_deg=tuple(float(v) for v in state.stats.yaw_error_deg),
+            heightmap_mae_mm=float(state.stats.heightmap_mae_mm),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeModes:
+    """What ``Episode`` takes for the modes: a perceiver (None: exact) and noise (None: exact)."""
+
+    perceiver: Perceiver | None = None
+    execution: ExecutionNoise | None = None
+
+
+#: Both modes exact: what every run uses unless asked otherwise.
+EXACT_MODES = EpisodeModes()
+
+
+def episode_modes(
+    observation: ObservationMode = "exact",
+    execution: ExecutionMode = "exact",
+    noise: NoisePreset = DEFAULT_NOISE,
+) -> EpisodeModes:
+    """The modes by name (ConfigError naming the field for an unknown value)."""
+    require_choice(observation, ObservationMode, "observation")
+    require_choice(execution, ExecutionMode, "execution")
+    require_choice(noise, NoisePreset, "noise")
+    return EpisodeModes(
+        perceiver=SensingPerceiver(noise) if observation == "perceived" else None,
+        execution=execution_noise(noise) if execution == "noisy" else None,
+    )
+
+
+__all__ = ["DEFAULT_NOISE", "EXACT_MODES", "EpisodeModes", "SensingPerceiver", "episode_modes"]

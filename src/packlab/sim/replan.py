@@ -1,0 +1,106 @@
+"""Perceived observations and re-planning events (issue 15).
+
+In ``perceived`` mode the episode shows the policy what a perceiver (the depth cameras and
+perception of ``packlab.sim.sensing``) recovers from the scene, not the exact state. After
+every placement it compares the newly perceived heightmap with the one predicted from the
+previous perceived heightmap by paper Eq. 2 for the intended placement (with the sizes the
+policy was shown), and logs a *re-plan event* when they differ by more than ``ReplanRule``.
+The policies are closed-loop already; the event measures how often the world departs from the
+plan (a box slid, toppled, or was perceived wrongly), it does not change the loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from packlab.core.errors import ConfigError
+from packlab.core.feasibility import placement_height
+from packlab.core.types import Container
+from packlab.sim.heightmap import place_box
+
+
+@dataclass(frozen=True, slots=True)
+class Scene:
+    """The true state a perceiver looks at (what a camera could see, and the ground truth)."""
+
+    container: Container
+    sizes_mm: np.ndarray  # (n, 3) int l, w, h mm of every box of the case, indexed like it
+    positions_mm: np.ndarray  # (n, 3) float mm box centres; NaN rows: not in the container
+    quaternions: np.ndarray  # (n, 4) float wxyz; NaN rows: not in the container
+    heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, the exact heightmap
+    shown: tuple[int, ...]  # case indices of the buffered objects, in the order shown
+
+
+@dataclass(frozen=True, slots=True)
+class Perception:
+    """What the perceiver recovered: the policy's observation in ``perceived`` mode."""
+
+    heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, perceived container heightmap
+    sizes_mm: tuple[tuple[int, int, int], ...]  # perceived (l, w, h) mm per shown object, in order
+    #: Errors against the truth, where the perceiver reports them (for the robustness tables):
+    #: per shown object the largest size error (mm) and the yaw error (degrees), and the mean
+    #: absolute heightmap error over the container's cells (mm).
+    dims_error_mm: tuple[float, ...] = ()
+    yaw_error_deg: tuple[float, ...] = ()
+    heightmap_mae_mm: float | None = None
+
+
+class Perceiver(Protocol):
+    """Turns a scene into a perception; ``rng`` is its only source of randomness (seeded)."""
+
+    def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception: ...
+
+
+def exact_perceiver(scene: Scene, rng: np.random.Generator) -> Perception:
+    """The ideal perceiver: the exact heightmap and sizes (what ``exact`` mode shows)."""
+    sizes = tuple(tuple(int(v) for v in scene.sizes_mm[i]) for i in scene.shown)
+    return Perception(scene.heightmap.copy(), sizes)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True, slots=True)
+class ReplanRule:
+    """When a perceived heightmap departs from its prediction: more than ``min_cells`` cells off
+    by more than ``threshold_mm``.
+
+    20 mm is ten height steps of the 2 mm grid: several times the per-cell error a 1-10 mm depth
+    camera leaves after binning (median of many pixels per 25 mm cell), yet less than the
+    thinnest box, so a box that slid off-plan or toppled shows. One or two cells can disagree at
+    a box edge by sampling alone (a box 1 mm over a cell border), hence ``min_cells`` = 2.
+    """
+
+    threshold_mm: int = 20
+    min_cells: int = 2
+
+    def __post_init__(self) -> None:
+        if self.threshold_mm < 0 or self.min_cells < 0:
+            raise ConfigError(f"ReplanRule = {self!r}: thresholds must not be negative")
+
+
+def predict_heightmap(
+    heightmap: np.ndarray, x: int, y: int, footprint_cells: tuple[int, int], height_mm: int
+) -> np.ndarray:
+    """Eq. 2 prediction: a box of ``height_mm`` on ``footprint_cells`` at cell (x, y) rests on
+    the highest cell under it (``heightmap`` is the perceived one before the placement)."""
+    fx, fy = footprint_cells
+    z = placement_height(heightmap, x, y, fx, fy)
+    return place_box(heightmap, x, y, fx, fy, z + height_mm)
+
+
+def deviates(predicted: np.ndarray, perceived: np.ndarray, rule: ReplanRule) -> bool:
+    """True when ``perceived`` departs from ``predicted`` by the rule (a re-plan event)."""
+    diff = np.abs(perceived.astype(np.int64) - predicted.astype(np.int64))
+    return int((diff > rule.threshold_mm).sum()) > rule.min_cells
+
+
+__all__ = [
+    "Perceiver",
+    "Perception",
+    "ReplanRule",
+    "Scene",
+    "deviates",
+    "exact_perceiver",
+    "predict_heightmap",
+]

@@ -1,0 +1,101 @@
+"""Issue 15: execution noise (``packlab.sim.execution``) and noisy drops on the mujoco backend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from layered_cases import make_layered_case
+
+from packlab.core.errors import ConfigError
+from packlab.policies import make_policy
+from packlab.sim.episode import Episode, run_episode
+from packlab.sim.execution import (
+    EXACT_DROP,
+    EXECUTION_PRESETS,
+    ExecutionNoise,
+    execution_noise,
+    perturb_drop,
+)
+
+NOISY = ExecutionNoise(xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=10.0)
+
+
+def _drops(noise: ExecutionNoise, seed: int, n: int = 20):
+    rng = np.random.default_rng(seed)
+    return [perturb_drop(noise, (100, 50, 0), (200, 100), (400, 300), rng) for _ in range(n)]
+
+
+def test_zero_noise_is_the_exact_drop_and_presets_grow():
+    assert _drops(ExecutionNoise(), 0) == [EXACT_DROP] * 20
+    assert execution_noise("none").is_zero
+    sigmas = [EXECUTION_PRESETS[p].xy_sigma_mm for p in ("none", "structured-light", "stereo")]
+    assert sigmas == sorted(sigmas) and sigmas[0] == 0 < sigmas[1]
+
+
+def test_perturbation_is_seeded_and_moves_the_drop():
+    a, b, c = _drops(NOISY, 3), _drops(NOISY, 3), _drops(NOISY, 4)
+    assert a == b and a != c
+    offsets = np.array([d.offset_mm for d in a])
+    assert np.abs(offsets).max() > 1.0 and {d.release_mm for d in a} == {10.0}
+    assert np.abs([d.yaw_deg for d in a]).max() > 0.5
+
+
+def test_offsets_keep_the_turned_footprint_inside_the_walls():
+    rng = np.random.default_rng(0)
+    big = ExecutionNoise(xy_sigma_mm=50.0, yaw_sigma_deg=5.0)
+    for _ in range(200):  # flush in the corner: any outward offset must be clamped
+        d = perturb_drop(big, (0, 0, 0), (200, 100), (400, 300), rng)
+        c, s = abs(np.cos(np.radians(d.yaw_deg))), abs(np.sin(np.radians(d.yaw_deg)))
+        half_x, half_y = (c * 200 + s * 100) / 2, (s * 200 + c * 100) / 2
+        assert 100 + d.offset_mm[0] >= half_x - 1e-9 and 50 + d.offset_mm[1] >= half_y - 1e-9
+
+
+@pytest.mark.parametrize("field", ["xy_sigma_mm", "yaw_sigma_deg", "release_mm", "comply_mm"])
+def test_bad_noise_is_refused_by_name(field):
+    with pytest.raises(ConfigError, match=field):
+        ExecutionNoise(**{field: -1.0})
+    with pytest.raises(ConfigError, match="noise"):
+        execution_noise("laser")  # type: ignore[arg-type]
+
+
+def test_geometric_backend_refuses_noisy_execution():
+    episode = Episode("geometric", execution=NOISY)
+    with pytest.raises(ConfigError, match="execution = 'noisy'.*geometric"):
+        episode.reset(make_layered_case(0), 0)
+
+
+def _record(result):
+    rec = result.to_record()
+    rec.pop("policy_time_s")
+    rec["metrics"].pop("wall_time_s")
+    for step in rec["steps"]:
+        step.pop("wall_time_s")
+    return rec
+
+
+@pytest.mark.physics
+def test_zero_noise_execution_is_exact_execution():
+    case = make_layered_case(1, pieces=5)
+    exact = run_episode(case, make_policy("dblf"), 0, backend="mujoco")
+    zero = run_episode(case, make_policy("dblf"), 0, backend="mujoco", execution=ExecutionNoise())
+    rec = _record(zero)
+    assert all(s.pop("executed") == [0.0, 0.0, 0.0, 0.0] for s in rec["steps"] if s["valid"])
+    assert rec == _record(exact)
+
+
+@pytest.mark.physics
+def test_noisy_execution_is_seeded_and_lands_boxes_off_plan():
+    case = make_layered_case(1, pieces=5)
+    runs = [
+        run_episode(case, make_policy("dblf"), seed, backend="mujoco", execution=NOISY)
+        for seed in (0, 0, 1)
+    ]
+    assert _record(runs[0]) == _record(runs[1])
+    assert _record(runs[0]) != _record(runs[2])
+    exact = run_episode(case, make_policy("dblf"), 0, backend="mujoco")
+    # Same decisions on the first step (same observation), but the box settles elsewhere.
+    first_exact, first_noisy = exact.steps[0], runs[0].steps[0]
+    assert first_noisy.drop_mm == first_exact.drop_mm
+    moved = np.abs(first_noisy.positions_mm - first_exact.positions_mm)
+    assert np.nanmax(moved) > 0.5
+    assert {len(s.to_record()["executed"]) for s in runs[0].steps if s.valid} == {4}

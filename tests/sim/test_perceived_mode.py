@@ -1,0 +1,138 @@
+"""Issue 15: perceived observations and re-plan events in the episode loop."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import msgspec
+import numpy as np
+import pytest
+from layered_cases import make_layered_case
+
+from packlab.bench.task import run_task
+from packlab.core.records import EpisodeOk
+from packlab.policies import make_policy
+from packlab.sim.episode import Episode, run_episode
+from packlab.sim.modes import episode_modes
+from packlab.sim.replan import (
+    Perception,
+    ReplanRule,
+    Scene,
+    deviates,
+    exact_perceiver,
+    predict_heightmap,
+)
+
+
+def _record(result, drop_mode_keys=False):
+    rec = result.to_record()
+    rec.pop("policy_time_s")
+    rec["metrics"].pop("wall_time_s")
+    if drop_mode_keys:
+        rec["metrics"].pop("replans")
+    for step in rec["steps"]:
+        step.pop("wall_time_s")
+        if drop_mode_keys:
+            step.pop("replan")
+            step.pop("perception")
+    return rec
+
+
+def test_prediction_is_eq2_and_deviation_follows_the_rule():
+    hm = np.zeros((4, 4), dtype=np.int32)
+    hm[1, 1] = 30
+    predicted = predict_heightmap(hm, 0, 0, (2, 2), 100)
+    assert (predicted[:2, :2] == 130).all() and predicted[2:, :].max() == 0
+    rule = ReplanRule(threshold_mm=20, min_cells=2)
+    off = predicted.copy()
+    off[3, 3] = off[3, 2] = 50  # two cells off: not more than min_cells
+    assert not deviates(predicted, off, rule)
+    off[2, 3] = 21
+    assert deviates(predicted, off, rule)
+    off[2, 3] = 20  # exactly the threshold is not over it
+    assert not deviates(predicted, off, rule)
+
+
+@pytest.mark.parametrize(
+    ("backend", "policy"),
+    [
+        ("geometric", "dblf"),
+        ("geometric", "random"),
+        pytest.param("mujoco", "dblf", marks=pytest.mark.physics),
+        # mujoco + random (tilted boxes) is left out until the zero-noise heightmap rule of
+        # packlab.sim.sensing matches the exact rasteriser under tilted tops (1-2 mm apart).
+    ],
+)
+def test_noise_free_perceived_episodes_equal_exact_episodes(backend, policy):
+    case = make_layered_case(2, pieces=5)
+    exact = run_episode(case, make_policy(policy), 1, backend=backend)
+    modes = episode_modes("perceived", "exact", "none")
+    seen = run_episode(case, make_policy(policy), 1, backend=backend, perceiver=modes.perceiver)
+    if backend == "geometric":  # Eq. 2 is exact there; physics may topple a random pile
+        assert seen.replans == 0
+    assert _record(seen, drop_mode_keys=True) == _record(exact)
+
+
+def test_exact_mode_records_have_no_mode_keys():
+    rec = run_episode(make_layered_case(0), make_policy("dblf"), 0, backend="geometric")
+    rec = rec.to_record()
+    assert "replans" not in rec["metrics"]
+    assert not {"replan", "executed", "perception"} & {k for s in rec["steps"] for k in s}
+
+
+def _shifted_perceiver(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver (this test only): sees every box 25 mm taller and 25 mm longer."""
+    exact = exact_perceiver(scene, rng)
+    heightmap = np.where(exact.heightmap > 0, exact.heightmap + 25, 0).astype(np.int32)
+    sizes = tuple((l + 25, w, h) for l, w, h in exact.sizes_mm)
+    return Perception(heightmap, sizes)
+
+
+def test_policy_observes_the_perception_and_replans_are_counted():
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_shifted_perceiver)
+    first = episode.reset(case, 0)
+    exact = Episode("geometric").reset(case, 0)
+    assert [s.size_mm[0] for s in first.shown] == [s.size_mm[0] + 25 for s in exact.shown]
+    assert first.shown[0].size_cells[0] == exact.shown[0].size_cells[0] + 1
+    result = run_episode(case, make_policy("dblf"), 0, "geometric", perceiver=_shifted_perceiver)
+    flags = [s.replan for s in result.steps]
+    assert all(f is not None for f in flags)
+    assert result.replans == sum(flags) == result.to_record()["metrics"]["replans"]
+    # The observed heightmap is the perceived one (exact + 25 where something stands).
+    assert episode.observe().heightmap.max() == 0
+    step = episode.step(make_policy("dblf").act(first))
+    assert episode.observe().heightmap.max() == episode.heightmap.max() + 25
+    assert isinstance(step.replan, bool)
+
+
+def test_a_disagreeing_perception_logs_replan_events():
+    """A perceiver that misses a box's height: the prediction from what the policy was shown
+    departs from what is perceived next, so a re-plan event is logged."""
+
+    def taller_next_time(scene: Scene, rng: np.random.Generator) -> Perception:
+        exact = exact_perceiver(scene, rng)
+        return replace(exact, heightmap=(exact.heightmap * 2).astype(np.int32))
+
+    result = run_episode(
+        make_layered_case(0, pieces=5),
+        make_policy("dblf"),
+        0,
+        "geometric",
+        perceiver=taller_next_time,
+    )
+    assert result.replans > 0
+
+
+@pytest.mark.physics
+def test_bench_task_records_with_modes_are_valid_records():
+    case = make_layered_case(1, pieces=4)
+    modes = episode_modes("perceived", "noisy", "stereo")
+    record = run_task(case, "dblf", 0, "mujoco", modes=modes)
+    assert isinstance(record, EpisodeOk), getattr(record, "error", "")
+    data = msgspec.to_builtins(record)
+    assert isinstance(data["metrics"]["replans"], int)
+    assert all(len(s["executed"]) == 4 for s in data["steps"] if s["valid"])
+    errors = data["steps"][0]["perception"]
+    assert len(errors["dims_error_mm"]) == len(data["steps"][0]["shown"])
+    assert 0.0 <= errors["heightmap_mae_mm"] < 10.0  # stereo over an empty container
