@@ -20,7 +20,6 @@ import numpy as np
 
 from packlab.bench.suites import load_suite
 from packlab.core.types import Case
-from packlab.sim.heightmap import yaw_quaternion
 from packlab.sim.sensing import (
     add_sensor_noise,
     container_camera,
@@ -28,28 +27,9 @@ from packlab.sim.sensing import (
     perceive_state,
     sensor_preset,
 )
+from packlab.sim.sensing.scene import planned_scene
 
 PRESETS = ("none", "structured-light", "stereo")
-
-
-def packed_poses(case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sizes, centres, quaternions) of every box where the case's perfect plan puts it."""
-    sizes = np.array([b.size_mm for b in case.objects], dtype=float)
-    positions = np.full((len(sizes), 3), np.nan)
-    quats = np.full((len(sizes), 4), np.nan)
-    ids = [b.internal_id for b in case.objects]
-    cell, zcell = case.container.cell_xy_mm, case.container.cell_z_mm
-    for step in case.gt_plan or ():
-        i = ids.index(step.internal_id)
-        l, w, h = sizes[i]
-        fx, fy = (w, l) if step.rotation else (l, w)
-        positions[i] = (
-            step.x * cell + fx / 2,
-            step.y * cell + fy / 2,
-            step.cell_min[2] * zcell + h / 2,
-        )
-        quats[i] = yaw_quaternion(step.rotation)
-    return sizes, positions, quats
 
 
 def _time(fn, repeats: int) -> list[float]:
@@ -75,7 +55,7 @@ def bench_level(cases: list[Case], repeats: int) -> list[tuple]:
         for segmentation in ("truth", "depth"):
             total, part, mae, dims, yaw = [], [], [], [], []
             for case in cases:
-                sizes, positions, quats = packed_poses(case)
+                sizes, positions, quats = planned_scene(case)
                 shown = sizes[: case.buffer_size].astype(int)
                 rng = np.random.default_rng(0)
                 args = (case.container, sizes, positions, quats, shown, name, rng, segmentation)

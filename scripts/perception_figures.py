@@ -14,31 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from packlab.bench.suites import load_suite
-from packlab.core.types import Case
-from packlab.sim.heightmap import rasterise_poses, yaw_quaternion
+from packlab.sim.heightmap import rasterise_poses
 from packlab.sim.sensing import perceive_state
+from packlab.sim.sensing.scene import planned_scene
 from packlab.viz.perception import perception_figure
 from packlab.viz.plots import save_figure
-
-
-def packed_poses(case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sizes, centres, quaternions) of every box where the case's perfect plan puts it."""
-    sizes = np.array([b.size_mm for b in case.objects], dtype=float)
-    positions = np.full((len(sizes), 3), np.nan)
-    quats = np.full((len(sizes), 4), np.nan)
-    ids = [b.internal_id for b in case.objects]
-    cell, zcell = case.container.cell_xy_mm, case.container.cell_z_mm
-    for step in case.gt_plan or ():
-        i = ids.index(step.internal_id)
-        l, w, h = sizes[i]
-        fx, fy = (w, l) if step.rotation else (l, w)
-        positions[i] = (
-            step.x * cell + fx / 2,
-            step.y * cell + fy / 2,
-            step.cell_min[2] * zcell + h / 2,
-        )
-        quats[i] = yaw_quaternion(step.rotation)
-    return sizes, positions, quats
 
 
 def main() -> None:
@@ -47,7 +27,7 @@ def main() -> None:
     parser.add_argument("--case", type=int, default=0)
     args = parser.parse_args()
     case = [c for c in load_suite("packlab-bench-v1") if c.difficulty == "hard"][args.case]
-    sizes, positions, quats = packed_poses(case)
+    sizes, positions, quats = planned_scene(case)
     order = [[b.internal_id for b in case.objects].index(s.internal_id) for s in case.gt_plan]
     later = order[len(order) // 2 :]
     positions[later] = np.nan  # half packed

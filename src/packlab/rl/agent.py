@@ -18,7 +18,10 @@ import torch
 from sb3_contrib import MaskablePPO
 
 from packlab.core.errors import ConfigError
-from packlab.rl.features import Encoded, FeatureSpec
+from packlab.core.fileio import write_atomically
+from packlab.core.types import Action, Observation
+from packlab.rl.envs import SET_ASIDE
+from packlab.rl.features import Encoded, FeatureSpec, encode
 
 MODEL_FILE = "model.zip"
 CARD_FILE = "card.json"
@@ -52,7 +55,8 @@ class LoadedAgent:
 
 
 def write_card(directory: Path, card: AgentCard) -> None:
-    (directory / CARD_FILE).write_text(json.dumps(asdict(card), indent=1, sort_keys=True) + "\n")
+    text = (json.dumps(asdict(card), indent=1, sort_keys=True) + "\n").encode()
+    write_atomically(directory / CARD_FILE, lambda f: f.write(text))
 
 
 def read_card(directory: Path) -> AgentCard:
@@ -89,3 +93,9 @@ def choose_row(model: Any, encoded: Encoded, deterministic: bool = True) -> int:
         encoded.arrays, action_masks=encoded.mask, deterministic=deterministic
     )
     return int(np.asarray(action).reshape(-1)[0])
+
+
+def greedy_action(model: Any, spec: FeatureSpec, observation: Observation) -> Action:
+    """The packing action the model takes greedily; the box is set aside when nothing fits."""
+    encoded = encode(observation, spec)
+    return encoded.actions[choose_row(model, encoded)] if encoded.actions else SET_ASIDE

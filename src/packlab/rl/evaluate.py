@@ -8,24 +8,31 @@ from typing import Any
 
 import numpy as np
 
-from packlab.core.types import Case
-from packlab.rl.agent import choose_row
-from packlab.rl.envs import SET_ASIDE
-from packlab.rl.features import FeatureSpec, encode
-from packlab.sim.episode import Episode
+from packlab.core.types import Action, Case, Observation
+from packlab.metrics import EpisodeMetrics
+from packlab.rl.agent import greedy_action
+from packlab.rl.features import FeatureSpec
+from packlab.sim.episode import run_episode
 
 
-def play(model: Any, spec: FeatureSpec, case: Case, seed: int = 0, backend: str = "geometric"):
+class GreedyAgent:
+    """An in-memory model as a Policy (the bench's ``irbpp`` / ``tapnet`` load theirs)."""
+
+    def __init__(self, model: Any, spec: FeatureSpec, name: str = "agent") -> None:
+        self.model, self.spec, self.name = model, spec, name
+
+    def reset(self, case: Case, seed: int) -> None:
+        """Nothing to prepare: the agent keeps no state between steps."""
+
+    def act(self, observation: Observation) -> Action:
+        return greedy_action(self.model, self.spec, observation)
+
+
+def play(
+    model: Any, spec: FeatureSpec, case: Case, seed: int = 0, backend: str = "geometric"
+) -> EpisodeMetrics:
     """One episode of ``case`` with the model's greedy choices; its EpisodeMetrics."""
-    episode = Episode(backend)
-    observation = episode.reset(case, seed)
-    while not episode.done:
-        encoded = encode(observation, spec)
-        action = encoded.actions[choose_row(model, encoded)] if encoded.actions else SET_ASIDE
-        episode.step(action)
-        if not episode.done:
-            observation = episode.observe()
-    return episode.metrics()
+    return run_episode(case, GreedyAgent(model, spec), seed, backend).metrics
 
 
 def evaluate(model: Any, spec: FeatureSpec, cases: Sequence[Case]) -> dict[str, float]:

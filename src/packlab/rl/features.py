@@ -33,6 +33,7 @@ from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.heuristics.select import object_rank
+from packlab.policies.heuristics.windows import padded
 
 #: Side of the resampled heightmap.
 GRID = 32
@@ -110,9 +111,10 @@ def global_row(observation: Observation) -> np.ndarray:
     return np.clip(np.asarray(row, dtype=np.float32), 0.0, FEATURE_MAX)
 
 
-def placement_row(cands: CandidateSet, index: int, rank: int) -> np.ndarray:
-    """(N_ITEM_FEATURES,) float32 for candidate ``index``; ``rank`` is its object's place when
-    the shown objects are sorted larger first (:func:`object_rank`).
+def placement_row(cands: CandidateSet, walled: np.ndarray, index: int, rank: int) -> np.ndarray:
+    """(N_ITEM_FEATURES,) float32 for candidate ``index``; ``walled`` is the heightmap inside a
+    ring of walls at the rim's height (:func:`padded`, made once per state); ``rank`` is the
+    object's place when the shown objects are sorted larger first (:func:`object_rank`).
 
     Columns: valid, x0/X, y0/Y, x1/X, y1/Y, footprint area share, h/H, z/H, top/H, over rim,
     support share (footprint cells at z), flush share (side cells against a wall or a column
@@ -126,7 +128,6 @@ def placement_row(cands: CandidateSet, index: int, rank: int) -> np.ndarray:
     fx, fy = int(cands.fx[index]), int(cands.fy[index])
     z, h = int(cands.z[index]), int(cands.h[index])
     under = hm[x : x + fx, y : y + fy]
-    walled = np.pad(hm, 1, constant_values=cands.container_height_mm)
     sides = np.concatenate(
         [
             walled[x, y + 1 : y + fy + 1],
@@ -189,8 +190,9 @@ def encode(observation: Observation, spec: FeatureSpec) -> Encoded:
     ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
     items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
     actions = []
+    walled = padded(cands.heightmap, cands.container_height_mm)
     for row, i in enumerate(_listed_indices(cands, spec)):
-        items[row] = placement_row(cands, i, int(ranks[int(cands.obj[i])]))
+        items[row] = placement_row(cands, walled, i, int(ranks[int(cands.obj[i])]))
         actions.append(
             Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
         )

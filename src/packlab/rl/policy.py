@@ -16,9 +16,7 @@ from typing import Any
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
-from packlab.rl.envs import SET_ASIDE
 from packlab.rl.extra import RLExtraMissing, import_rl
-from packlab.rl.features import encode
 
 #: Where the package ships its trained agents, one directory per policy name.
 SHIPPED_MODELS = Path(__file__).resolve().parents[1] / "data" / "models"
@@ -55,7 +53,7 @@ class RLAgentPolicy:
                 f"policy {self.name!r}: model = {str(self.model_dir)!r} is a "
                 f"{loaded.card.agent!r} agent (card.json)"
             )
-        self._choose = agent.choose_row
+        self._greedy = agent.greedy_action
         return loaded
 
     def shipped_present(self) -> bool:
@@ -72,10 +70,7 @@ class RLAgentPolicy:
     def act(self, observation: Observation) -> Action:
         if self._loaded is None:
             self._loaded = self._load()
-        encoded = encode(observation, self._loaded.card.spec)
-        if not encoded.actions:
-            return SET_ASIDE
-        return encoded.actions[self._choose(self._loaded.model, encoded)]
+        return self._greedy(self._loaded.model, self._loaded.card.spec, observation)
 
 
 def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:

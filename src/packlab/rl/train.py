@@ -29,6 +29,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
 from packlab.core.errors import ConfigError
+from packlab.core.fileio import write_atomically
 from packlab.core.types import Case
 from packlab.rl.agent import MODEL_FILE, AgentCard, write_card
 from packlab.rl.config import RLTrainConfig
@@ -102,8 +103,8 @@ def _trim_log(path: Path, env_steps: int) -> None:
 
 
 def save_model_dir(model: Any, directory: Path, card: AgentCard) -> None:
-    directory.mkdir(parents=True, exist_ok=True)
-    model.save(directory / MODEL_FILE)
+    # A kill mid-write must not leave half a model where best/ or final/ had a whole one.
+    write_atomically(directory / MODEL_FILE, model.save)
     write_card(directory, card)
 
 
@@ -173,9 +174,10 @@ class _Run:
         if scores["avg"] > self.state["best_avg"]:
             save_model_dir(model, self.out / "best", self.card(steps, wall, scores))
             self.state.update(best_avg=scores["avg"], best=scores)
-        model.save(self.out / "checkpoint.zip")
+        write_atomically(self.out / "checkpoint.zip", model.save)
         self.state.update(env_steps=steps, wall_s=wall)
-        (self.out / "state.json").write_text(json.dumps(self.state, indent=1) + "\n")
+        state = (json.dumps(self.state, indent=1) + "\n").encode()
+        write_atomically(self.out / "state.json", lambda f: f.write(state))
         returns = [e["r"] for e in model.ep_info_buffer]
         row = {"env_steps": steps, "wall_s": round(wall, 1), "steps_per_s": round(rate, 1)}
         row |= {"train_return": round(float(np.mean(returns)), 4) if returns else ""}

@@ -6,11 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from layered_cases import make_layered_case
+from sensing_scenes import packed_layered_case
 
 from packlab.core.types import Container
 from packlab.sim.heightmap import rasterise_poses
-from packlab.sim.physics.geometric import GeometricBackend
 from packlab.sim.sensing import (
     SENSOR_PRESETS,
     buffer_views,
@@ -28,24 +27,9 @@ NONE = SENSOR_PRESETS["none"]
 SIZES = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 200], [125, 75, 88]])
 
 
-def _placed_layered_case(seed: int):
-    """A layered case packed by its perfect plan on the geometric backend: (case, backend)."""
-    case = make_layered_case(seed, cells=(16, 12), pieces=5)
-    backend = GeometricBackend()
-    backend.reset(case.container, case.objects)
-    ids = [b.internal_id for b in case.objects]
-    for step in case.gt_plan:
-        backend.place(
-            ids.index(step.internal_id),
-            step.rotation,
-            (step.x * 25, step.y * 25, step.cell_min[2] * 2),
-        )
-    return case, backend
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_zero_noise_heightmap_equals_the_geometric_backends(seed):
-    case, backend = _placed_layered_case(seed)
+    case, backend = packed_layered_case(seed)
     sizes = np.array([b.size_mm for b in case.objects])
     image = container_camera(case.container, sizes, *backend.poses(), NONE)
     np.testing.assert_array_equal(
@@ -68,7 +52,7 @@ def test_zero_noise_heightmap_equals_the_rasteriser_for_settled_offsets():
 
 
 def test_binned_path_agrees_with_the_aligned_path_and_fills_missing_cells():
-    case, backend = _placed_layered_case(3)
+    case, backend = packed_layered_case(3)
     sizes = np.array([b.size_mm for b in case.objects])
     x, y, _ = case.container.size_mm
     aligned = container_camera(case.container, sizes, *backend.poses(), NONE)

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from layered_cases import make_layered_case
+from sensing_scenes import packed_layered_case
 
 from packlab.core.errors import ConfigError
-from packlab.sim.physics.geometric import GeometricBackend
 from packlab.sim.sensing import SENSOR_PRESETS, buffer_views, layout_buffer, perceive_state
 
 SHOWN = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 200], [125, 75, 88]])
@@ -15,16 +14,7 @@ SHOWN = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 20
 
 def _packed(seed: int = 4):
     """(case, sizes (n, 3), positions, quaternions, exact heightmap) after the perfect plan."""
-    case = make_layered_case(seed, cells=(16, 12), pieces=5)
-    backend = GeometricBackend()
-    backend.reset(case.container, case.objects)
-    ids = [b.internal_id for b in case.objects]
-    for step in case.gt_plan:
-        backend.place(
-            ids.index(step.internal_id),
-            step.rotation,
-            (step.x * 25, step.y * 25, step.cell_min[2] * 2),
-        )
+    case, backend = packed_layered_case(seed)
     sizes = np.array([b.size_mm for b in case.objects])
     return case, sizes, *backend.poses(), backend.finish().heightmap
 
