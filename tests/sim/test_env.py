@@ -7,6 +7,7 @@ from gymnasium.utils.env_checker import check_env
 from layered_cases import make_layered_case
 
 import packlab.sim.env  # noqa: F401  (registers the id)
+from packlab.core.errors import ConfigError
 from packlab.sim.env import ENV_ID, PackEnv
 
 
@@ -93,3 +94,25 @@ def test_incremental_reward_equals_full_recomputation(backend):
     env = PackEnv([case for case, _ in _REWARD_ROLLOUTS], backend=backend)
     for i, (_, seed) in enumerate(_REWARD_ROLLOUTS):
         _full_recomputation_rollout(env, case_index=i, seed=seed)
+
+
+def test_perceived_and_noisy_modes_through_gym_make():
+    """The bench's modes on the Gymnasium env: check_env passes, a masked rollout runs, the
+    noise-free perceived env replays the exact env, and a re-plan flag comes with each step."""
+    cases = [make_layered_case(s, cells=(16, 12), pieces=4) for s in range(2)]
+    env = gym.make(
+        ENV_ID,
+        cases=cases,
+        backend="mujoco",
+        observation="perceived",
+        execution="noisy",
+        noise="structured-light",
+    )
+    check_env(env.unwrapped, skip_render_check=True)
+    _total, info, _ = _masked_rollout(env.unwrapped, seed=1)
+    assert isinstance(info["replan"], bool) and "metrics" in info
+    exact = PackEnv(cases, backend="mujoco")
+    clean = PackEnv(cases, backend="mujoco", observation="perceived", noise="none")
+    assert _masked_rollout(clean, 3)[2] == _masked_rollout(exact, 3)[2]
+    with pytest.raises(ConfigError, match="observation"):
+        PackEnv(cases, observation="seen")

@@ -14,6 +14,10 @@ the environment may draw, so one policy network can train across container sizes
   case volume, so an episode's undiscounted return equals its final Success Ratio. A placement
   that knocks earlier boxes out is penalised by exactly the volume it lost.
 * ``info``: per step ``valid``/``reason``; at the end also ``metrics`` (``EpisodeMetrics.to_dict``).
+* Modes (as ``packlab bench``'s switches, ``packlab.sim.modes``): ``observation="perceived"``
+  shows the heightmap and sizes the simulated depth cameras recover under the ``noise``
+  preset (``info["replan"]`` per step); ``execution="noisy"`` (mujoco backend) executes each
+  drop with the preset's robot noise. Both default to ``"exact"``.
 """
 
 from __future__ import annotations
@@ -28,10 +32,12 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
+from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.core.types import Action, Case
 from packlab.metrics import inside_mask, success_ratio
 from packlab.sim.episode import Episode
+from packlab.sim.modes import DEFAULT_NOISE, episode_modes
 from packlab.sim.raster import heightmap_to_rgb
 
 ENV_ID = "packlab/Pack-v0"
@@ -88,7 +94,11 @@ class PackEnv(gym.Env):
         backend: str = "geometric",
         physics: Any = None,
         render_mode: str | None = None,
+        observation: ObservationMode = "exact",
+        execution: ExecutionMode = "exact",
+        noise: NoisePreset = DEFAULT_NOISE,
     ) -> None:
+        modes = episode_modes(observation, execution, noise)  # checks the names first
         if cases is None:
             cases = demo_cases_path()
         self.cases: list[Case] = (
@@ -109,6 +119,8 @@ class PackEnv(gym.Env):
             c.container.height_mm + sum(b.size_mm[2] for b in c.objects) for c in self.cases
         )
         size_bound = max(max(b.size_mm) for c in self.cases for b in c.objects)
+        if modes.perceiver is not None:  # a perceived side can snap one grid step long
+            size_bound += max(c.container.cell_xy_mm for c in self.cases)
         n_actions = self.k * 2 * self.grid[0] * self.grid[1]
         self.observation_space = spaces.Dict(
             {
@@ -119,7 +131,9 @@ class PackEnv(gym.Env):
             }
         )
         self.action_space = spaces.Discrete(n_actions)
-        self._episode = Episode(backend, physics)
+        self._episode = Episode(
+            backend, physics, perceiver=modes.perceiver, execution=modes.execution
+        )
         self._case: Case | None = None
         self._reward = InsideVolume()
 
@@ -139,7 +153,7 @@ class PackEnv(gym.Env):
         case = self._case
         hm = np.full(self.grid, case.container.height_mm, dtype=np.int32)
         cx, cy = case.container.cells
-        hm[:cx, :cy] = self._episode.heightmap
+        hm[:cx, :cy] = self._episode.observed_heightmap  # the perceived one in perceived mode
         buffer = np.zeros((self.k, 3), dtype=np.int32)
         buffer_mask = np.zeros(self.k, dtype=np.int8)
         mask = np.zeros((self.k, 2, *self.grid), dtype=np.int8)
@@ -177,6 +191,8 @@ class PackEnv(gym.Env):
         reward = self._reward.update(result.positions_mm)
         terminated = self._episode.done
         info: dict[str, Any] = {"valid": result.valid, "reason": result.reason}
+        if result.replan is not None:  # perceived mode: the scan departed from the plan
+            info["replan"] = result.replan
         if terminated:
             info["metrics"] = self._episode.metrics().to_dict()
         return self._observation(), float(reward), terminated, False, info

@@ -386,6 +386,7 @@ class Episode:
             yaw_deg=executed.yaw_deg,
             release_mm=executed.release_mm,
             comply_mm=executed.comply_mm,
+            seat_mm=executed.seat_mm,
         )
 
     def _predicted(self, item: ShownItem, rotation: int, x: int, y: int) -> np.ndarray:

@@ -32,9 +32,13 @@ class ExecutionNoise:
     #: A box that would start inside a neighbour (itself off-plan) slides up to this far aside,
     #: as a compliant wrist lets it (``MujocoBackend._comply``), instead of landing on top.
     comply_mm: float = 0.0
+    #: The place skill pushes the box, squared up, against the walls or boxes its planned pose
+    #: is flush with, at most this far past the plan (``MujocoBackend._seat``), so errors do
+    #: not add up along a row. 0: the box stays where the noise put it.
+    seat_mm: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("xy_sigma_mm", "yaw_sigma_deg", "release_mm", "comply_mm"):
+        for name in ("xy_sigma_mm", "yaw_sigma_deg", "release_mm", "comply_mm", "seat_mm"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"ExecutionNoise.{name} = {value!r}: must be a number >= 0")
@@ -51,9 +55,11 @@ class ExecutionNoise:
 EXECUTION_PRESETS: dict[str, ExecutionNoise] = {
     "none": ExecutionNoise(),
     "structured-light": ExecutionNoise(
-        xy_sigma_mm=2.0, yaw_sigma_deg=1.0, release_mm=5.0, comply_mm=10.0
+        xy_sigma_mm=2.0, yaw_sigma_deg=1.0, release_mm=5.0, comply_mm=10.0, seat_mm=5.0
     ),
-    "stereo": ExecutionNoise(xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=20.0),
+    "stereo": ExecutionNoise(
+        xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=20.0, seat_mm=10.0
+    ),
 }
 
 
@@ -71,6 +77,7 @@ class ExecutedDrop:
     yaw_deg: float  # extra yaw about z, degrees, added to the chosen rotation
     release_mm: float  # extra drop height above the planned rest height, mm
     comply_mm: float = 0.0  # how far the box may slide aside off a neighbour (ExecutionNoise)
+    seat_mm: float = 0.0  # how far past the plan the box may be pushed flush (ExecutionNoise)
 
     @property
     def is_exact(self) -> bool:
@@ -112,7 +119,13 @@ def perturb_drop(
     # Clamp the centre into [half, size - half] (an oversized footprint stays where planned).
     nx = float(np.clip(cx + dx * noise.xy_sigma_mm, half_x, max(half_x, container_mm[0] - half_x)))
     ny = float(np.clip(cy + dy * noise.xy_sigma_mm, half_y, max(half_y, container_mm[1] - half_y)))
-    return ExecutedDrop((nx - cx, ny - cy), yaw, float(noise.release_mm), float(noise.comply_mm))
+    return ExecutedDrop(
+        (nx - cx, ny - cy),
+        yaw,
+        float(noise.release_mm),
+        float(noise.comply_mm),
+        float(noise.seat_mm),
+    )
 
 
 __all__ = [

@@ -12,6 +12,7 @@ from packlab.core.types import Container
 from packlab.sim.heightmap import rasterise_poses
 from packlab.sim.sensing import (
     SENSOR_PRESETS,
+    add_sensor_noise,
     buffer_views,
     container_camera,
     estimate_objects,
@@ -21,7 +22,7 @@ from packlab.sim.sensing import (
     segment_depth,
     segment_truth,
 )
-from packlab.sim.sensing.perception import min_area_rect_angle
+from packlab.sim.sensing.perception import flatten_tops, min_area_rect_angle
 
 NONE = SENSOR_PRESETS["none"]
 SIZES = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 200], [125, 75, 88]])
@@ -49,6 +50,36 @@ def test_zero_noise_heightmap_equals_the_rasteriser_for_settled_offsets():
     image = container_camera(container, sizes, positions, quats, NONE)
     expected = rasterise_poses(container.cells, 25, sizes, positions, quats)
     np.testing.assert_array_equal(heightmap_from_depth(image, container), expected)
+
+
+def test_flat_tops_remove_cell_noise_and_keep_steps():
+    """Two flat tops 30 mm apart with 0.3 mm cell noise: each top gets one value (its median)
+    and the step between them stays; zero noise is left as it is."""
+    rng = np.random.default_rng(3)
+    truth = np.full((12, 10), 330.0)
+    truth[6:, :] = 300.0
+    noisy = truth + rng.normal(0.0, 0.3, truth.shape)
+    assert np.any(np.abs(np.rint(noisy) - truth) >= 1)  # the stray 1 mm steps it removes
+    flat = flatten_tops(noisy, 1.5)
+    assert np.rint(flat).tolist() == truth.tolist()
+    assert len(np.unique(flat[:6])) == 1 and len(np.unique(flat[6:])) == 1
+    np.testing.assert_array_equal(flatten_tops(truth, 1.5), truth)
+    ramp = np.add.outer(np.arange(12) * 10.0, np.zeros(10))  # 10 mm per cell: no top to join
+    np.testing.assert_array_equal(flatten_tops(ramp, 1.5), ramp)
+
+
+@pytest.mark.parametrize(("name", "seed"), [("structured-light", 2), ("stereo", 5)])
+def test_noisy_heightmap_of_a_flat_packing_is_exact_with_flat_tops(name, seed):
+    case, backend = packed_layered_case(1)
+    sizes = np.array([b.size_mm for b in case.objects])
+    preset = SENSOR_PRESETS[name]
+    clean = container_camera(case.container, sizes, *backend.poses(), preset)
+    image = add_sensor_noise(clean, preset, np.random.default_rng(seed))
+    exact = backend.finish().heightmap
+    raw = heightmap_from_depth(image, case.container)
+    flat = heightmap_from_depth(image, case.container, flat_tolerance_mm=preset.flat_tolerance_mm)
+    assert np.count_nonzero(raw != exact) > 0
+    np.testing.assert_array_equal(flat, exact)
 
 
 def test_binned_path_agrees_with_the_aligned_path_and_fills_missing_cells():
@@ -130,3 +161,11 @@ def test_min_area_rect_angle_of_a_rotated_rectangle():
     corners = np.array([[0, 0], [100, 0], [100, 40], [0, 40]], dtype=float)
     rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     assert min_area_rect_angle(corners @ rot.T) == pytest.approx(np.radians(30.0))
+
+
+def test_flat_tops_move_no_cell_by_more_than_the_tolerance():
+    """A long gentle slope chains into one component; its ends keep their own heights."""
+    slope = np.add.outer(np.arange(40) * 1.0, np.zeros(5))  # 1 mm per cell, 40 mm in all
+    flat = flatten_tops(slope, 1.5)
+    assert np.abs(flat - slope).max() <= 1.5
+    np.testing.assert_array_equal(flat[[0, -1]], slope[[0, -1]])

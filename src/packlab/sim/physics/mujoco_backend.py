@@ -41,6 +41,10 @@ _REUSE_MM = 0.02  # see MujocoBackend._rasterise
 _REUSE_QUAT = 1e-5
 _LIFT_TOLERANCE_MM = 0.1
 _COMPLY_STEP_MM = 0.5  # ring spacing of MujocoBackend._comply's search
+_SEAT_STEP_MM = 0.25  # step of MujocoBackend._seat's push
+#: How far _seat looks beside a planned pose for what it is flush with: past the collision
+#: inset (0.5 mm per side) and the lag of settled poses, well inside one 25 mm cell.
+_SEAT_PROBE_MM = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,11 +257,13 @@ class MujocoBackend:
         yaw_deg: float = 0.0,
         release_mm: float = 0.0,
         comply_mm: float = 0.0,
+        seat_mm: float = 0.0,
     ) -> Transition:
         """Drop box ``index`` and settle. ``offset_mm`` (centre shift in x, y), ``yaw_deg``
         (added to the rotation's yaw) and ``release_mm`` (added drop height) execute the drop
         with robot noise (``packlab.sim.execution``); a box that would start inside another
-        slides up to ``comply_mm`` aside first (``_comply``). At their zero defaults the drop
+        slides up to ``comply_mm`` aside first (``_comply``), then is pushed against what its
+        plan is flush with, up to ``seat_mm`` past it (``_seat``). At their zero defaults the drop
         is computed exactly as without them, so exact runs keep their scores bit for bit."""
         model, data, cfg = self._model, self._data, self.config
         assert model is not None and data is not None and self._container is not None, (
@@ -267,6 +273,7 @@ class MujocoBackend:
         fx, fy = (w, l) if rotation == 1 else (l, w)
         x, y, z = min_corner_mm
         centre = np.array([x + fx / 2, y + fy / 2, z + h / 2 + cfg.clearance_mm]) * _MM
+        planned = centre
         noisy = offset_mm != (0.0, 0.0) or yaw_deg != 0.0 or release_mm != 0.0
         if noisy:  # a separate branch: no float operation touches an exact drop
             centre = centre + np.array([offset_mm[0], offset_mm[1], release_mm]) * _MM
@@ -282,7 +289,9 @@ class MujocoBackend:
         data.qvel[self._qvel_slice(index)] = 0.0
         self._placed[index] = True
         if noisy and comply_mm > 0:
-            self._comply(index, rotation, yaw_deg, comply_mm)
+            self._comply(index, rotation, yaw_deg, comply_mm, planned[:2])
+        if noisy and seat_mm > 0:
+            self._seat(index, rotation, seat_mm, planned[:2])
         self._lift_clear(index, rotation, yaw_deg)
         return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
 
@@ -322,33 +331,114 @@ class MujocoBackend:
                 low = mid
         self._data.qpos[z_adr] = high + cfg.clearance_mm * _MM
 
-    def _comply(self, index: int, rotation: int, yaw_deg: float, limit_mm: float) -> None:
+    def _comply(
+        self,
+        index: int,
+        rotation: int,
+        yaw_deg: float,
+        limit_mm: float,
+        planned_xy: np.ndarray,
+    ) -> None:
         """Slide a just-placed noisy box aside (at most ``limit_mm``) until it touches nothing.
 
         A noisy drop beside a neighbour that itself landed off-plan can start a few mm inside
         it; a robot's compliant wrist lets the box slide off the neighbour's side as it goes
         down rather than set it on top (what ``_lift_clear`` would do). The nearest clear
-        position is searched on rings of ``_COMPLY_STEP_MM`` in 16 directions, first with the
-        box's yaw error, then squared up (a box turned a degree in a tight slot is turned
-        straight by its walls as it goes down). When nothing is clear within the limit the
-        box keeps its noisy pose and ``_lift_clear`` raises it.
+        position is searched on rings of ``_COMPLY_STEP_MM`` in 16 directions: around the noisy
+        pose with the box's yaw error, then squared up (a box turned a degree in a tight slot
+        is turned straight by its walls as it goes down), then squared up around the planned
+        centre (a corner slot that is only clear at one point, which the rings around the
+        noisy centre can step past). When nothing is clear within the limit the box keeps its
+        noisy pose and ``_lift_clear`` raises it.
         """
         geom, tol = self._geom_ids[index], _LIFT_TOLERANCE_MM * _MM
         pose = self._qpos_slice(index)
         if self._penetration(geom) <= tol:
             return
         noisy_pose = self._data.qpos[pose].copy()
+        planned = np.array([planned_xy[0], planned_xy[1], noisy_pose[2]])
+        squared = np.asarray(yaw_quaternion(rotation))
+        passes = [(_yawed_quaternion(rotation, yaw_deg), noisy_pose[:3])] if yaw_deg else []
+        passes += [(squared, noisy_pose[:3]), (squared, planned)]
+        for quat, centre in passes:
+            self._data.qpos[pose.start + 3 : pose.stop] = quat
+            if self._clear_within(geom, pose.start, centre, limit_mm):
+                return
+        self._data.qpos[pose] = noisy_pose
+
+    def _clear_within(self, geom: int, address: int, centre: np.ndarray, limit_mm: float) -> bool:
+        """Put the box at the clear position nearest ``centre`` (rings of ``_COMPLY_STEP_MM``,
+        16 directions, up to ``limit_mm``) and return True, or return False if there is none."""
+        tol = _LIFT_TOLERANCE_MM * _MM
         angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
         directions = np.stack([np.cos(angles), np.sin(angles), np.zeros(16)], axis=1)
-        quats = [_yawed_quaternion(rotation, yaw_deg), np.asarray(yaw_quaternion(rotation))]
-        for quat in quats[: 2 if yaw_deg else 1]:
-            self._data.qpos[pose.start + 3 : pose.stop] = quat
-            for radius in np.arange(0.0, limit_mm + 1e-9, _COMPLY_STEP_MM):
-                for d in directions[: 1 if radius == 0 else 16]:
-                    self._data.qpos[pose.start : pose.start + 3] = noisy_pose[:3] + d * radius * _MM
-                    if self._penetration(geom) <= tol:
-                        return
-        self._data.qpos[pose] = noisy_pose
+        for radius in np.arange(0.0, limit_mm + 1e-9, _COMPLY_STEP_MM):
+            for d in directions[: 1 if radius == 0 else 16]:
+                self._data.qpos[address : address + 3] = centre + d * radius * _MM
+                if self._penetration(geom) <= tol:
+                    return True
+        return False
+
+    def _seat(self, index: int, rotation: int, limit_mm: float, planned_xy: np.ndarray) -> None:
+        """Push a just-placed noisy box against what its planned pose is flush with.
+
+        A placement is planned flush against walls or boxes on some sides (on the -x and -y
+        sides for a minimum-corner rule like DBLF's, anywhere for others); a robot's place
+        skill pushes the box toward those sides as it lowers it, until contact or
+        ``limit_mm`` past the planned position, so execution errors do not add up along a row
+        (each box otherwise lands a little off its neighbour and the last box of a tight row
+        no longer fits). The box is squared up first (pushed against a flat face, a turned box
+        turns flush); where no push meets anything, or the squared box would start inside
+        something, the box keeps its noisy pose.
+        """
+        geom, tol = self._geom_ids[index], _LIFT_TOLERANCE_MM * _MM
+        pose = self._qpos_slice(index)
+        noisy_pose = self._data.qpos[pose].copy()
+        self._data.qpos[pose.start + 3 : pose.stop] = yaw_quaternion(rotation)
+        sides = self._flush_sides(geom, pose.start, planned_xy, noisy_pose)
+        met = False
+        if any(sides) and self._penetration(geom) <= tol:
+            for axis, side in enumerate(sides):
+                if side:
+                    # How far the box now is past its planned position (noise and _comply).
+                    past = side * (self._data.qpos[pose.start + axis] - planned_xy[axis])
+                    reach = max(0.0, -past / _MM) + limit_mm
+                    met = self._push_until_contact(geom, pose.start + axis, side, reach) or met
+        if not met:
+            self._data.qpos[pose] = noisy_pose
+
+    def _flush_sides(
+        self, geom: int, address: int, planned_xy: np.ndarray, noisy_pose: np.ndarray
+    ) -> tuple[int, int]:
+        """Per axis, the side (-1, +1, or 0: none) the squared box at its planned centre is
+        flush with: moving it ``_SEAT_PROBE_MM`` that way would touch something. With both
+        sides flush (a tight slot) the minimum side wins. Leaves the box at ``noisy_pose``'s
+        position (squared)."""
+        tol, sides = _LIFT_TOLERANCE_MM * _MM, []
+        for axis in (0, 1):
+            side = 0
+            for direction in (-1, 1):
+                self._data.qpos[address : address + 3] = (*planned_xy, noisy_pose[2])
+                self._data.qpos[address + axis] += direction * _SEAT_PROBE_MM * _MM
+                if self._penetration(geom) > tol:
+                    side = direction
+                    break
+            sides.append(side)
+        self._data.qpos[address : address + 3] = noisy_pose[:3]
+        return sides[0], sides[1]
+
+    def _push_until_contact(self, geom: int, address: int, side: int, limit_mm: float) -> bool:
+        """Move ``qpos[address]`` toward ``side`` (-1 or +1) in ``_SEAT_STEP_MM`` steps (at most
+        ``limit_mm``) until the next step would touch something; leave it flush there and
+        return True, or return False with it unmoved when nothing is met within the limit."""
+        tol, start = _LIFT_TOLERANCE_MM * _MM, float(self._data.qpos[address])
+        for step in np.arange(_SEAT_STEP_MM, limit_mm + 1e-9, _SEAT_STEP_MM):
+            self._data.qpos[address] = start + side * step * _MM
+            if self._penetration(geom) > tol:
+                self._data.qpos[address] = start + side * (step - _SEAT_STEP_MM) * _MM
+                return True
+        self._data.qpos[address] = start
+        return False
 
     def _clear_below(self, index: int, rotation: int, yaw_deg: float = 0.0) -> bool:
         """Cheap sufficient test that box ``index`` starts clear: every placed box whose planar

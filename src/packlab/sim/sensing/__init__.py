@@ -88,7 +88,9 @@ def perceive_state(
     layout_rng, container_rng, buffer_rng = rng.spawn(3)
     clean = container_camera(container, sizes, positions, quats, preset)
     container_image = add_sensor_noise(clean, preset, container_rng)
-    heightmap = heightmap_from_depth(container_image, container)
+    heightmap = heightmap_from_depth(
+        container_image, container, flat_tolerance_mm=preset.flat_tolerance_mm
+    )
     placed = np.all(np.isfinite(positions), axis=1)
     exact = rasterise_poses(
         container.cells, container.cell_xy_mm, sizes[placed], positions[placed], quats[placed]

@@ -38,6 +38,10 @@ class SensorPreset:
     pixel_mm: float = 5.0  # ground sampling distance: pixel pitch on the imaged plane
     camera_height_mm: float = 1500.0  # camera above the container rim / table surface
     buffer_view_px: int = 128  # pixels per side of each buffered object's own view (see camera)
+    #: Neighbouring heightmap cells closer than this (mm) are taken as one flat top and given
+    #: their common median (``perception.flatten_tops``): about 5 sigma of one cell's median
+    #: noise, far below a box's height. 0 (noise-free): off.
+    flat_tolerance_mm: float = 0.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -47,6 +51,7 @@ class SensorPreset:
             ("pixel_mm", self.pixel_mm > 0),
             ("camera_height_mm", self.camera_height_mm > 0),
             ("buffer_view_px", self.buffer_view_px >= 16),
+            ("flat_tolerance_mm", self.flat_tolerance_mm >= 0),
         )
         for field, ok in checks:
             if not ok:
@@ -61,6 +66,7 @@ class SensorPreset:
             depth_noise_mm=self.depth_noise_mm * factor,
             edge_dropout=min(1.0, self.edge_dropout * factor),
             quantisation_mm=self.quantisation_mm * factor,
+            flat_tolerance_mm=self.flat_tolerance_mm * factor,
         )
 
 
@@ -71,9 +77,15 @@ SENSOR_PRESETS: dict[str, SensorPreset] = {
     "none": _NONE,
     "perfect": replace(_NONE, name="perfect"),
     "structured-light": SensorPreset(
-        "structured-light", depth_noise_mm=1.0, edge_dropout=0.05, quantisation_mm=0.5
+        "structured-light",
+        depth_noise_mm=1.0,
+        edge_dropout=0.05,
+        quantisation_mm=0.5,
+        flat_tolerance_mm=1.5,
     ),
-    "stereo": SensorPreset("stereo", depth_noise_mm=6.0, edge_dropout=0.3, quantisation_mm=2.0),
+    "stereo": SensorPreset(
+        "stereo", depth_noise_mm=6.0, edge_dropout=0.3, quantisation_mm=2.0, flat_tolerance_mm=7.5
+    ),
 }
 
 
