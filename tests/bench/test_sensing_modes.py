@@ -44,6 +44,25 @@ def test_modes_enter_the_identity(tiny_suite):
         check_resumable(exact, saved, tiny_suite)
 
 
+def test_each_mode_gets_its_own_default_run_directory(tiny_suite):
+    """With no --out, runs of the modes one after another do not land in one directory (whose
+    identity would refuse the second); the exact default keeps its old name."""
+    outs = [
+        resolve(RunConfig(cases=str(tiny_suite), **modes)).out
+        for modes in (
+            {},
+            {"observation": "perceived"},
+            {"observation": "perceived", "execution": "noisy", "noise": "stereo"},
+            {"execution": "noisy"},
+        )
+    ]
+    exact = outs[0].name
+    assert exact.startswith("bench-") and len(set(outs)) == 4
+    assert outs[1].name == f"{exact}-perceived-structured-light"
+    assert outs[2].name == f"{exact}-perceived-noisy-stereo"
+    assert outs[3].name == f"{exact}-noisy-structured-light"
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

@@ -286,6 +286,17 @@ def sensing_identity(config: RunConfig) -> dict[str, str] | None:
     return {"observation": config.observation, "execution": config.execution, "noise": config.noise}
 
 
+def default_out(label: str, config: RunConfig) -> Path:
+    """``runs/bench-<suite>``; with a perceived or noisy mode its names are appended
+    (``runs/bench-<suite>-perceived-noisy-stereo``), so running the modes one after another
+    with no ``--out`` gives each its own run directory instead of a refused resume."""
+    sensing = sensing_identity(config)
+    if sensing is None:
+        return Path("runs") / f"bench-{label}"
+    modes = [m for m in (sensing["observation"], sensing["execution"]) if m != "exact"]
+    return Path("runs") / "-".join(["bench", label, *modes, sensing["noise"]])
+
+
 @dataclass(frozen=True, slots=True)
 class ResolvedRun:
     """A RunConfig with every default filled in and its cases loaded and selected."""
@@ -431,7 +442,7 @@ def resolve(config: RunConfig) -> ResolvedRun:
                 f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run "
                 f"({', '.join(policies)})"
             )
-    out = Path(config.out) if config.out else Path("runs") / f"bench-{source.label}"
+    out = Path(config.out) if config.out else default_out(source.label, config)
     check_out_dir(out)
     workers = config.workers or local_cores()
     return ResolvedRun(

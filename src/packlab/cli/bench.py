@@ -134,7 +134,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
         RunConfig,
         "out",
         "--out",
-        help="run directory (default runs/bench-<suite>); an existing one is resumed",
+        help="run directory (default runs/bench-<suite>, plus -perceived/-noisy and the noise "
+        "preset when those modes are on); an existing one is resumed",
     )
     add_field(
         p,
