@@ -79,6 +79,20 @@ def test_overall_rewards_return_the_episode_overall(agent, reward, cases):
         assert 0 < total <= 1
 
 
+@pytest.mark.parametrize("env_class", [CandidatePlacementEnv, ObjectChoiceEnv])
+def test_perceived_noisy_modes_keep_the_return_equal_to_the_overall(env_class, cases):
+    """The bench's modes on the RL envs: the agent sees the perceived state, the robot is
+    noisy (mujoco), and the return is still the episode's true Overall."""
+    easy = cases[:2]
+    env = env_class(easy, backend="mujoco", observation="perceived", execution="noisy")
+    check_env(env, skip_render_check=True)
+    total, info = _random_episode(env, np.random.default_rng(2), 1)
+    assert total == pytest.approx(info["metrics"]["overall"], abs=1e-12)
+    assert env._episode.steps[-1].replan is not None  # perceived mode: re-plan flags logged
+    with pytest.raises(ConfigError, match="noise"):
+        env_class(easy, observation="perceived", noise="lidar")
+
+
 def test_success_reward_returns_the_success_ratio(cases):
     env = CandidatePlacementEnv(cases, reward="success")
     total, info = _random_episode(env, np.random.default_rng(2), 3)

@@ -16,6 +16,10 @@ happen when the mask is ignored).
 
 Reward: :class:`packlab.rl.rewards.StepReward` (default ``overall``: the return is the final
 Overall). ``info`` at the end holds ``metrics`` (``EpisodeMetrics.to_dict``), as Pack-v0's.
+
+Modes (as ``packlab bench``'s): ``observation="perceived"`` encodes what the simulated depth
+cameras recover under the ``noise`` preset, ``execution="noisy"`` (mujoco) executes each drop
+with the preset's robot noise; the reward is judged on the true state either way.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
-from packlab.core.choices import RLAgent, RLReward
+from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, RLAgent, RLReward
 from packlab.core.types import Action, Case
 from packlab.rl.features import (
     FEATURE_MAX,
@@ -43,6 +47,7 @@ from packlab.rl.features import (
 from packlab.rl.rewards import StepReward
 from packlab.sim.env import demo_cases_path
 from packlab.sim.episode import Episode
+from packlab.sim.modes import DEFAULT_NOISE, episode_modes
 
 CANDIDATES_ENV_ID = "packlab/PackCandidates-v0"
 OBJECTS_ENV_ID = "packlab/PackObjects-v0"
@@ -76,7 +81,13 @@ class ListedActionEnv(gym.Env):
         reward: RLReward = "overall",
         k: int = 8,
         physics: Any = None,
+        observation: ObservationMode = "exact",
+        execution: ExecutionMode = "exact",
+        noise: NoisePreset = DEFAULT_NOISE,
     ) -> None:
+        # The bench's modes (packlab.sim.modes): the agent sees the perceived state; the reward
+        # is always judged on the true one.
+        modes = episode_modes(observation, execution, noise)
         if cases is None:
             cases = demo_cases_path()
         self.cases = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
@@ -86,7 +97,9 @@ class ListedActionEnv(gym.Env):
         self.observation_space = observation_space(self.spec_features)
         self.action_space = spaces.Discrete(self.spec_features.n_items)
         self.backend_name = backend
-        self._episode = Episode(backend, physics)
+        self._episode = Episode(
+            backend, physics, perceiver=modes.perceiver, execution=modes.execution
+        )
         self._reward = StepReward(reward)
         self._encoded: Encoded | None = None
 
@@ -161,15 +174,17 @@ class ListedActionEnv(gym.Env):
 class CandidatePlacementEnv(ListedActionEnv):
     """IR-BPP-style: the action picks one of the proposer's K listed placements."""
 
-    def __init__(self, cases=None, backend="geometric", reward="overall", k=8, physics=None):
-        super().__init__("irbpp", cases, backend, reward, k, physics)
+    def __init__(
+        self, cases=None, backend="geometric", reward="overall", k=8, physics=None, **modes
+    ):
+        super().__init__("irbpp", cases, backend, reward, k, physics, **modes)
 
 
 class ObjectChoiceEnv(ListedActionEnv):
     """TAP-Net-style: the action picks a shown object; DBLF's rule places it."""
 
-    def __init__(self, cases=None, backend="geometric", reward="overall", physics=None):
-        super().__init__("tapnet", cases, backend, reward, physics=physics)
+    def __init__(self, cases=None, backend="geometric", reward="overall", physics=None, **modes):
+        super().__init__("tapnet", cases, backend, reward, physics=physics, **modes)
 
 
 def register_envs() -> None:
