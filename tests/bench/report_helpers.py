@@ -10,6 +10,7 @@ from pathlib import Path
 
 from packlab.bench.config import RunConfig
 from packlab.bench.runner import BenchOutcome, run_bench
+from packlab.core.records import RUN_FORMAT_1
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies import make_policy
 from packlab.policies.registry import _RUNTIME as _FACTORIES
@@ -74,3 +75,23 @@ def rewrite_records(run_dir: Path, change) -> None:
     for rec in lines:
         change(rec)
     path.write_text("".join(json.dumps(r, separators=(",", ":")) + "\n" for r in lines))
+
+
+def _record_as_run1(rec: dict) -> None:
+    del rec["format"]
+    m = rec["metrics"]
+    m["capped_placements"] = m.pop("unsettled_steps")
+    for key in ("final_settle_steps", "at_rest", "residual_linear_mps", "residual_angular_radps"):
+        del m[key]
+    for s in rec["steps"]:
+        s["capped"] = not s.pop("settled")
+        del s["max_linear_speed_mps"], s["max_angular_speed_radps"]
+        s.pop("poses", None)
+
+
+def as_run1(run_dir: Path) -> None:
+    """Rewrite a run directory as packlab-bench-run-1 wrote it (config format 1; records without
+    ``format``, steps ``capped`` and no poses, metrics ``capped_placements``, no rest fields)."""
+    config = json.loads((run_dir / "config.json").read_text())
+    (run_dir / "config.json").write_text(json.dumps({**config, "format": RUN_FORMAT_1}, indent=1))
+    rewrite_records(run_dir, _record_as_run1)

@@ -7,6 +7,7 @@ import json
 
 import pytest
 from record_helpers import error_record, ok_record
+from report_helpers import as_run1
 
 from packlab.bench.compare import compare_markdown
 from packlab.bench.config import RunConfig
@@ -82,34 +83,9 @@ def _run(tiny_suite, out):
     return run_bench(cfg, figures=False)
 
 
-def _as_run1(run_dir):
-    """Rewrite a run directory as packlab-bench-run-1 wrote it (config format 1; records without
-    ``format``, steps ``capped``, metrics ``capped_placements``, no rest fields)."""
-    config = json.loads((run_dir / "config.json").read_text())
-    (run_dir / "config.json").write_text(json.dumps({**config, "format": RUN_FORMAT_1}, indent=1))
-    lines = []
-    for line in (run_dir / "episodes.jsonl").read_text().splitlines():
-        rec = json.loads(line)
-        del rec["format"]
-        m = rec["metrics"]
-        m["capped_placements"] = m.pop("unsettled_steps")
-        for key in (
-            "final_settle_steps",
-            "at_rest",
-            "residual_linear_mps",
-            "residual_angular_radps",
-        ):
-            del m[key]
-        for s in rec["steps"]:
-            s["capped"] = not s.pop("settled")
-            del s["max_linear_speed_mps"], s["max_angular_speed_radps"]
-        lines.append(json.dumps(rec, separators=(",", ":")))
-    (run_dir / "episodes.jsonl").write_text("\n".join(lines) + "\n")
-
-
 def test_a_run1_directory_still_reports_the_same_numbers(tiny_suite, tmp_path):
     live = _run(tiny_suite, tmp_path / "run")
-    _as_run1(tmp_path / "run")
+    as_run1(tmp_path / "run")
     summary, _, _ = build_report(tmp_path / "run", figures=False)
     assert summary.table == live.summary.table and summary.per_case == live.summary.per_case
     assert results_table(summary) == results_table(live.summary)

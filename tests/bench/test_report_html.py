@@ -9,7 +9,7 @@ import re
 import sys
 
 import pytest
-from report_helpers import rewrite_records, sloppy_policy, small_run
+from report_helpers import as_run1, rewrite_records, sloppy_policy, small_run
 
 from packlab.bench.html_report import REPORT_HTML, compare_html, run_html
 from packlab.bench.report import load_run
@@ -175,24 +175,7 @@ def test_old_mujoco_records_show_final_poses_and_say_so(run_dir):
 def test_run1_records_still_render(run_dir):
     """A run-1 directory (records without format, steps with ``capped``) migrates and renders."""
 
-    def as_run1(rec):
-        del rec["format"]
-        m = rec["metrics"]
-        m["capped_placements"] = m.pop("unsettled_steps")
-        for key in (
-            "final_settle_steps",
-            "at_rest",
-            "residual_linear_mps",
-            "residual_angular_radps",
-        ):
-            del m[key]
-        for s in rec["steps"]:
-            s["capped"] = not s.pop("settled")
-            del s["max_linear_speed_mps"], s["max_angular_speed_radps"], s["poses"]
-
-    rewrite_records(run_dir, as_run1)
-    config = json.loads((run_dir / "config.json").read_text())
-    (run_dir / "config.json").write_text(json.dumps({**config, "format": "packlab-bench-run-1"}))
+    as_run1(run_dir)
     data = embedded_data(_page(run_dir))
     assert len(data["episodes"]) == 16
     assert {e["poses"] for e in data["episodes"]} == {"geometric"}
