@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.feasibility import footprint_max
-from packlab.policies.heuristics.windows import sliding
+from packlab.policies.windows import sliding
 
 #: A height larger than any container: pads the window grids so that border cells take their
 #: minimum over the windows that exist only.
