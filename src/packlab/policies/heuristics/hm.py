@@ -5,8 +5,8 @@ Rule (lower is better, compared in this order):
 1. The increase of the heightmap's sum, as a volume in mm^3. Placing a box with footprint F at
    resting height z (paper Eq. 2) and height h sets every cell of F to top = z + h, so the
    increase is ``sum over F of (top - hm[c])`` times the cell area: the box's own volume plus the
-   space it seals off underneath (cells of F lower than z). It is computed for all cells of an
-   orientation at once as ``|F| * top - window_sum(hm)`` with one summed-area table.
+   space it seals off underneath (cells of F lower than z), the shared placement feature
+   :func:`packlab.policies.features.space_under_grid` (one summed-area table per orientation).
 2. Ties "bottom-left": the DBLF order, lower z, then smaller x, then smaller y. Equal increases
    are common (a box fits flush in several places); preferring the lowest, deepest one keeps
    HM's packing order as predictable as DBLF's.
@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.feasibility import CandidateSet, Orientation
+from packlab.policies.features import space_under_grid
 from packlab.policies.heuristics.select import Keys, per_group
-from packlab.policies.heuristics.windows import window_sum
 
 NAME = "hm"
 
@@ -35,8 +35,8 @@ def heightmap_increase_mm3(cands: CandidateSet) -> np.ndarray:
     cell_area = cands.cell_mm * cands.cell_mm
 
     def group_increase(g: Orientation) -> np.ndarray:
-        top = g.z + g.height_mm
-        return (g.fx * g.fy * top - window_sum(hm, g.fx, g.fy)) * cell_area
+        own = g.fx * g.fy * g.height_mm
+        return (own + space_under_grid(hm, g.fx, g.fy, g.z)) * cell_area
 
     return per_group(cands, group_increase)
 

@@ -12,9 +12,9 @@ height, the only thing a heightmap can say):
   line and count nothing.
 
 Support uses exact equality with z, as stated: on physics heightmaps (settled poses rounded to
-whole mm) a top 1 mm lower does not count as support. Both terms are vectorised over every
-minimum cell of an orientation: the support count is a separable "how many cells reach the
-window max" pass, the side terms one strided view per pair of opposite faces.
+whole mm) a top 1 mm lower does not count as support. The measure is
+:func:`packlab.policies.features.contact_area_mm2`, the placement feature the proposer and the
+planner share; both terms are vectorised over every minimum cell of an orientation there.
 
 Rule (lower is better, compared in this order):
 
@@ -34,48 +34,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from packlab.core.feasibility import CandidateSet, Orientation
-from packlab.policies.heuristics.select import Keys, per_group
-from packlab.policies.heuristics.windows import padded, side_neighbours, window_count_of_max
+from packlab.core.feasibility import CandidateSet
+from packlab.policies.features import contact_area_mm2
+from packlab.policies.heuristics.select import Keys
 
 NAME = "mta"
 
-
-def _faces_overlap_mm(neighbours: np.ndarray, z: np.ndarray, top: np.ndarray) -> np.ndarray:
-    """Sum over two opposite faces' cells of the z-overlap (mm) of [z, top] with columns [0, H].
-
-    ``neighbours`` is (2, X', Y', f) from :func:`side_neighbours`; ``z``, ``top`` are (X', Y').
-    """
-    # min(max(H, z), top) - z == max(0, min(top, H) - z) since top > z; two ufuncs with an
-    # output buffer are cheaper than np.clip with broadcast bounds.
-    clipped = np.maximum(neighbours, z[..., None])
-    np.minimum(clipped, top[..., None], out=clipped)
-    cells = neighbours.shape[0] * neighbours.shape[-1]
-    return clipped.sum(axis=(0, -1), dtype=np.int64) - cells * z
-
-
-def contact_area_mm2(cands: CandidateSet) -> np.ndarray:
-    """(n,) int64: contact area (mm^2) of each candidate with floor, walls and boxes."""
-    hm = cands.heightmap.astype(np.int32, copy=False)
-    walled = padded(hm, cands.container_height_mm).astype(np.int32)
-    c = cands.cell_mm
-    # Equal boxes and square footprints repeat an orientation: compute each shape once.
-    support: dict[tuple[int, int], np.ndarray] = {}
-    contact: dict[tuple[int, int, int], np.ndarray] = {}
-
-    def group_contact(g: Orientation) -> np.ndarray:
-        key = (g.fx, g.fy, g.height_mm)
-        if key not in contact:
-            if key[:2] not in support:
-                support[key[:2]] = window_count_of_max(hm, g.fx, g.fy)[1]
-            z = g.z.astype(np.int32, copy=False)
-            top = z + np.int32(g.height_mm)
-            x_faces, y_faces = side_neighbours(walled, g.fx, g.fy)
-            side_mm = _faces_overlap_mm(x_faces, z, top) + _faces_overlap_mm(y_faces, z, top)
-            contact[key] = support[key[:2]] * (c * c) + side_mm * c
-        return contact[key]
-
-    return per_group(cands, group_contact)
+__all__ = ["NAME", "contact_area_cm2", "contact_area_mm2", "score"]
 
 
 def contact_area_cm2(cands: CandidateSet) -> np.ndarray:

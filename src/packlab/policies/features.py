@@ -1,0 +1,251 @@
+"""Placement features: the one implementation of what a placement's geometry offers.
+
+A placement puts a box of footprint ``fx`` x ``fy`` cells (minimum cell ``(x, y)``) at its
+resting height ``z``, paper Eq. 2 (the maximum of the heightmap over the footprint). Read from
+the heightmap alone, with every column taken as solid from the floor to its height:
+
+- **space under** (cell-mm): the empty volume between the heightmap and the box's underside,
+  ``sum over the footprint of (z - hm[c])``; multiply by ``cell_mm ** 2`` for mm^3, divide by
+  ``fx * fy`` for the mean gap in mm. What the planner's cost calls "trapped".
+- **support** (cells): the footprint cells whose top is within ``tolerance_mm`` of ``z``, the
+  ones the box rests on. Every caller (MTA, the proposer, the RL features) uses exact equality,
+  ``tolerance_mm = 0``; on the empty floor (``z = 0``) every cell counts.
+- **flushness** (cells): the side cells, one per cell edge of the footprint's boundary
+  (``2 * (fx + fy)`` of them, :func:`side_cells`), whose column across the edge stands above
+  ``z``; a wall counts as a column at the rim's height (the heightmap inside a ring of walls,
+  :func:`walled`). Strictly above: a neighbour level with ``z`` touches nothing of the box.
+- **contact area** (mm^2, MTA's measure): support cells times ``cell_mm ** 2``, plus for each
+  side cell the z-overlap ``max(0, min(top, H) - z)`` of the box's face ``[z, top)`` with the
+  column of height ``H`` across it, times ``cell_mm``. Diagonal neighbours touch only along a
+  line and count nothing.
+
+Each measure comes in the forms its callers need:
+
+- ``*_grid``: one orientation at every minimum cell at once, an array shaped like
+  :func:`packlab.core.feasibility.footprint_max` (a :class:`~packlab.core.feasibility.Orientation`
+  group's ``z``); vectorised over cells, O(cells * (fx + fy)) or one summed-area table;
+- the plain names: every candidate of a :class:`~packlab.core.feasibility.CandidateSet`, (n,)
+  in scan order (footprint shapes shared by several groups are computed once);
+- ``*_at``: one placement, for callers that look at a few listed placements only.
+
+All functions are pure; ``z`` must be the Eq. 2 height of the footprint (the candidate search's
+``z``), which every caller passes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from packlab.core.feasibility import CandidateSet, Orientation
+from packlab.policies.windows import padded, side_neighbours, window_count_of_max, window_sum
+
+__all__ = [
+    "contact_area_mm2",
+    "contact_grid",
+    "flush_cells",
+    "flush_cells_at",
+    "flush_grid",
+    "flush_share",
+    "side_cells",
+    "space_under",
+    "space_under_at",
+    "space_under_grid",
+    "support_cells",
+    "support_cells_at",
+    "support_grid",
+    "support_share",
+    "walled",
+]
+
+
+# -- shared pieces ----------------------------------------------------------------------------
+
+
+def walled(heightmap: np.ndarray, container_height_mm: int) -> np.ndarray:
+    """(X + 2, Y + 2) int64: ``heightmap`` inside a one-cell ring of walls at the rim's height.
+
+    Cell (i, j) of the heightmap is entry [i + 1, j + 1]. Flushness and contact read a
+    footprint's side columns from it; make it once per state and pass it to many placements.
+    """
+    return padded(heightmap, container_height_mm)
+
+
+def side_cells(fx: int, fy: int) -> int:
+    """Number of side cells (cell edges of the footprint's boundary): ``2 * (fx + fy)``."""
+    return 2 * (fx + fy)
+
+
+def _per_group(
+    cands: CandidateSet, key: Callable[[Orientation], Hashable], grid: Callable[..., np.ndarray]
+) -> np.ndarray:
+    """(n,) int64 from ``grid(group)`` per group, computed once per ``key(group)``."""
+    out = np.empty(len(cands), dtype=np.int64)
+    done: dict[Hashable, np.ndarray] = {}
+    for g in cands.groups:
+        k = key(g)
+        if k not in done:
+            done[k] = grid(g)
+        out[g.offset : g.offset + g.size] = done[k].ravel()
+    return out
+
+
+def _footprint(g: Orientation) -> tuple[int, int]:
+    # Groups of one footprint share one Eq. 2 grid (the candidate search computes it once).
+    return (g.fx, g.fy)
+
+
+# -- space under --------------------------------------------------------------------------------
+
+
+def space_under_grid(heightmap: np.ndarray, fx: int, fy: int, z: np.ndarray) -> np.ndarray:
+    """(X', Y') int64 cell-mm: empty space under an (fx, fy) box resting at ``z`` (X', Y')."""
+    return fx * fy * np.asarray(z, dtype=np.int64) - window_sum(heightmap, fx, fy)
+
+
+def space_under(cands: CandidateSet) -> np.ndarray:
+    """(n,) int64 cell-mm: empty space between the heightmap and each candidate's underside."""
+    hm = cands.heightmap
+    return _per_group(cands, _footprint, lambda g: space_under_grid(hm, g.fx, g.fy, g.z))
+
+
+def space_under_at(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) -> int:
+    """Empty space (cell-mm) under one box of footprint (x, y, fx, fy) resting at ``z``."""
+    under = np.asarray(heightmap)[x : x + fx, y : y + fy]
+    return fx * fy * int(z) - int(under.sum(dtype=np.int64))
+
+
+# -- support ------------------------------------------------------------------------------------
+
+
+def support_grid(heightmap: np.ndarray, fx: int, fy: int, tolerance_mm: int = 0) -> np.ndarray:
+    """(X', Y') int64: footprint cells within ``tolerance_mm`` of the Eq. 2 height, per window.
+
+    With no tolerance a separable count of the cells reaching the window max
+    (:func:`~packlab.policies.windows.window_count_of_max`).
+    """
+    hm = np.asarray(heightmap)
+    if tolerance_mm == 0:
+        return window_count_of_max(hm, fx, fy)[1].astype(np.int64, copy=False)
+    windows = sliding_window_view(hm, (fx, fy))  # (X', Y', fx, fy)
+    z = windows.max(axis=(-2, -1))
+    low = z.astype(np.int64) - tolerance_mm
+    return (windows >= low[..., None, None]).sum(axis=(-2, -1), dtype=np.int64)
+
+
+def support_cells(cands: CandidateSet, tolerance_mm: int = 0) -> np.ndarray:
+    """(n,) int64: footprint cells each candidate rests on (within ``tolerance_mm`` of z)."""
+    hm = cands.heightmap
+    return _per_group(cands, _footprint, lambda g: support_grid(hm, g.fx, g.fy, tolerance_mm))
+
+
+def support_share(cands: CandidateSet, tolerance_mm: int = 0) -> np.ndarray:
+    """(n,) float64 in [0, 1]: :func:`support_cells` over the footprint's cell count."""
+    return support_cells(cands, tolerance_mm) / (cands.fx * cands.fy)
+
+
+def support_cells_at(
+    heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: int, tolerance_mm: int = 0
+) -> int:
+    """Footprint cells of one box resting at ``z`` whose top is within ``tolerance_mm`` of z."""
+    under = np.asarray(heightmap)[x : x + fx, y : y + fy]
+    return int(np.count_nonzero(under >= int(z) - tolerance_mm))
+
+
+# -- flushness ----------------------------------------------------------------------------------
+
+
+def flush_grid(walls: np.ndarray, fx: int, fy: int, z: np.ndarray) -> np.ndarray:
+    """(X', Y') int64: side cells whose column (or wall) stands above ``z`` (X', Y').
+
+    ``walls`` is :func:`walled` (the heightmap inside a ring of walls at the rim's height).
+    """
+    x_faces, y_faces = side_neighbours(walls, fx, fy)
+    z = np.asarray(z)[..., None]
+    return (x_faces > z).sum(axis=(0, -1)) + (y_faces > z).sum(axis=(0, -1))
+
+
+def flush_cells(cands: CandidateSet, walls: np.ndarray | None = None) -> np.ndarray:
+    """(n,) int64: each candidate's side cells against a wall or a column above its z.
+
+    ``walls`` (:func:`walled`) is made from the candidate set when not given.
+    """
+    w = walled(cands.heightmap, cands.container_height_mm) if walls is None else walls
+    return _per_group(cands, _footprint, lambda g: flush_grid(w, g.fx, g.fy, g.z))
+
+
+def flush_share(cands: CandidateSet, walls: np.ndarray | None = None) -> np.ndarray:
+    """(n,) float64 in [0, 1]: :func:`flush_cells` over :func:`side_cells`."""
+    return flush_cells(cands, walls) / (2 * (cands.fx + cands.fy))
+
+
+def flush_cells_at(walls: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) -> int:
+    """Side cells of one box resting at ``z`` against a wall or a column above ``z``.
+
+    ``walls`` is :func:`walled`: cell (i, j) is entry [i + 1, j + 1].
+    """
+    sides = np.concatenate(
+        [
+            walls[x, y + 1 : y + fy + 1],  # -x
+            walls[x + fx + 1, y + 1 : y + fy + 1],  # +x
+            walls[x + 1 : x + fx + 1, y],  # -y
+            walls[x + 1 : x + fx + 1, y + fy + 1],  # +y
+        ]
+    )
+    return int(np.count_nonzero(sides > z))
+
+
+# -- contact area -------------------------------------------------------------------------------
+
+
+def _faces_overlap_mm(neighbours: np.ndarray, z: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """Sum over two opposite faces' cells of the z-overlap (mm) of [z, top] with columns [0, H].
+
+    ``neighbours`` is (2, X', Y', f) from :func:`side_neighbours`; ``z``, ``top`` are (X', Y').
+    """
+    # min(max(H, z), top) - z == max(0, min(top, H) - z) since top > z; two ufuncs with an
+    # output buffer are cheaper than np.clip with broadcast bounds.
+    clipped = np.maximum(neighbours, z[..., None])
+    np.minimum(clipped, top[..., None], out=clipped)
+    cells = neighbours.shape[0] * neighbours.shape[-1]
+    return clipped.sum(axis=(0, -1), dtype=np.int64) - cells * z
+
+
+def contact_grid(
+    support: np.ndarray,
+    walls: np.ndarray,
+    fx: int,
+    fy: int,
+    z: np.ndarray,
+    height_mm: int,
+    cell_mm: int,
+) -> np.ndarray:
+    """(X', Y') int64 mm^2: contact area of an (fx, fy, height_mm) box resting at ``z``.
+
+    ``support`` is :func:`support_grid` of the footprint (exact), ``walls`` :func:`walled`
+    (int32 keeps the side arithmetic in half the memory traffic; the result is the same).
+    """
+    z = np.asarray(z).astype(walls.dtype, copy=False)
+    top = z + walls.dtype.type(height_mm)
+    x_faces, y_faces = side_neighbours(walls, fx, fy)
+    side_mm = _faces_overlap_mm(x_faces, z, top) + _faces_overlap_mm(y_faces, z, top)
+    return support * (cell_mm * cell_mm) + side_mm * cell_mm
+
+
+def contact_area_mm2(cands: CandidateSet) -> np.ndarray:
+    """(n,) int64 mm^2: contact area of each candidate with floor, walls and boxes."""
+    hm = cands.heightmap.astype(np.int32, copy=False)
+    walls = walled(hm, cands.container_height_mm).astype(np.int32)
+    support: dict[tuple[int, int], np.ndarray] = {}
+
+    def grid(g: Orientation) -> np.ndarray:
+        if (g.fx, g.fy) not in support:
+            support[(g.fx, g.fy)] = support_grid(hm, g.fx, g.fy)
+        return contact_grid(
+            support[(g.fx, g.fy)], walls, g.fx, g.fy, g.z, g.height_mm, cands.cell_mm
+        )
+
+    # Equal boxes and square footprints repeat an orientation: each shape is computed once.
+    return _per_group(cands, lambda g: (g.fx, g.fy, g.height_mm), grid)
