@@ -33,7 +33,8 @@ index is the answer (0 to K - 1). Fewer than K placements are listed only when f
 none when no shown box fits the floor.
 
 The geometry each :class:`Candidate` carries (resting z, top, support, flushness, the empty
-space under it) is what a text rendering can show next to the index.
+space under it) is what a text rendering can show next to the index; support, flushness and
+the space under are the shared placement features (:mod:`packlab.policies.features`).
 """
 
 from __future__ import annotations
@@ -45,9 +46,15 @@ import numpy as np
 from packlab.core.choices import ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.features import (
+    flush_grid,
+    side_cells,
+    space_under_at,
+    support_cells_at,
+    walled,
+)
 from packlab.policies.heuristics.policy import make_sdf
 from packlab.policies.heuristics.select import rim_pool
-from packlab.policies.heuristics.windows import padded, side_neighbours
 
 #: Default number of listed placements.
 DEFAULT_K = 8
@@ -115,19 +122,18 @@ def _distinct_groups(cands: CandidateSet) -> list[Orientation]:
 
 
 def _shape(
-    cands: CandidateSet, g: Orientation, in_pool: np.ndarray, walled: np.ndarray, k: int
+    cands: CandidateSet, g: Orientation, in_pool: np.ndarray, walls: np.ndarray, k: int
 ) -> _Shape | None:
     """Step 3 for one group: its best ``k`` pool positions; None when none is in the pool.
 
-    ``walled`` is the heightmap inside a ring of walls at the rim's height (:func:`padded`).
+    ``walls`` is the heightmap inside a ring of walls at the rim's height
+    (:func:`~packlab.policies.features.walled`).
     """
     flat = np.arange(g.offset, g.offset + g.size)
     mask = in_pool[flat]
     if not mask.any():
         return None
-    x_faces, y_faces = side_neighbours(walled, g.fx, g.fy)
-    z = g.z[..., None]
-    flush = (x_faces > z).sum(axis=(0, -1)) + (y_faces > z).sum(axis=(0, -1))
+    flush = flush_grid(walls, g.fx, g.fy, g.z)
     # Row-major grids list x then y, so the flat index breaks the last ties by x, then y.
     order = np.lexsort((flat, -flush.ravel(), g.z.ravel()))
     ranked = flat[order[mask[order]]][:k]
@@ -144,7 +150,7 @@ def _round_keys(cands: CandidateSet, shapes: list[_Shape], r: int, by_volume: bo
         g = shape.group
         cell = (int(cands.x[i]), int(cands.y[i]))
         volume = g.fx * g.fy * g.height_mm
-        low = (int(cands.z[i]), -_percent(int(shape.flush[cell]), 2 * (g.fx + g.fy)))
+        low = (int(cands.z[i]), -_percent(int(shape.flush[cell]), side_cells(g.fx, g.fy)))
         return (-volume, *low, s) if by_volume else (*low, -volume, s)
 
     return sorted(members, key=key)
@@ -179,7 +185,7 @@ def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candid
     z = int(cands.z[i])
     area = g.fx * g.fy
     # Only listed placements need these, so they are read off the heightmap one by one.
-    under = cands.heightmap[x : x + g.fx, y : y + g.fy]
+    hm = cands.heightmap
     return Candidate(
         index=index,
         object_index=g.object_index,
@@ -190,9 +196,9 @@ def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candid
         fy=g.fy,
         z_mm=z,
         top_mm=int(cands.top[i]),
-        support_pct=_percent(int(np.count_nonzero(under == z)), area),
-        flush_pct=_percent(int(shape.flush[x, y]), 2 * (g.fx + g.fy)),
-        void_mm=round((area * z - int(under.sum(dtype=np.int64))) / area),
+        support_pct=_percent(support_cells_at(hm, x, y, g.fx, g.fy, z), area),
+        flush_pct=_percent(int(shape.flush[x, y]), side_cells(g.fx, g.fy)),
+        void_mm=round(space_under_at(hm, x, y, g.fx, g.fy, z) / area),
     )
 
 
@@ -203,10 +209,10 @@ def propose_from(
     pool = rim_pool(cands)
     in_pool = np.zeros(len(cands), dtype=bool)
     in_pool[pool] = True
-    walled = padded(cands.heightmap, cands.container_height_mm)
+    walls = walled(cands.heightmap, cands.container_height_mm)
     shapes = []
     for g in _distinct_groups(cands):
-        shape = _shape(cands, g, in_pool, walled, config.k)
+        shape = _shape(cands, g, in_pool, walls, config.k)
         if shape is not None:
             shapes.append(shape)
     owner = {int(i): s for s in shapes for i in s.ranked}

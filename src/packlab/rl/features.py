@@ -32,8 +32,14 @@ from packlab.core.choices import RLAgent, require_choice
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
 from packlab.policies.candidates import ProposerConfig, propose_from
+from packlab.policies.features import (
+    flush_cells_at,
+    side_cells,
+    space_under_at,
+    support_cells_at,
+    walled,
+)
 from packlab.policies.heuristics.select import object_rank
-from packlab.policies.heuristics.windows import padded
 
 #: Side of the resampled heightmap.
 GRID = 32
@@ -111,15 +117,17 @@ def global_row(observation: Observation) -> np.ndarray:
     return np.clip(np.asarray(row, dtype=np.float32), 0.0, FEATURE_MAX)
 
 
-def placement_row(cands: CandidateSet, walled: np.ndarray, index: int, rank: int) -> np.ndarray:
-    """(N_ITEM_FEATURES,) float32 for candidate ``index``; ``walled`` is the heightmap inside a
-    ring of walls at the rim's height (:func:`padded`, made once per state); ``rank`` is the
-    object's place when the shown objects are sorted larger first (:func:`object_rank`).
+def placement_row(cands: CandidateSet, walls: np.ndarray, index: int, rank: int) -> np.ndarray:
+    """(N_ITEM_FEATURES,) float32 for candidate ``index``; ``walls`` is the heightmap inside a
+    ring of walls at the rim's height (:func:`~packlab.policies.features.walled`, made once per
+    state); ``rank`` is the object's place when the shown objects are sorted larger first
+    (:func:`object_rank`).
 
     Columns: valid, x0/X, y0/Y, x1/X, y1/Y, footprint area share, h/H, z/H, top/H, over rim,
     support share (footprint cells at z), flush share (side cells against a wall or a column
     above z), mean void under the box / H, box volume share of the container, rotation,
-    size rank / buffer size.
+    size rank / buffer size. Support, flushness and the void are the shared placement features
+    (:mod:`packlab.policies.features`).
     """
     hm = cands.heightmap
     nx, ny = hm.shape
@@ -127,15 +135,6 @@ def placement_row(cands: CandidateSet, walled: np.ndarray, index: int, rank: int
     x, y = int(cands.x[index]), int(cands.y[index])
     fx, fy = int(cands.fx[index]), int(cands.fy[index])
     z, h = int(cands.z[index]), int(cands.h[index])
-    under = hm[x : x + fx, y : y + fy]
-    sides = np.concatenate(
-        [
-            walled[x, y + 1 : y + fy + 1],
-            walled[x + fx + 1, y + 1 : y + fy + 1],
-            walled[x + 1 : x + fx + 1, y],
-            walled[x + 1 : x + fx + 1, y + fy + 1],
-        ]
-    )
     area = fx * fy
     row = [
         1.0,
@@ -148,9 +147,9 @@ def placement_row(cands: CandidateSet, walled: np.ndarray, index: int, rank: int
         z / height,
         (z + h) / height,
         float(z + h > cands.container_height_mm),
-        np.count_nonzero(under == z) / area,
-        np.count_nonzero(sides > z) / sides.size,
-        (area * z - float(under.sum())) / area / height,
+        support_cells_at(hm, x, y, fx, fy, z) / area,
+        flush_cells_at(walls, x, y, fx, fy, z) / side_cells(fx, fy),
+        float(space_under_at(hm, x, y, fx, fy, z)) / area / height,
         area * h / (nx * ny * height),
         float(cands.rotation[index]),
         rank / BUFFER_SCALE,
@@ -190,9 +189,9 @@ def encode(observation: Observation, spec: FeatureSpec) -> Encoded:
     ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
     items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
     actions = []
-    walled = padded(cands.heightmap, cands.container_height_mm)
+    walls = walled(cands.heightmap, cands.container_height_mm)
     for row, i in enumerate(_listed_indices(cands, spec)):
-        items[row] = placement_row(cands, walled, i, int(ranks[int(cands.obj[i])]))
+        items[row] = placement_row(cands, walls, i, int(ranks[int(cands.obj[i])]))
         actions.append(
             Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
         )

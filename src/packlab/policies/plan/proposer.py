@@ -5,9 +5,9 @@ Every floor-fitting placement of every shown object in both rotations comes from
 heuristics). The proposer keeps the union, in this order and without duplicates, of
 
 1. SDF-Pack's best ``per_ranking`` placements (its keys: score, z, x, y), and
-2. the flush/contact ranking's best ``per_ranking``: less volume trapped under the box first,
+2. the flush/contact ranking's best ``per_ranking``: less space trapped under the box first,
    then more contact area with floor, walls and boxes (MTA's measure), then lower top, then
-   scan order.
+   scan order. Both measures are the shared placement features (:mod:`packlab.policies.features`).
 
 Neither ranking reads anything but the candidate set, so the proposer sees only what the
 policy observes.
@@ -18,20 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.feasibility import CandidateSet
+from packlab.policies.features import contact_area_mm2, space_under
 from packlab.policies.heuristics import sdf
-from packlab.policies.heuristics.mta import contact_area_mm2
 from packlab.policies.heuristics.select import rim_pool
-from packlab.policies.heuristics.windows import window_sum
-
-
-def trapped_under(cands: CandidateSet) -> np.ndarray:
-    """(n,) int64 cell-mm: empty space between the heightmap and each candidate's underside."""
-    out = np.empty(len(cands), dtype=np.int64)
-    hm = cands.heightmap
-    for g in cands.groups:
-        under = window_sum(hm, g.fx, g.fy)
-        out[g.offset : g.offset + g.size] = (g.fx * g.fy * g.z.astype(np.int64) - under).ravel()
-    return out
 
 
 def by_sdf(cands: CandidateSet, pool: np.ndarray) -> np.ndarray:
@@ -46,7 +35,7 @@ def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
     if pool.size == 0:
         return []
     sdf_ranked = by_sdf(cands, pool)
-    trapped = trapped_under(cands)[pool]
+    trapped = space_under(cands)[pool]
     contact = contact_area_mm2(cands)[pool]
     by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
     out: list[int] = []

@@ -27,6 +27,7 @@ import numpy as np
 
 from packlab.core.feasibility import CandidateSet, search_candidates
 from packlab.core.types import ShownItem
+from packlab.policies.features import space_under_at
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import choose, rim_pool
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
@@ -86,7 +87,7 @@ def _apply(
     """(heightmap after candidate ``i``, what that placement lost: trapped and over-rim cell-mm)."""
     x, y, fx, fy = (int(a[i]) for a in (cands.x, cands.y, cands.fx, cands.fy))
     top, z = int(cands.top[i]), int(cands.z[i])
-    trapped = fx * fy * z - int(hm[x : x + fx, y : y + fy].sum(dtype=np.int64))
+    trapped = space_under_at(hm, x, y, fx, fy, z)
     over = max(0, top - problem.container_height_mm) * fx * fy
     return place_box(hm, x, y, fx, fy, top), PathLoss(trapped, over)
 
