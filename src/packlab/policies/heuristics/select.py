@@ -124,6 +124,30 @@ def choose(cands: CandidateSet, keys: Keys, tie_break: TieBreak = DEFAULT_TIE_BR
     return _settle_ties(cands, pool, tie_break)
 
 
+def ranked(
+    cands: CandidateSet,
+    keys: Keys,
+    pool: np.ndarray | None = None,
+    tie_break: TieBreak = DEFAULT_TIE_BREAK,
+) -> np.ndarray:
+    """``pool`` (candidate indices; default the rim pool of step 1) sorted best first by the
+    rule :func:`choose` applies: the keys in turn, then the tie-break rule, then scan order.
+
+    So ``ranked(cands, keys)[0] == choose(cands, keys, tie_break)`` whenever there is a
+    candidate; the rest of the order is what the same rule would pick with the better ones gone.
+    """
+    pool = rim_pool(cands) if pool is None else np.asarray(pool, dtype=np.int64)
+    if pool.size == 0:
+        return pool
+    # np.lexsort sorts by its last key first; the candidate index itself is the scan order.
+    order: list[np.ndarray] = [pool]
+    if tie_break == "larger_volume":
+        ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order)
+        order.append(ranks[cands.obj[pool]])
+    order += [np.asarray(key)[pool] for key in reversed(keys)]
+    return pool[np.lexsort(tuple(order))]
+
+
 def to_action(cands: CandidateSet, index: int) -> Action:
     """The action of candidate ``index``."""
     return Action(

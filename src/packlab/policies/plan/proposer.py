@@ -4,7 +4,9 @@ Every floor-fitting placement of every shown object in both rotations comes from
 :func:`packlab.core.feasibility.search_candidates` (restricted to the rim pool, as for the
 heuristics). The proposer keeps the union, in this order and without duplicates, of
 
-1. SDF-Pack's best ``per_ranking`` placements (its keys: score, z, x, y), and
+1. SDF-Pack's best ``per_ranking`` placements, in SDF-Pack's own order (its keys score, z,
+   x, y, then its tie-break rule, :func:`~packlab.policies.heuristics.select.ranked`), so the
+   first is always the placement SDF-Pack itself would choose, and
 2. the flush/contact ranking's best ``per_ranking``: less space trapped under the box first,
    then more contact area with floor, walls and boxes (MTA's measure), then lower top, then
    scan order. Both measures are the shared placement features (:mod:`packlab.policies.features`).
@@ -17,16 +19,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from packlab.core.choices import TieBreak
 from packlab.core.feasibility import CandidateSet
 from packlab.policies.features import contact_area_mm2, space_under
 from packlab.policies.heuristics import sdf
-from packlab.policies.heuristics.select import rim_pool
+from packlab.policies.heuristics.select import DEFAULT_TIE_BREAK, ranked, rim_pool
 
 
-def by_sdf(cands: CandidateSet, pool: np.ndarray) -> np.ndarray:
-    """``pool`` (candidate indices) in SDF-Pack's order: its keys score, z, x, y, best first."""
-    keys = sdf.score(cands)
-    return pool[np.lexsort(tuple(np.asarray(k)[pool] for k in reversed(keys)))]
+def by_sdf(
+    cands: CandidateSet, pool: np.ndarray, tie_break: TieBreak = DEFAULT_TIE_BREAK
+) -> np.ndarray:
+    """``pool`` (candidate indices) in SDF-Pack's order, best first: its keys score, z, x, y,
+    then its tie-break rule, so ``by_sdf(cands, rim_pool(cands))[0]`` is SDF-Pack's choice."""
+    return ranked(cands, sdf.score(cands), pool, tie_break)
 
 
 def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
