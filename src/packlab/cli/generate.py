@@ -90,7 +90,22 @@ def _add_dataset_options(p: argparse.ArgumentParser) -> None:
 
 def _add_case_options(p: argparse.ArgumentParser) -> None:
     """How cases are made and validated."""
-    add_field(p, CaseConfig, "layout", "--layout", help="layout family; default {default}")
+    add_field(
+        p,
+        CaseConfig,
+        "layout",
+        "--layout",
+        help="layout family (random: drawn boxes, no perfect layout, not validated; needs "
+        "--teacher other than oracle); default {default}",
+    )
+    add_field(
+        p,
+        CaseConfig,
+        "order",
+        "--order",
+        help="arrival order: removal (reverse removal) or layers (layer by layer, shuffled "
+        "within a layer); random cases arrive in draw order; default {default}",
+    )
     add_field(
         p,
         AnchorConfig,

@@ -22,8 +22,12 @@ HistoryMode = Literal["full", "current_only", "no_actions"]
 Difficulty = Literal["easy", "medium", "hard"]
 #: Heuristic tie rule between equally scored placements (docs/heuristics.md).
 TieBreak = Literal["larger_volume", "shown_order"]
-#: Layout family of generated cases: the paper's ``layered``, or the opt-in richer ``stepped``.
-LayoutFamily = Literal["layered", "stepped"]
+#: Layout family of generated cases: the paper's ``layered``, the opt-in richer ``stepped``, or
+#: ``random`` (independently drawn boxes, no perfect layout and no ``gt_plan``; docs/datagen.md).
+LayoutFamily = Literal["layered", "stepped", "random"]
+#: Arrival order of a generated case's objects: ``removal`` (reverse removal, any supported
+#: order) or ``layers`` (the reference benchmark's: layer by layer, shuffled within a layer).
+ArrivalOrder = Literal["removal", "layers"]
 #: The ``plan`` policy's check of its chosen placement before committing it.
 StabilityCheck = Literal["off", "support"]
 #: SFT export of a dataset: one chat example per step (its history as context), per episode, none.

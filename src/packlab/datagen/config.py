@@ -14,7 +14,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from packlab.core.choices import LayoutFamily, PhysicsBackend, SFTExport, require_choice
+from packlab.core.choices import (
+    ArrivalOrder,
+    LayoutFamily,
+    PhysicsBackend,
+    SFTExport,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
 
@@ -155,8 +161,12 @@ class CaseConfig:
     """Everything that decides what case a case seed turns into (besides the difficulty)."""
 
     #: Layout family (``packlab.datagen.layout``): "layered" is the paper's, "stepped" the opt-in
-    #: richer family (regions of a layer split at different heights).
+    #: richer family (regions of a layer split at different heights), "random" independently
+    #: drawn boxes with no perfect layout (``packlab.datagen.random_family``).
     layout: LayoutFamily = "layered"
+    #: Arrival order (``packlab.datagen.removal``): "removal" (reverse removal, the default) or
+    #: "layers" (layer by layer, shuffled within a layer). Random cases arrive in draw order.
+    order: ArrivalOrder = "removal"
     #: Stepped family only: chance that a region of a layer is split into two sub-layers.
     step_prob: float = 0.6
     anchor: AnchorConfig = field(default_factory=AnchorConfig)
@@ -169,6 +179,12 @@ class CaseConfig:
 
     def __post_init__(self) -> None:
         require_choice(self.layout, LayoutFamily, "layout")
+        require_choice(self.order, ArrivalOrder, "order")
+        if self.layout == "random" and self.order != "removal":
+            raise ConfigError(
+                f"order = {self.order!r}: the random layout has no layers; its objects arrive "
+                "in draw order (leave order at removal)"
+            )
         if not 0.0 <= self.step_prob <= 1.0:
             raise ConfigError(f"step_prob = {self.step_prob!r}: must be in [0, 1]")
         if self.objects.min_side_mm % self.cell_xy_mm:
@@ -180,8 +196,8 @@ class CaseConfig:
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
-        if self.teacher == "oracle":  # datasets made before the field existed stay resumable
-            del out["teacher"]
+        if self.order == "removal":  # configs saved before the field existed stay equal
+            del out["order"]
         return out
 
 
@@ -308,6 +324,11 @@ class DatasetConfig:
         require_choice(self.sft, SFTExport, "sft")
         if not self.teacher.strip():
             raise ConfigError("teacher = '': name a registered policy, e.g. oracle or plan")
+        if self.case.layout == "random" and self.teacher == "oracle":
+            raise ConfigError(
+                "teacher = 'oracle': the random layout has no perfect layout to replay; "
+                "name another policy (e.g. --teacher plan or a heuristic such as sdf)"
+            )
         if self.recipe is not None and self.recipe not in RECIPES:
             raise ConfigError(
                 f"recipe = {self.recipe!r}: unknown; choose from {', '.join(RECIPES)}"
@@ -319,6 +340,7 @@ class DatasetConfig:
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
+        out["case"] = self.case.to_dict()
         if self.teacher == "oracle":  # datasets made before the field existed stay resumable
             del out["teacher"]
         return out

@@ -118,14 +118,15 @@ def plan_shards(cfg: DatasetConfig) -> list[ShardSpec]:
 
 def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
     """The slot's first validated case in the training seed space, with the trajectory of the
-    dataset's teacher on it (the validating replay itself when the teacher is the oracle)."""
+    dataset's teacher on it (the validating replay itself when the teacher is the oracle). A
+    ``random``-family case is not validated (it has no plan); its teacher's run is the episode."""
     outcome = fill_slot(
         cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-"
     )
-    if cfg.teacher == "oracle" or outcome.trajectory is None:
+    if cfg.teacher == "oracle" or outcome.case is None:
         return outcome
     v = cfg.validation
-    taught = replay(outcome.trajectory.case, v.backend, v.run_seed, teacher=cfg.teacher)
+    taught = replay(outcome.case, v.backend, v.run_seed, teacher=cfg.teacher)
     return replace(outcome, trajectory=taught)
 
 

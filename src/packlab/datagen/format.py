@@ -418,6 +418,21 @@ def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> l
 # -- dataset card -----------------------------------------------------------------------------
 
 
+def _case_settings_note(info: DatasetInfo) -> str:
+    """A paragraph on the arrival order / random layout when not the defaults (else "", so the
+    cards of datasets made before those options keep their bytes)."""
+    case = info.generator_config.get("case") or {}
+    notes = []
+    if case.get("layout") == "random":
+        notes.append(
+            "Cases of the random layout family: independently drawn boxes with no perfect\n"
+            "layout, not validated; each episode is the teacher's closed-loop run.\n"
+        )
+    if case.get("order", "removal") != "removal":
+        notes.append(f"Arrival order: {case['order']} (see docs/datagen.md).\n")
+    return "".join(notes) + ("\n" if notes else "")
+
+
 def dataset_card(info: DatasetInfo) -> str:
     """README.md of a dataset: the YAML header lets ``datasets.load_dataset(DIR, name)`` work."""
     counts = info.counts
@@ -435,6 +450,7 @@ def dataset_card(info: DatasetInfo) -> str:
         "layouts, a placement order from reverse removal, each replayed through the closed loop\n"
         f"({info.validation_backend}) and kept only when every step is valid and\n"
         "Overall >= the threshold in meta/info.json.\n\n"
+        f"{_case_settings_note(info)}"
         f"Episodes: {counts.episodes}; steps: {counts.steps}. Format {info.format_version}.\n\n"
         "```python\n"
         "import datasets\n"

@@ -1,6 +1,8 @@
 """Case seed -> Case: scenario, layout, presentation and placement order put together.
 
 ``build_case`` is pure: the same (seed, difficulty, config) always gives the same case.
+Cases of the ``random`` family (``packlab.datagen.random_family``) have no layout and no plan:
+``build_case`` makes them with ``random_case``; ``draw_blueprint`` is for the layout families.
 ``generate_cases`` is the public entry point for frozen suites (the bench) and shares every line
 of case making with the dataset engine, so suites and datasets come from one generator.
 """
@@ -20,7 +22,8 @@ from packlab.datagen.config import (
     difficulty_spec,
 )
 from packlab.datagen.layout import Layout, build_layout
-from packlab.datagen.removal import PlacementOrder, reverse_removal
+from packlab.datagen.random_family import draw_random_boxes
+from packlab.datagen.removal import PlacementOrder, layer_order, reverse_removal
 from packlab.datagen.scenario import Scenario, sample_scenario
 from packlab.datagen.seeds import case_seed, case_streams, domain_tag
 from packlab.datagen.validate import Trajectory, check_case
@@ -40,13 +43,16 @@ class Blueprint:
 def draw_blueprint(seed: int, difficulty: str, cfg: CaseConfig) -> Blueprint:
     """The random draws of one case, each stage from its own stream of the case seed."""
     spec = difficulty_spec(difficulty)
+    if cfg.layout == "random":
+        raise ConfigError("layout = 'random' has no blueprint (no layout); use build_case")
     scenario_rng, layout_rng, present_rng, order_rng = case_streams(seed, 4)
     scenario = sample_scenario(spec, cfg, scenario_rng)
     layout = build_layout(scenario, cfg, layout_rng)
     n = len(layout.boxes)
     rotated = tuple(bool(r) for r in present_rng.random(n) < cfg.objects.rotated_fraction)
     type_ids = tuple(int(t) for t in present_rng.integers(cfg.n_types, size=n))
-    order = reverse_removal(layout, cfg.anchor, order_rng)
+    draw_order = layer_order if cfg.order == "layers" else reverse_removal
+    order = draw_order(layout, cfg.anchor, order_rng)
     return Blueprint(scenario, layout, order, rotated, type_ids)
 
 
@@ -94,6 +100,8 @@ def case_from_blueprint(
         "name": GENERATOR_NAME,
         "version": GENERATOR_VERSION,
         "layout": bp.layout.family,
+        # Recorded when not the default, so removal cases keep the bytes they always had.
+        **({"order": bp.order.rule} if bp.order.rule != "removal" else {}),
         "anchor": bp.order.anchor,
         "first_cell": [first.x, first.y],
         "n_layers": len(bp.scenario.layer_heights_mm),
@@ -114,6 +122,50 @@ def case_from_blueprint(
     )
 
 
+def random_case(
+    seed: int,
+    difficulty: str,
+    cfg: CaseConfig,
+    episode_id: str,
+    provenance: dict[str, Any] | None = None,
+) -> Case:
+    """A case of the ``random`` family: drawn boxes in draw order, no ``gt_plan``.
+
+    The streams are those of a blueprint (scenario, boxes in place of the layout, presentation;
+    the order stream is unused: arrival is the draw order). ``internal_id`` and ``gt_index`` are
+    the draw index.
+    """
+    spec = difficulty_spec(difficulty)
+    scenario_rng, boxes_rng, present_rng, _ = case_streams(seed, 4)
+    scenario = sample_scenario(spec, cfg, scenario_rng)
+    draw = draw_random_boxes(scenario, spec, cfg, boxes_rng)
+    type_ids = present_rng.integers(cfg.n_types, size=len(draw.sizes_mm))
+    objects = tuple(
+        Box(internal_id=i, size_mm=size, gt_index=i, type_id=int(t))
+        for i, (size, t) in enumerate(zip(draw.sizes_mm, type_ids))
+    )
+    generator = {
+        "name": GENERATOR_NAME,
+        "version": GENERATOR_VERSION,
+        "layout": "random",
+        "order": "draw",
+        "target_height_cm": _cm(scenario.stack_height_mm),
+        "target_fill": round(draw.target_mm3 / scenario.container.volume_mm3, 6),
+        "base_size_cm": [_cm(v) for v in scenario.base_size_mm],
+        **(provenance or {}),
+    }
+    return Case(
+        episode_id=episode_id,
+        container=scenario.container,
+        buffer_size=spec.buffer_size,
+        objects=objects,
+        seed=seed,
+        difficulty=difficulty,
+        gt_plan=None,
+        generator=generator,
+    )
+
+
 def build_case(
     seed: int,
     difficulty: str,
@@ -123,10 +175,11 @@ def build_case(
 ) -> Case:
     """The case of a case seed (pure and deterministic)."""
     cfg = cfg or CaseConfig()
+    episode_id = episode_id or f"{difficulty}-{seed}"
+    if cfg.layout == "random":
+        return random_case(seed, difficulty, cfg, episode_id, provenance)
     bp = draw_blueprint(seed, difficulty, cfg)
-    return case_from_blueprint(
-        bp, seed, difficulty, episode_id or f"{difficulty}-{seed}", provenance
-    )
+    return case_from_blueprint(bp, seed, difficulty, episode_id, provenance)
 
 
 def slot_case(
@@ -168,7 +221,13 @@ def fill_slot(
     id_prefix: str,
     replay_plan: bool = True,
 ) -> SlotOutcome:
-    """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out)."""
+    """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out).
+
+    A ``random`` case has no plan to check or replay: attempt 0 is taken as it is.
+    """
+    if cfg.layout == "random":
+        case = slot_case(user_seed, domain, difficulty, slot, 0, cfg, id_prefix)
+        return SlotOutcome(case, None, ())
     rejected = []
     for attempt in range(validation.max_attempts):
         case = slot_case(user_seed, domain, difficulty, slot, attempt, cfg, id_prefix)
@@ -226,5 +285,6 @@ __all__ = [
     "draw_blueprint",
     "fill_slot",
     "generate_cases",
+    "random_case",
     "slot_case",
 ]

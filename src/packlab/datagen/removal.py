@@ -10,6 +10,14 @@ removal is drawn uniformly with the case RNG, so orders vary between cases, exce
 An accessible non-anchor object exists at every stage: if all remaining objects sit on the
 floor nothing rests on any of them; otherwise the remaining object with the highest bottom is
 not the anchor (the anchor is on the floor) and nothing can rest on it.
+
+The other arrival order, ``layers`` (``CaseConfig.order``, :func:`layer_order`), is the
+reference benchmark's: objects arrive layer by layer (``layer_index`` ascending), in an order
+drawn within each layer with the case RNG. The anchor (a floor object, so in layer 0) comes
+first, as with removal. In a ``stepped`` layer a sub-layer object rests on objects of its own
+layer, so within a layer the next object is drawn uniformly among those whose supports have all
+arrived (for ``layered`` layouts, where nothing rests on its own layer, that is a uniform
+shuffle of the layer). Every object therefore still comes after everything it rests on.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ class PlacementOrder:
 
     order: tuple[int, ...]
     anchor: str  # a key of config.CORNERS, or FREE_ANCHOR
+    rule: str = "removal"  # how it was drawn: a value of core.choices.ArrivalOrder
 
 
 def _overlap_xy(a: LayoutBox, b: LayoutBox) -> bool:
@@ -93,6 +102,35 @@ def reverse_removal(
         for i in below[pick]:
             n_above[i] -= 1
     return PlacementOrder(tuple(reversed(removed)), label)
+
+
+def layer_order(
+    layout: Layout, anchor_cfg: AnchorConfig, rng: np.random.Generator
+) -> PlacementOrder:
+    """A supported placement order that goes layer by layer, the chosen anchor first.
+
+    Within a layer the next object is drawn uniformly among the layer's objects whose supports
+    have all been placed (see the module docstring).
+    """
+    boxes = layout.boxes
+    anchor, label = choose_anchor(layout, anchor_cfg, rng)
+    below = resting_on(boxes)
+    placed: set[int] = set()
+    order: list[int] = []
+    for layer in sorted({b.layer_index for b in boxes}):
+        pending = {i for i, b in enumerate(boxes) if b.layer_index == layer}
+        while pending:
+            if not order and anchor in pending:
+                pick = anchor
+            else:
+                ready = sorted(i for i in pending if placed.issuperset(below[i]))
+                if not ready:  # a support in a later layer: not a layout of this module
+                    raise ValueError(f"layer {layer}: objects {sorted(pending)} are unsupported")
+                pick = ready[int(rng.integers(len(ready)))]
+            pending.remove(pick)
+            placed.add(pick)
+            order.append(pick)
+    return PlacementOrder(tuple(order), label, "layers")
 
 
 def order_problems(layout: Layout, order: tuple[int, ...]) -> list[str]:
