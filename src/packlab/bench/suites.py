@@ -6,9 +6,10 @@ the cases behind a published number must never change silently, so a changed fil
 suite version (a new name here), never an edit of an old one.
 
 Each suite's provenance is its ``SuiteSpec``: the data engine's ``generate_cases`` run with a
-fixed user seed in the ``bench`` seed domain, which is disjoint from every training seed by
-construction (see ``packlab.datagen.seeds``). ``scripts/make_bench_suite.py`` rebuilds the file
-from the spec, and ``--check`` proves the bundled bytes are what the spec produces.
+fixed user seed and arrival order (``CaseConfig.order``) in the ``bench`` seed domain, which is
+disjoint from every training seed by construction (see ``packlab.datagen.seeds``).
+``scripts/make_bench_suite.py`` rebuilds the file from the spec, and ``--check`` proves the
+bundled bytes are what the spec produces.
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from importlib import resources
 from pathlib import Path
 
 from packlab.cases import cases_sha256, load_cases, save_cases
+from packlab.core.choices import ArrivalOrder, require_choice
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Case
-from packlab.datagen import generate_cases
+from packlab.datagen import CaseConfig, generate_cases
 from packlab.datagen.stats import dataset_cases
 
 #: Where the bundled suites live inside the installed package.
@@ -37,15 +39,18 @@ class SuiteIntegrityError(PacklabError):
 
 @dataclass(frozen=True, slots=True)
 class SuiteSpec:
-    """How a suite was made: per difficulty the number of cases, from one fixed user seed."""
+    """How a suite was made: per difficulty the number of cases, from one fixed user seed, in
+    one arrival order (``CaseConfig.order``; every other case setting is the default)."""
 
     name: str
     counts: tuple[tuple[str, int], ...]  # (difficulty, number of cases), in file order
     seed: int  # user seed of datagen.generate_cases in the ``domain`` seed space
     domain: str = "bench"
     description: str = ""
+    order: ArrivalOrder = "removal"
 
     def __post_init__(self) -> None:
+        require_choice(self.order, ArrivalOrder, f"suite {self.name!r}: order")
         if not self.counts or any(n < 1 for _, n in self.counts):
             raise ConfigError(
                 f"suite {self.name!r}: counts = {self.counts!r}: "
@@ -56,6 +61,11 @@ class SuiteSpec:
     def n_cases(self) -> int:
         return sum(n for _, n in self.counts)
 
+    @property
+    def case_config(self) -> CaseConfig:
+        """The data engine's case settings of this suite."""
+        return CaseConfig(order=self.order)
+
 
 #: The registered suites. Never edit an entry whose file has shipped: add a new version.
 SUITES: dict[str, SuiteSpec] = {
@@ -65,6 +75,16 @@ SUITES: dict[str, SuiteSpec] = {
         seed=0,
         description=(
             "PackLab-Bench v1: 20 easy (buffer 3), 20 medium (buffer 5), 20 hard (buffer 10)"
+        ),
+    ),
+    "packlab-bench-layers-v1": SuiteSpec(
+        "packlab-bench-layers-v1",
+        counts=(("easy", 20), ("medium", 20), ("hard", 20)),
+        seed=1,
+        order="layers",
+        description=(
+            "PackLab-Bench v1's recipe with the reference benchmark's arrival order: objects "
+            "arrive layer by layer, shuffled within a layer (20 easy, 20 medium, 20 hard)"
         ),
     ),
 }
@@ -164,7 +184,9 @@ def build_suite(spec: SuiteSpec, progress: bool = False) -> list[Case]:
     for difficulty, n in spec.counts:
         if progress:
             print(f"{spec.name}: generating {n} {difficulty} cases ...", flush=True)
-        cases += generate_cases(difficulty, n, spec.seed, validate=True, domain=spec.domain)
+        cases += generate_cases(
+            difficulty, n, spec.seed, validate=True, config=spec.case_config, domain=spec.domain
+        )
     return cases
 
 
