@@ -18,10 +18,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+import numpy as np
+
 from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.plan.complete import CompletionConfig, find_completion
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.partial import PartialConfig, choose_partial
 from packlab.policies.plan.search import Budget, Problem, search
 
 
@@ -50,11 +54,47 @@ class PlanPolicy:
     #: stability check and a supported one (or, with none, the cheapest anyway) was taken.
     decisions: int = 0
     fallbacks: int = 0
+    #: Exact completion of the lowest free region first (``complete=off``: the lookahead alone).
+    complete: bool = True
+    completion: CompletionConfig = field(default_factory=CompletionConfig)
+    partial: PartialConfig = field(default_factory=PartialConfig)
+    #: Decisions taken from an exact completion, and from the partial-completion beam (the
+    #: rest from the lookahead).
+    completed: int = 0
+    partials: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Nothing to prepare: the plan never reads the case (its future objects)."""
 
     def act(self, observation: Observation) -> Action:
+        if self.complete:
+            seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
+            smallest_side = min(min(s.size_cells[:2]) for s in seen)
+            found = find_completion(
+                observation.heightmap,
+                observation.shown,
+                observation.container.height_mm,
+                observation.remaining - len(observation.shown),
+                smallest_side,
+                self.completion,
+            )
+            if found is not None:
+                self.decisions += 1
+                self.completed += 1
+                slot = found.commit
+                return Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
+            move = choose_partial(
+                observation.heightmap,
+                observation.shown,
+                observation.container.height_mm,
+                smallest_side,
+                int(np.mean([s.size_mm[2] for s in observation.shown])),
+                self.partial,
+            )
+            if move is not None:
+                self.decisions += 1
+                self.partials += 1
+                return Action(object_id=move.key, rotation=move.rotation, x=move.x, y=move.y)
         problem = observation_problem(observation, self.weights)
         outcome = search(
             observation.heightmap, problem, self.budget, check_support=self.stability == "support"

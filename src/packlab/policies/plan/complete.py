@@ -1,0 +1,133 @@
+"""Completion: fill the lowest open part of the container exactly with the boxes in view (pure).
+
+Every box of a perfect layout rests flush on what is under it, so a perfect packing is built
+from the bottom up by closing the lowest free region without waste. This module looks at the
+lowest level of the heightmap (the cells within ``tolerance_mm`` of its minimum, split into
+4-connected components) and asks, for each component, whether the shown boxes of one height
+tile it exactly (:func:`.cover.exact_cover`). When they do, the completion is certain to leave
+no gap at that level, and the planner commits its first box.
+
+Boxes of one height: a component closed with one height gets a flat top, the state a layered
+layout goes through; heights are tried in order of how well they continue the neighbours (a
+height that brings the component level with the columns around it first), then by the area
+shown in that height.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from packlab.core.types import ShownItem
+from packlab.policies.plan.cover import JOKER, CoverResult, Piece, Slot, exact_cover
+
+#: 4-connectivity: two cells of a level belong together only when they share a side.
+_FOUR = ndimage.generate_binary_structure(2, 1)
+
+
+@dataclass(frozen=True, slots=True)
+class CompletionConfig:
+    """How the completion search reads the heightmap and how much it may search."""
+
+    #: Cells within this of the minimum count as one level (settled tops carry mm noise;
+    #: box heights come in whole centimetres, so half of one keeps levels apart).
+    tolerance_mm: int = 4
+    #: Node budget of one exact-cover search (one component and one height).
+    max_nodes: int = 4_000
+    #: Searches in order, as (jokers, every shown box of the height used): first an exact
+    #: tiling by shown boxes alone, then all of them plus one or two rectangles left for boxes
+    #: not yet seen (a guillotine layer's unseen part is often one or two rectangles).
+    stages: tuple[tuple[int, bool], ...] = (
+        (0, False),
+        (1, True),
+        (2, True),
+        (2, False),
+        (3, False),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Completion:
+    """An exact tiling of one lowest component by shown boxes of one height."""
+
+    slots: tuple[Slot, ...]  # Slot.key indexes the shown buffer (JOKER: left for unseen boxes)
+    z_mm: int  # the level the boxes rest at
+    height_mm: int  # the height of every box of the tiling
+    nodes: int
+    jokers: int  # rectangles of the tiling left for boxes not yet seen
+
+    @property
+    def commit(self) -> Slot:
+        """The box to place now: the first real box of the tiling in scan order."""
+        return next(s for s in self.slots if s.key != JOKER)
+
+
+def lowest_components(heightmap: np.ndarray, tolerance_mm: int) -> tuple[int, list[np.ndarray]]:
+    """(the lowest level in mm, its 4-connected components as bool masks, smallest first)."""
+    hm = np.asarray(heightmap)
+    z0 = int(hm.min())
+    labels, n = ndimage.label(hm <= z0 + tolerance_mm, structure=_FOUR)
+    masks = [labels == k for k in range(1, n + 1)]
+    masks.sort(key=lambda m: (int(m.sum()), int(np.argmax(m.ravel()))))
+    return z0, masks
+
+
+def rim_heights(heightmap: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Heights (mm) of the cells just outside ``mask`` (4-neighbours), walls excluded."""
+    ring = ndimage.binary_dilation(mask, structure=_FOUR) & ~mask
+    return np.asarray(heightmap)[ring]
+
+
+def height_order(
+    heightmap: np.ndarray, mask: np.ndarray, z0: int, shown: Sequence[ShownItem]
+) -> list[int]:
+    """The shown box heights (mm) in the order to try them for ``mask`` (module docstring)."""
+    rim = rim_heights(heightmap, mask) - z0
+    area: dict[int, int] = {}
+    for s in shown:
+        area[s.size_mm[2]] = area.get(s.size_mm[2], 0) + s.size_cells[0] * s.size_cells[1]
+
+    def key(h: int) -> tuple[int, int, int]:
+        level_with = int(np.count_nonzero(np.abs(rim - h) <= 4))
+        return (-level_with, -area[h], h)
+
+    return sorted(area, key=key)
+
+
+def find_completion(
+    heightmap: np.ndarray,
+    shown: Sequence[ShownItem],
+    container_height_mm: int,
+    unseen: int,
+    smallest_side: int,
+    config: CompletionConfig = CompletionConfig(),
+) -> Completion | None:
+    """A tiling of one lowest component by shown boxes of one height, and with ``unseen`` > 0
+    (boxes still to come) up to the configured jokers for them; None when no stage finds one."""
+    z0, masks = lowest_components(heightmap, config.tolerance_mm)
+    orders = [height_order(heightmap, mask, z0, shown) for mask in masks]
+    for jokers, use_all in config.stages:
+        if jokers > unseen:
+            continue
+        for mask, heights in zip(masks, orders):
+            area = int(mask.sum())
+            for h in heights:
+                if z0 + h > container_height_mm:
+                    continue
+                pieces = [
+                    Piece(s.shown_index, s.size_cells[0], s.size_cells[1])
+                    for s in shown
+                    if s.size_mm[2] == h
+                ]
+                if not jokers and sum(p.area for p in pieces) < area:
+                    continue
+                result: CoverResult = exact_cover(
+                    mask, pieces, config.max_nodes, jokers, use_all, smallest_side
+                )
+                if result.slots and any(s.key != JOKER for s in result.slots):
+                    n = sum(s.key == JOKER for s in result.slots)
+                    return Completion(result.slots, z0, h, result.nodes, n)
+    return None
