@@ -36,7 +36,11 @@ class CompletionConfig:
     #: box heights come in whole centimetres, so half of one keeps levels apart).
     tolerance_mm: int = 4
     #: Node budget of one exact-cover search (one component and one height).
-    max_nodes: int = 4_000
+    max_nodes: int = 100_000
+    #: The smallest box side (mm) the planner expects among boxes it has not seen: a joker or
+    #: a free strip narrower than min(this, the smallest side seen) cannot be filled. The
+    #: default is the data engine's smallest side (7.5 cm).
+    smallest_side_mm: int = 75
     #: Searches in order, as (jokers, every shown box of the height used): first an exact
     #: tiling by shown boxes alone, then all of them plus one or two rectangles left for boxes
     #: not yet seen (a guillotine layer's unseen part is often one or two rectangles).
@@ -114,7 +118,9 @@ def find_completion(
             continue
         for mask, heights in zip(masks, orders):
             area = int(mask.sum())
-            for h in heights:
+            # Jokers only with the height most likely to be this level's: a guess about unseen
+            # boxes is worth making for the layer under way, not for a box of another layer.
+            for h in heights if not jokers else heights[:1]:
                 if z0 + h > container_height_mm:
                     continue
                 pieces = [

@@ -194,6 +194,9 @@ def exact_cover(
                 cols = todo[x0:, y0 : y0 + fy].all(axis=1)
                 reach = _run(cols)
                 for fx in _joker_sides(reach, sides, joker_side):
+                    spare = left - unused_area  # what the jokers must fill when use_all
+                    if use_all and (fx * fy > spare or (jokers_left == 1 and fx * fy != spare)):
+                        continue
                     window = todo[x0 : x0 + fx, y0 : y0 + fy]
                     window[...] = False
                     placed.append(Slot(JOKER, 0, x0, y0, fx, fy))

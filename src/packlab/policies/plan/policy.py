@@ -69,7 +69,8 @@ class PlanPolicy:
     def act(self, observation: Observation) -> Action:
         if self.complete:
             seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
-            smallest_side = min(min(s.size_cells[:2]) for s in seen)
+            prior = -(-self.completion.smallest_side_mm // observation.container.cell_xy_mm)
+            smallest_side = min(prior, *(min(s.size_cells[:2]) for s in seen))
             found = find_completion(
                 observation.heightmap,
                 observation.shown,
