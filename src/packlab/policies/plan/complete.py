@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from packlab.core.types import ShownItem
-from packlab.policies.plan.cover import JOKER, CoverResult, Piece, Slot, exact_cover
+from packlab.policies.plan.cover import JOKER, CoverResult, CoverRules, Piece, Slot, exact_cover
 
 #: 4-connectivity: two cells of a level belong together only when they share a side.
 _FOUR = ndimage.generate_binary_structure(2, 1)
@@ -37,6 +37,10 @@ class CompletionConfig:
     tolerance_mm: int = 4
     #: Node budget of one exact-cover search (one component and one height).
     max_nodes: int = 100_000
+    #: A guess with jokers needs at least this many boxes of the height seen so far (history
+    #: included): a height seen once says nothing about a layer of that height (boxes of
+    #: independent sizes rarely share one).
+    joker_min_seen: int = 3
     #: The smallest box side (mm) the planner expects among boxes it has not seen: a joker or
     #: a free strip narrower than min(this, the smallest side seen) cannot be filled. The
     #: default is the data engine's smallest side (7.5 cm).
@@ -48,6 +52,7 @@ class CompletionConfig:
         (0, False),
         (1, True),
         (2, True),
+        (3, True),
         (2, False),
         (3, False),
     )
@@ -107,6 +112,7 @@ def find_completion(
     container_height_mm: int,
     unseen: int,
     smallest_side: int,
+    seen_heights: Sequence[int] = (),
     config: CompletionConfig = CompletionConfig(),
 ) -> Completion | None:
     """A tiling of one lowest component by shown boxes of one height, and with ``unseen`` > 0
@@ -130,9 +136,10 @@ def find_completion(
                 ]
                 if not jokers and sum(p.area for p in pieces) < area:
                     continue
-                result: CoverResult = exact_cover(
-                    mask, pieces, config.max_nodes, jokers, use_all, smallest_side
-                )
+                if jokers and list(seen_heights).count(h) < config.joker_min_seen:
+                    continue
+                rules = CoverRules(jokers, use_all, smallest_side)
+                result: CoverResult = exact_cover(mask, pieces, config.max_nodes, rules)
                 if result.slots and any(s.key != JOKER for s in result.slots):
                     n = sum(s.key == JOKER for s in result.slots)
                     return Completion(result.slots, z0, h, result.nodes, n)

@@ -102,112 +102,141 @@ def _joker_sides(run: int, sides: set[int], smallest: int) -> list[int]:
     return sorted((v for v in out if v >= smallest), reverse=True)
 
 
+@dataclass(frozen=True, slots=True)
+class CoverRules:
+    """What a tiling may use besides the pieces (see :func:`exact_cover`)."""
+
+    jokers: int = 0  # rectangles of free size left for boxes not yet seen
+    use_all: bool = False  # every piece must be in the tiling
+    joker_side: int = 1  # the smallest side of a joker (and of any gap left for one)
+
+
+class _Search:
+    """One depth-first search (state shared by the recursion; see the module docstring)."""
+
+    def __init__(self, todo: np.ndarray, pieces: Sequence[Piece], rules: CoverRules, nodes: int):
+        self.todo = todo
+        self.pieces = pieces
+        self.rules = rules
+        self.max_nodes = nodes
+        self.nodes = 0
+        # Larger pieces first: they are the hardest to fit later, so failures show early.
+        self.order = sorted(range(len(pieces)), key=lambda i: (-pieces[i].area, i))
+        self.used = [False] * len(pieces)
+        self.placed: list[Slot] = []
+
+    def run(self, left: int, unused_area: int, jokers_left: int) -> bool:
+        """Whether the cells still to do (``left`` of them) can be finished."""
+        self.nodes += 1
+        if self.nodes > self.max_nodes:
+            raise _OutOfBudget
+        if left == 0:
+            return not self.rules.use_all or unused_area == 0
+        if (unused_area < left and not jokers_left) or (self.rules.use_all and unused_area > left):
+            return False
+        x0, y0 = divmod(int(np.argmax(self.todo.ravel())), self.todo.shape[1])
+        free = [i for i in self.order if not self.used[i]]
+        if self._pieces_at(x0, y0, free, left, unused_area, jokers_left):
+            return True
+        return bool(jokers_left) and self._jokers_at(x0, y0, free, left, unused_area, jokers_left)
+
+    def _gap_ok(self, rest: int, others: list[int], jokers_left: int) -> bool:
+        """A run of ``rest`` cells left in the first empty column must fit one more rectangle."""
+        if rest == 0:
+            return True
+        sides = [min(self.pieces[j].length, self.pieces[j].width) for j in others]
+        if jokers_left:
+            sides.append(self.rules.joker_side)
+        return bool(sides) and rest >= min(sides)
+
+    def _try(self, slot: Slot, left: int, unused_area: int, jokers_left: int) -> bool:
+        window = self.todo[slot.x : slot.x + slot.fx, slot.y : slot.y + slot.fy]
+        window[...] = False
+        self.placed.append(slot)
+        if self.run(left - slot.fx * slot.fy, unused_area, jokers_left):
+            return True
+        self.placed.pop()
+        window[...] = True
+        return False
+
+    def _pieces_at(
+        self, x0: int, y0: int, free: list[int], left: int, unused_area: int, jokers_left: int
+    ) -> bool:
+        run_y = _run(self.todo[x0, y0:])
+        run_x = _run(self.todo[x0:, y0])
+        tried: set[tuple[int, int]] = set()
+        for i in free:
+            p = self.pieces[i]
+            others = [j for j in free if j != i]
+            for rotation, (fx, fy) in enumerate(((p.length, p.width), (p.width, p.length))):
+                if (fx, fy) in tried or fx > run_x or fy > run_y:
+                    continue
+                tried.add((fx, fy))
+                if not self._gap_ok(run_y - fy, others, jokers_left):
+                    continue
+                if not self.todo[x0 : x0 + fx, y0 : y0 + fy].all():
+                    continue
+                self.used[i] = True
+                slot = Slot(p.key, rotation, x0, y0, fx, fy)
+                if self._try(slot, left, unused_area - p.area, jokers_left):
+                    return True
+                self.used[i] = False
+        return False
+
+    def _jokers_at(
+        self, x0: int, y0: int, free: list[int], left: int, unused_area: int, jokers_left: int
+    ) -> bool:
+        sides = {v for i in free for v in (self.pieces[i].length, self.pieces[i].width)}
+        side = self.rules.joker_side
+        spare = left - unused_area  # what the jokers must fill when every piece is used
+        for fy in _joker_sides(_run(self.todo[x0, y0:]), sides, side):
+            if not self._gap_ok(_run(self.todo[x0, y0:]) - fy, free, jokers_left - 1):
+                continue
+            # the widest joker of this length whose cells are all free, then narrower ones
+            reach = _run(self.todo[x0:, y0 : y0 + fy].all(axis=1))
+            for fx in _joker_sides(reach, sides, side):
+                if self.rules.use_all and (
+                    fx * fy > spare or (jokers_left == 1 and fx * fy != spare)
+                ):
+                    continue
+                if self._try(Slot(JOKER, 0, x0, y0, fx, fy), left, unused_area, jokers_left - 1):
+                    return True
+        return False
+
+
 def exact_cover(
     region: np.ndarray,
     pieces: Sequence[Piece],
     max_nodes: int = 20_000,
-    jokers: int = 0,
-    use_all: bool = False,
-    joker_side: int = 1,
+    rules: CoverRules = CoverRules(),
 ) -> CoverResult:
     """A tiling of the True cells of ``region`` (a 2-D bool array) by a subset of ``pieces``.
 
     Slots come in the order the search placed them (scan order of their corners), so the first
     slot covers the region's first cell. See the module docstring for completeness and pruning.
 
-    ``jokers`` > 0 also allows up to that many rectangles of free size (``Slot.key`` is
-    :data:`JOKER`, sides at least ``joker_side``): the space the boxes not yet seen must fill.
+    ``rules.jokers`` > 0 also allows up to that many rectangles of free size (``Slot.key`` is
+    :data:`JOKER`, sides at least ``rules.joker_side``): the space boxes not yet seen must fill.
     A joker ends at the region's boundary or leaves room for one unused piece's side (a
-    heuristic restriction: that search is not complete). ``use_all`` demands every piece.
+    heuristic restriction: that search is not complete). ``rules.use_all`` demands every piece.
     """
     todo = np.array(region, dtype=bool, copy=True)
     area = int(todo.sum())
     if area == 0:
         return CoverResult((), 0, False)
-    if not pieces:
-        return CoverResult(None, 0, False)
     total = sum(p.area for p in pieces)
-    if use_all and total > area:
+    if not pieces or (rules.use_all and total > area):
         return CoverResult(None, 0, False)
-    if not jokers and not (subset_sums([p.area for p in pieces]) >> area) & 1:
+    if not rules.jokers and not (subset_sums([p.area for p in pieces]) >> area) & 1:
         return CoverResult(None, 0, False)
-    smallest_piece = min(min(p.length, p.width) for p in pieces)
-    smallest = min(smallest_piece, joker_side) if jokers else smallest_piece
-    if not coverable_by_squares(todo, smallest):
+    smallest = min(min(p.length, p.width) for p in pieces)
+    if not coverable_by_squares(
+        todo, min(smallest, rules.joker_side) if rules.jokers else smallest
+    ):
         return CoverResult(None, 0, False)
-    # Larger pieces first: they are the hardest to fit later, so failures show early.
-    order = sorted(range(len(pieces)), key=lambda i: (-pieces[i].area, i))
-    used = [False] * len(pieces)
-    placed: list[Slot] = []
-    nodes = 0
-    ny = todo.shape[1]
-
-    def recurse(left: int, unused_area: int, jokers_left: int) -> bool:
-        nonlocal nodes
-        nodes += 1
-        if nodes > max_nodes:
-            raise _OutOfBudget
-        if left == 0:
-            return not use_all or unused_area == 0
-        if unused_area < left and not jokers_left:
-            return False
-        if use_all and unused_area > left:
-            return False
-        flat = int(np.argmax(todo.ravel()))
-        x0, y0 = divmod(flat, ny)
-        run_y = _run(todo[x0, y0:])
-        run_x = _run(todo[x0:, y0])
-        free = [i for i in order if not used[i]]
-        tried: set[tuple[int, int]] = set()
-        for i in free:
-            p = pieces[i]
-            smallest_other = min(
-                (min(pieces[j].length, pieces[j].width) for j in free if j != i), default=0
-            )
-            for rotation, (fx, fy) in enumerate(((p.length, p.width), (p.width, p.length))):
-                if (fx, fy) in tried or fx > run_x or fy > run_y:
-                    continue
-                tried.add((fx, fy))
-                rest = run_y - fy
-                floor = min(smallest_other, joker_side) if jokers_left else smallest_other
-                if rest and (floor == 0 or rest < floor):
-                    continue
-                window = todo[x0 : x0 + fx, y0 : y0 + fy]
-                if not window.all():
-                    continue
-                window[...] = False
-                used[i] = True
-                placed.append(Slot(p.key, rotation, x0, y0, fx, fy))
-                if recurse(left - fx * fy, unused_area - p.area, jokers_left):
-                    return True
-                placed.pop()
-                used[i] = False
-                window[...] = True
-        if jokers_left:
-            sides = {v for i in free for v in (pieces[i].length, pieces[i].width)}
-            small = min(min(smallest_piece, joker_side), *(sides or {joker_side}))
-            for fy in _joker_sides(run_y, sides, joker_side):
-                rest = run_y - fy
-                if rest and rest < small:
-                    continue
-                # widest joker of this length whose cells are all free, then narrower ones
-                cols = todo[x0:, y0 : y0 + fy].all(axis=1)
-                reach = _run(cols)
-                for fx in _joker_sides(reach, sides, joker_side):
-                    spare = left - unused_area  # what the jokers must fill when use_all
-                    if use_all and (fx * fy > spare or (jokers_left == 1 and fx * fy != spare)):
-                        continue
-                    window = todo[x0 : x0 + fx, y0 : y0 + fy]
-                    window[...] = False
-                    placed.append(Slot(JOKER, 0, x0, y0, fx, fy))
-                    if recurse(left - fx * fy, unused_area, jokers_left - 1):
-                        return True
-                    placed.pop()
-                    window[...] = True
-        return False
-
+    search = _Search(todo, pieces, rules, max_nodes)
     try:
-        found = recurse(area, total, jokers)
+        found = search.run(area, total, rules.jokers)
     except _OutOfBudget:
-        return CoverResult(None, nodes, True)
-    return CoverResult(tuple(placed) if found else None, nodes, False)
+        return CoverResult(None, search.nodes, True)
+    return CoverResult(tuple(search.placed) if found else None, search.nodes, False)

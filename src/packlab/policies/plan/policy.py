@@ -18,14 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-import numpy as np
-
 from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.plan.complete import CompletionConfig, find_completion
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
-from packlab.policies.plan.partial import PartialConfig, choose_partial
 from packlab.policies.plan.search import Budget, Problem, search
 
 
@@ -57,11 +54,8 @@ class PlanPolicy:
     #: Exact completion of the lowest free region first (``complete=off``: the lookahead alone).
     complete: bool = True
     completion: CompletionConfig = field(default_factory=CompletionConfig)
-    partial: PartialConfig = field(default_factory=PartialConfig)
-    #: Decisions taken from an exact completion, and from the partial-completion beam (the
-    #: rest from the lookahead).
+    #: Decisions taken from a completion (the rest from the lookahead).
     completed: int = 0
-    partials: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Nothing to prepare: the plan never reads the case (its future objects)."""
@@ -77,6 +71,7 @@ class PlanPolicy:
                 observation.container.height_mm,
                 observation.remaining - len(observation.shown),
                 smallest_side,
+                [s.size_mm[2] for s in {s.internal_id: s for s in seen}.values()],
                 self.completion,
             )
             if found is not None:
@@ -84,18 +79,6 @@ class PlanPolicy:
                 self.completed += 1
                 slot = found.commit
                 return Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
-            move = choose_partial(
-                observation.heightmap,
-                observation.shown,
-                observation.container.height_mm,
-                smallest_side,
-                int(np.mean([s.size_mm[2] for s in observation.shown])),
-                self.partial,
-            )
-            if move is not None:
-                self.decisions += 1
-                self.partials += 1
-                return Action(object_id=move.key, rotation=move.rotation, x=move.x, y=move.y)
         problem = observation_problem(observation, self.weights)
         outcome = search(
             observation.heightmap, problem, self.budget, check_support=self.stability == "support"
@@ -110,27 +93,51 @@ class PlanPolicy:
 
 _BUDGET_KEYS = {f.name for f in fields(Budget)}
 _WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
+#: Options of the completion stage: ``nodes`` (node budget of one exact-cover search).
+_COMPLETION_KEYS = {"nodes": "max_nodes"}
+_SWITCHES = ("complete",)
+
+
+def _whole(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 1")
+    return value
+
+
+def _switch(name: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"plan: {name} = {value!r}: must be true or false")
+    return value
 
 
 def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
     stability = options.pop("stability", "off")
     require_choice(stability, StabilityCheck, "plan: stability")
-    unknown = sorted(set(options) - _BUDGET_KEYS - set(_WEIGHT_KEYS))
+    known_keys = _BUDGET_KEYS | set(_WEIGHT_KEYS) | set(_COMPLETION_KEYS) | set(_SWITCHES)
+    unknown = sorted(set(options) - known_keys)
     if unknown:
-        known = ", ".join(sorted(_BUDGET_KEYS | set(_WEIGHT_KEYS) | {"stability"}))
+        known = ", ".join(sorted(known_keys | {"stability"}))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
     weights = Weights(
         **{_WEIGHT_KEYS[k]: float(v) for k, v in options.items() if k in _WEIGHT_KEYS}
     )
     for name in ("first", "depth", "beam"):
-        value = getattr(budget, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 1")
+        _whole(name, getattr(budget, name))
     if budget.time_s is not None and not budget.time_s > 0:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
-    return PlanPolicy(budget, weights, stability)
+    completion = CompletionConfig(
+        **{_COMPLETION_KEYS[k]: _whole(k, v) for k, v in options.items() if k in _COMPLETION_KEYS}
+    )
+    switches = {k: _switch(k, options[k]) for k in _SWITCHES if k in options}
+    return PlanPolicy(
+        budget,
+        weights,
+        stability,
+        complete=switches.get("complete", True),
+        completion=completion,
+    )
 
 
 #: ``plan-fast``'s budget: the sweep's point that keeps the default ``packlab bench`` (which runs
