@@ -1,0 +1,116 @@
+"""Completion of the lowest level: exact tilings by shown boxes, jokers only where they belong."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from layered_cases import make_layered_case
+
+from packlab.core.errors import ConfigError
+from packlab.core.types import ShownItem
+from packlab.datagen import generate_cases
+from packlab.datagen.config import CaseConfig
+from packlab.policies import make_policy
+from packlab.policies.plan.complete import (
+    CompletionConfig,
+    find_completion,
+    height_order,
+    lowest_components,
+)
+from packlab.policies.plan.cover import JOKER
+from packlab.sim.episode import run_episode
+
+
+def _shown(sizes_cells_mm) -> tuple[ShownItem, ...]:
+    """Shown items from (l cells, w cells, h mm)."""
+    return tuple(
+        ShownItem(i, i, (l * 25, w * 25, h), (l, w, h // 2))
+        for i, (l, w, h) in enumerate(sizes_cells_mm)
+    )
+
+
+def test_lowest_components_split_by_sides_and_tolerate_millimetres():
+    hm = np.full((6, 6), 100, dtype=np.int32)
+    hm[0:2, 0:2] = 0
+    hm[4:6, 4:6] = 3  # within the tolerance of the minimum: the same level
+    hm[0, 5] = 2
+    z0, masks = lowest_components(hm, tolerance_mm=4)
+    assert z0 == 0 and [int(m.sum()) for m in masks] == [1, 4, 4]
+
+
+def test_a_pit_is_closed_by_the_boxes_that_bring_it_level_with_its_rim():
+    hm = np.full((8, 6), 120, dtype=np.int32)
+    hm[0:4, :] = 0  # a 4 x 6 pit against the wall, 120 deep
+    shown = _shown([(4, 3, 60), (4, 3, 60), (4, 3, 120), (3, 4, 120)])
+    z0, masks = lowest_components(hm, 4)
+    assert height_order(hm, masks[0], z0, shown)[0] == 120
+    found = find_completion(hm, shown, 400, unseen=0, smallest_side=3)
+    assert found is not None and found.height_mm == 120 and found.jokers == 0
+    assert {s.key for s in found.slots} == {2, 3}
+
+
+def test_no_completion_when_the_shown_boxes_cannot_tile_the_level():
+    hm = np.zeros((8, 6), dtype=np.int32)
+    shown = _shown([(4, 3, 60), (4, 3, 60)])  # half the floor
+    assert find_completion(hm, shown, 400, unseen=0, smallest_side=3) is None
+
+
+def test_jokers_stand_for_unseen_boxes_of_a_height_seen_often_enough():
+    hm = np.zeros((8, 6), dtype=np.int32)
+    shown = _shown([(4, 3, 60), (4, 3, 60)])
+    heights = [60, 60, 60]  # this height seen three times (history included)
+    found = find_completion(hm, shown, 400, unseen=2, smallest_side=3, seen_heights=heights)
+    assert found is not None and found.jokers >= 1
+    assert found.commit.key != JOKER
+    # the same boxes with a height seen only twice, or with nothing left to come: no guess
+    assert find_completion(hm, shown, 400, 2, 3, seen_heights=[60, 60]) is None
+    assert find_completion(hm, shown, 400, 0, 3, seen_heights=heights) is None
+
+
+def test_a_completion_never_rises_above_the_rim():
+    hm = np.zeros((4, 3), dtype=np.int32)
+    assert find_completion(hm, _shown([(4, 3, 300)]), 200, 0, 3) is None
+    assert find_completion(hm, _shown([(4, 3, 200)]), 200, 0, 3) is not None
+
+
+def test_every_generated_layout_is_packed_perfectly_when_every_box_is_in_view():
+    cases = []
+    for difficulty in ("easy", "medium", "hard"):
+        for order in ("removal", "layers"):
+            config = CaseConfig(order=order)
+            cases += generate_cases(
+                difficulty, 2, seed=11, validate=False, config=config, domain="train"
+            )
+    for case in cases:
+        visible = dataclasses.replace(case, buffer_size=len(case.objects))
+        result = run_episode(visible, make_policy("plan-fast"), backend="geometric")
+        assert result.metrics.overall == pytest.approx(1.0), case.episode_id
+
+
+def test_completion_lifts_the_planner_above_its_lookahead_alone():
+    cases = [make_layered_case(s, cells=(16, 12), buffer_size=4, pieces=6) for s in range(10)]
+
+    def mean(**options) -> float:
+        scores = [
+            run_episode(c, make_policy("plan-fast", **options), backend="geometric") for c in cases
+        ]
+        return float(np.mean([r.metrics.overall for r in scores]))
+
+    with_completion, lookahead_only = mean(), mean(complete=False)
+    assert with_completion > lookahead_only + 0.05, (with_completion, lookahead_only)
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [({"nodes": 0}, "nodes = 0"), ({"complete": "yes"}, "complete = 'yes'")],
+)
+def test_bad_completion_options_are_one_line_errors(options, message):
+    with pytest.raises(ConfigError, match=message):
+        make_policy("plan", **options)
+
+
+def test_completion_options_reach_the_policy():
+    policy = make_policy("plan", nodes=500, complete=False)
+    assert policy.completion == CompletionConfig(max_nodes=500) and not policy.complete
