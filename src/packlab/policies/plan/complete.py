@@ -45,17 +45,18 @@ class CompletionConfig:
     #: a free strip narrower than min(this, the smallest side seen) cannot be filled. The
     #: default is the data engine's smallest side (7.5 cm).
     smallest_side_mm: int = 75
-    #: Searches in order, as (jokers, every shown box of the height used): first an exact
-    #: tiling by shown boxes alone, then all of them plus one or two rectangles left for boxes
-    #: not yet seen (a guillotine layer's unseen part is often one or two rectangles).
-    stages: tuple[tuple[int, bool], ...] = (
-        (0, False),
-        (1, True),
-        (2, True),
-        (3, True),
-        (2, False),
-        (3, False),
-    )
+    #: At most this many rectangles left for unseen boxes in one guess (0: exact tilings only).
+    max_jokers: int = 3
+
+    @property
+    def stages(self) -> tuple[tuple[int, bool], ...]:
+        """Searches in order, as (jokers, every shown box of the height used): an exact tiling
+        by shown boxes alone, then all of them plus 1, 2, ... rectangles for boxes not yet seen
+        (a guillotine layer's unseen part is often one or two rectangles), then a subset of
+        them plus 2, 3, ... rectangles."""
+        with_all = [(j, True) for j in range(1, self.max_jokers + 1)]
+        subset = [(j, False) for j in range(2, self.max_jokers + 1)]
+        return ((0, False), *with_all, *subset)
 
 
 @dataclass(frozen=True, slots=True)

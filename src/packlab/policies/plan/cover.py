@@ -164,23 +164,29 @@ class _Search:
     ) -> bool:
         run_y = _run(self.todo[x0, y0:])
         run_x = _run(self.todo[x0:, y0])
-        tried: set[tuple[int, int]] = set()
-        for i in free:
+        options = []
+        for rank, i in enumerate(free):
             p = self.pieces[i]
-            others = [j for j in free if j != i]
             for rotation, (fx, fy) in enumerate(((p.length, p.width), (p.width, p.length))):
-                if (fx, fy) in tried or fx > run_x or fy > run_y:
-                    continue
-                tried.add((fx, fy))
-                if not self._gap_ok(run_y - fy, others, jokers_left):
-                    continue
-                if not self.todo[x0 : x0 + fx, y0 : y0 + fy].all():
-                    continue
-                self.used[i] = True
-                slot = Slot(p.key, rotation, x0, y0, fx, fy)
-                if self._try(slot, left, unused_area - p.area, jokers_left):
-                    return True
-                self.used[i] = False
+                if fx <= run_x and fy <= run_y and (rotation == 0 or p.length != p.width):
+                    # A piece that spans the whole free run in either direction first: it
+                    # leaves the rest as simple as it was (the tiling a guess is built on).
+                    spans = fy == run_y or fx == run_x
+                    options.append((not spans, rank, rotation, i, fx, fy))
+        tried: set[tuple[int, int]] = set()
+        for _, _, rotation, i, fx, fy in sorted(options):
+            if (fx, fy) in tried:
+                continue
+            tried.add((fx, fy))
+            if not self._gap_ok(run_y - fy, [j for j in free if j != i], jokers_left):
+                continue
+            if not self.todo[x0 : x0 + fx, y0 : y0 + fy].all():
+                continue
+            self.used[i] = True
+            slot = Slot(self.pieces[i].key, rotation, x0, y0, fx, fy)
+            if self._try(slot, left, unused_area - self.pieces[i].area, jokers_left):
+                return True
+            self.used[i] = False
         return False
 
     def _jokers_at(

@@ -1,4 +1,8 @@
-"""PlanPolicy: the Policy protocol over the beam search, and the ``plan`` factory.
+"""PlanPolicy: the Policy protocol over completion and lookahead, and the ``plan`` factory.
+
+A decision first asks :mod:`.complete` for a tiling of the lowest free level by shown boxes of
+one height (exact, or with rectangles left for boxes not yet seen); when one exists its first
+box is the action. Otherwise the lookahead (:mod:`.search`) decides.
 
 Sees only its observation: the heightmap, the shown buffer and the history (for the sizes of
 the boxes seen so far). Deterministic for a given budget; the run seed is accepted and ignored.
@@ -10,7 +14,8 @@ Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``dep
 ``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`) and
 ``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
 support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
-choice).
+choice), and for the completion ``complete`` (true/false), ``nodes``, ``jokers``, ``joker_seen``
+(see :class:`.complete.CompletionConfig`; ``completed`` counts the decisions it took).
 """
 
 from __future__ import annotations
@@ -93,14 +98,22 @@ class PlanPolicy:
 
 _BUDGET_KEYS = {f.name for f in fields(Budget)}
 _WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
-#: Options of the completion stage: ``nodes`` (node budget of one exact-cover search).
-_COMPLETION_KEYS = {"nodes": "max_nodes"}
+#: Options of the completion stage: ``nodes`` (node budget of one exact-cover search),
+#: ``jokers`` (most rectangles a guess leaves for unseen boxes), ``joker_seen`` (how often a
+#: height must have been seen before a guess is made for it).
+_COMPLETION_KEYS = {"nodes": "max_nodes", "jokers": "max_jokers", "joker_seen": "joker_min_seen"}
 _SWITCHES = ("complete",)
 
 
 def _whole(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 1")
+    return value
+
+
+def _count(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 0")
     return value
 
 
@@ -128,7 +141,11 @@ def make_plan(**options: Any) -> PlanPolicy:
     if budget.time_s is not None and not budget.time_s > 0:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
     completion = CompletionConfig(
-        **{_COMPLETION_KEYS[k]: _whole(k, v) for k, v in options.items() if k in _COMPLETION_KEYS}
+        **{
+            _COMPLETION_KEYS[k]: _whole(k, v) if k == "nodes" else _count(k, v)
+            for k, v in options.items()
+            if k in _COMPLETION_KEYS
+        }
     )
     switches = {k: _switch(k, options[k]) for k in _SWITCHES if k in options}
     return PlanPolicy(
