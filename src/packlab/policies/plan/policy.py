@@ -167,3 +167,11 @@ def make_plan_fast(**options: Any) -> PlanPolicy:
     policy = make_plan(**{**FAST_BUDGET, **options})
     policy.name = "plan-fast"
     return policy
+
+
+def make_plan_lookahead(**options: Any) -> PlanPolicy:
+    """``plan`` without the completion stage: the lookahead alone (the planner before the
+    completion search, kept as an ablation row)."""
+    policy = make_plan(**{"complete": False, **options})
+    policy.name = "plan-lookahead"
+    return policy

@@ -1,0 +1,186 @@
+"""The planner's tables: both frozen suites, full visibility, fresh layered / stepped / random sets.
+
+Usage:
+    python benchmarks/plan_tables.py --out runs/plan-tables             # everything, 3 seeds
+    python benchmarks/plan_tables.py --out runs/plan-tables --sets stepped,random --seeds 0
+    python benchmarks/plan_tables.py --out runs/plan-tables --report    # tables only, no runs
+
+Each case set is written once under ``OUT/cases/`` and run with ``packlab bench`` into
+``OUT/<set>/`` (resumable: rerun the same command after a crash). The report reads the records
+only: per level the mean Overall with a 95 % bootstrap interval over cases (each case's mean over
+the run seeds first), the policy's mean milliseconds per decision on that level (one worker
+process, i.e. one core), and for ``plan`` the paired difference to every other row (bootstrap
+over cases; a row differs only when the interval excludes zero).
+
+Case sets (fresh sets use seeds used nowhere else, in the ``train`` seed domain, never the
+bench's; the full-visibility sets set every case's ``buffer_size`` to its number of objects):
+
+* ``removal``: packlab-bench-v1 (boxes arrive after their supports, layers interleave);
+* ``layers``: packlab-bench-layers-v1 (layer by layer, shuffled within a layer);
+* ``removal-full``, ``layers-full``: the same cases with every box in view;
+* ``layered-fresh``: 60 new layered cases in layer order (the suites' recipe);
+* ``stepped``, ``random``: 60 new cases of the stepped family and of independently drawn boxes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from packlab.bench.suites import load_suite
+from packlab.cases import save_cases
+from packlab.core.types import Case
+from packlab.datagen import generate_cases
+from packlab.datagen.config import CaseConfig
+
+LEVELS = ("easy", "medium", "hard")
+PER_LEVEL = 20
+#: Seeds of the fresh sets: used by nothing else in the repository.
+FRESH_SEEDS = {"layered-fresh": 92_501, "stepped": 92_502, "random": 92_503}
+COMPARED = "plan,plan-fast,plan-lookahead,sdf,proposer"
+POLICIES = {
+    "layers": COMPARED,
+    "removal": COMPARED,
+    "layers-full": "plan,plan-fast",
+    "removal-full": "plan,plan-fast",
+    "layered-fresh": "plan,plan-fast",
+    "stepped": COMPARED,
+    "random": COMPARED,
+}
+SUITES = {"removal": "packlab-bench-v1", "layers": "packlab-bench-layers-v1"}
+
+
+def build_cases(name: str) -> list[Case]:
+    """The cases of one set (see the module docstring)."""
+    base = name.removesuffix("-full")
+    if base in SUITES:
+        cases = load_suite(SUITES[base])
+        if name.endswith("-full"):
+            cases = [dataclasses.replace(c, buffer_size=len(c.objects)) for c in cases]
+        return cases
+    config = {
+        "layered-fresh": CaseConfig(order="layers"),
+        "stepped": CaseConfig(layout="stepped"),
+        "random": CaseConfig(layout="random"),
+    }[name]
+    return [
+        case
+        for level in LEVELS
+        for case in generate_cases(
+            level, PER_LEVEL, FRESH_SEEDS[name], config=config, domain="train"
+        )
+    ]
+
+
+def run_set(name: str, out: Path, seeds: str, backend: str, policies: str) -> None:
+    cases_path = out / "cases" / f"{name}.jsonl"
+    if not cases_path.is_file():
+        cases_path.parent.mkdir(parents=True, exist_ok=True)
+        save_cases(build_cases(name), cases_path)
+    command = [
+        sys.executable, "-m", "packlab.cli.main", "bench", "--cases", str(cases_path),
+        "--policies", policies, "--seeds", seeds, "--backend", backend,
+        "--out", str(out / name), "--no-html", "--no-figures",
+    ]  # fmt: skip
+    print("+", " ".join(command), flush=True)
+    subprocess.run(command, check=True)
+
+
+def _bootstrap(values: np.ndarray, rng: np.random.Generator, n: int = 2000) -> tuple[float, float]:
+    means = values[rng.integers(0, values.size, (n, values.size))].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def _records(run_dir: Path) -> dict[str, dict[str, dict]]:
+    """policy -> case -> {"level", "overall" (mean over seeds), "policy_s", "decisions"}."""
+    out: dict[str, dict[str, dict]] = {}
+    with open(run_dir / "episodes.jsonl", encoding="utf-8") as fh:
+        for line in fh:
+            r = json.loads(line)
+            if r.get("status") != "ok":
+                continue
+            row = out.setdefault(r["policy"], {}).setdefault(
+                r["case_id"],
+                {"level": r["difficulty"], "overall": [], "policy_s": 0.0, "decisions": 0},
+            )
+            row["overall"].append(r["metrics"]["overall"])
+            row["policy_s"] += r["timing"]["policy_s"]
+            row["decisions"] += r["timing"]["decisions"]
+    return out
+
+
+def report_set(name: str, run_dir: Path) -> str:
+    """The markdown table of one set (see the module docstring)."""
+    rng = np.random.default_rng(0)
+    records = _records(run_dir)
+    lines = [
+        f"### {name}",
+        "",
+        "| Method | " + " | ".join(f"{lv.capitalize()} Overall" for lv in LEVELS)
+        + " | Average Overall | ms / decision (" + " / ".join(LEVELS) + ") |",
+        "| --- |" + " ---: |" * (len(LEVELS) + 2),
+    ]  # fmt: skip
+    for policy, cases in sorted(records.items(), key=lambda kv: -_mean(kv[1])):
+        cells = []
+        for level in (*LEVELS, None):
+            vals = np.array(
+                [np.mean(c["overall"]) for c in cases.values() if level in (None, c["level"])]
+            )
+            lo, hi = _bootstrap(vals, rng)
+            cells.append(f"{vals.mean():.3f} [{lo:.3f}, {hi:.3f}]")
+        ms = []
+        for level in LEVELS:
+            rows = [c for c in cases.values() if c["level"] == level]
+            decisions = sum(c["decisions"] for c in rows)
+            ms.append(f"{1000 * sum(c['policy_s'] for c in rows) / max(decisions, 1):.0f}")
+        lines.append(f"| {policy} | " + " | ".join(cells) + f" | {' / '.join(ms)} |")
+    if "plan" in records:
+        lines += ["", "Paired difference, plan minus each row (95 % bootstrap over cases):", ""]
+        plan = records["plan"]
+        for policy, cases in sorted(records.items()):
+            common = sorted(set(plan) & set(cases))
+            if policy == "plan" or not common:
+                continue
+            d = np.array(
+                [np.mean(plan[c]["overall"]) - np.mean(cases[c]["overall"]) for c in common]
+            )
+            lo, hi = _bootstrap(d, rng)
+            verdict = "higher" if lo > 0 else ("lower" if hi < 0 else "no difference")
+            lines.append(f"- vs {policy}: {d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] ({verdict})")
+    return "\n".join(lines) + "\n"
+
+
+def _mean(cases: dict[str, dict]) -> float:
+    return float(np.mean([np.mean(c["overall"]) for c in cases.values()]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", required=True, help="directory for case files and run directories")
+    p.add_argument("--sets", default=",".join(POLICIES), help="comma-separated case sets")
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
+    p.add_argument("--policies", help="override every set's policy list")
+    p.add_argument("--report", action="store_true", help="print the tables from existing runs")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    names = [n for n in args.sets.split(",") if n]
+    unknown = sorted(set(names) - set(POLICIES))
+    if unknown:
+        p.error(f"--sets: unknown {unknown}; choose from {', '.join(POLICIES)}")
+    for name in names:
+        if not args.report:
+            run_set(name, out, args.seeds, args.backend, args.policies or POLICIES[name])
+        if (out / name / "episodes.jsonl").is_file():
+            print(report_set(name, out / name))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
