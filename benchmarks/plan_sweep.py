@@ -1,96 +1,152 @@
-"""The ``plan`` policy's budget sweep beside the heuristics and the oracle: Overall per level and
-milliseconds per decision on the hard level.
+"""How the ``plan`` policy's defaults were chosen: variants on generated training cases only.
 
 Usage:
-    python benchmarks/plan_sweep.py                          # packlab-bench-v1, 3 seeds, mujoco
-    python benchmarks/plan_sweep.py --cases DATASET_DIR      # e.g. a fresh `packlab generate` set
-    python benchmarks/plan_sweep.py --backend geometric --seeds 0   # a quick look
+    python benchmarks/plan_sweep.py          # every variant; results in runs/plan-sweep
+    python benchmarks/plan_sweep.py --variants default,no-completion,jokers-1
+    python benchmarks/plan_sweep.py --list   # the variants and their options
 
-Each budget is its own bench run under ``--out`` (default runs/plan-sweep-<cases>/<label>), so an
-interrupted sweep resumes where it stopped and a finished one only prints its table. The
-decision times are wall-clock means of ``policy.act`` over the hard level's decisions, measured
-while the run used every local core (one episode per core: one core per decision).
+The cases are generated here, in the ``train`` seed domain (``packlab.datagen.seeds``) with the
+fixed seeds below, never read from a bench suite: 40 cases per level of the layered family in
+each arrival order (``removal``, ``layers``) and 20 per level of the ``stepped`` and ``random``
+families. Every variant plays every case once on the geometric backend (run seed 0). Results
+are appended per variant to ``OUT/results.jsonl`` as they finish, so an interrupted sweep
+resumes; the table gives each family's mean Overall and the paired difference to ``default``
+over all cases with its 95 % bootstrap interval (a variant differs only when the interval
+excludes zero), and the mean ms per decision on the hard level.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from packlab.bench.compare import load_summary
-from packlab.bench.config import RunConfig, parse_seeds
-from packlab.bench.records import iter_ok, read_records
-from packlab.bench.runner import run_bench
-from packlab.bench.table import display_name
+import numpy as np
 
-#: (label, plan factory keywords): from about heuristic speed to about a second per decision.
-BUDGETS: tuple[tuple[str, dict[str, int]], ...] = (
-    ("plan-first1-depth2", {"first": 1, "depth": 2}),
-    ("plan-first2-depth4", {"first": 2, "depth": 4}),
-    ("plan-first3", {"first": 3}),
-    ("plan-first6", {"first": 6}),
+from packlab.core.types import Case
+from packlab.datagen import generate_cases
+from packlab.datagen.config import CaseConfig
+from packlab.policies import make_policy
+from packlab.sim.episode import run_episode
+
+#: (family label, case config, user seed in the train domain, cases per level)
+FAMILIES = (
+    ("removal", CaseConfig(), 7302, 40),
+    ("layers", CaseConfig(order="layers"), 7302, 40),
+    ("stepped", CaseConfig(layout="stepped"), 7303, 20),
+    ("random", CaseConfig(layout="random"), 7303, 20),
 )
-BASELINES = ("sdf", "mta", "dblf", "oracle")
+LEVELS = ("easy", "medium", "hard")
+
+#: label -> (policy, factory options). ``default`` is ``plan-fast`` as shipped.
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "default": ("plan-fast", {}),
+    "no-completion": ("plan-fast", {"complete": False}),
+    "exact-only": ("plan-fast", {"jokers": 0}),
+    "jokers-1": ("plan-fast", {"jokers": 1}),
+    "jokers-2": ("plan-fast", {"jokers": 2}),
+    "joker-seen-2": ("plan-fast", {"joker_seen": 2}),
+    "joker-seen-4": ("plan-fast", {"joker_seen": 4}),
+    "nodes-20k": ("plan-fast", {"nodes": 20_000}),
+    "nodes-300k": ("plan-fast", {"nodes": 300_000}),
+    "plan": ("plan", {}),
+    "sdf": ("sdf", {}),
+    "proposer": ("proposer", {}),
+}
 
 
-def hard_decision_ms(run_dir: Path, policy: str) -> float | None:
-    """Mean ms per decision of ``policy`` over the hard level's finished episodes."""
-    records = read_records(run_dir / "episodes.jsonl")
-    hard = [r for r in iter_ok(records) if r.policy == policy and r.difficulty == "hard"]
-    decisions = sum(int(r.timing.decisions or 0) for r in hard)
-    seconds = sum(float(r.timing.policy_s or 0.0) for r in hard)
-    return 1000 * seconds / decisions if decisions else None
-
-
-def run(config: RunConfig) -> Path:
-    run_bench(config, figures=False)
-    return Path(config.out)
-
-
-def rows(args: argparse.Namespace, root: Path) -> list[tuple[str, dict[str, float], float | None]]:
-    """(label, {level: overall mean}, hard ms per decision) for the baselines, then each budget."""
-    common = {
-        "cases": args.cases,
-        "seeds": parse_seeds(args.seeds),
-        "backend": args.backend,
-        "workers": args.workers,
-        "progress": not args.quiet,
-    }
+def training_cases() -> list[tuple[str, Case]]:
+    """(family, case) for every generated training case (see the module docstring)."""
     out = []
-    base = run(RunConfig(policies=BASELINES, out=str(root / "baselines"), **common))
-    summary = load_summary(base)
-    for name in BASELINES:
-        out.append((display_name(name), _levels(summary, name), hard_decision_ms(base, name)))
-    for label, options in BUDGETS:
-        args_ = tuple(("plan", k, v) for k, v in options.items())
-        d = run(RunConfig(policies=("plan",), policy_args=args_, out=str(root / label), **common))
-        out.append((label, _levels(load_summary(d), "plan"), hard_decision_ms(d, "plan")))
+    for family, config, seed, n in FAMILIES:
+        for level in LEVELS:
+            cases = generate_cases(level, n, seed, validate=False, config=config, domain="train")
+            out += [(family, c) for c in cases]
     return out
 
 
-def _levels(summary, name: str) -> dict[str, float]:
-    return {group: cells.overall.mean for group, cells in summary.table[name].items()}
+def _play(job: tuple[str, Case, str, dict]) -> dict:
+    family, case, policy, options = job
+    agent = make_policy(policy, **options)
+    start = time.perf_counter()
+    result = run_episode(case, agent, seed=0, backend="geometric")
+    return {
+        "key": f"{family}:{case.episode_id}",
+        "family": family,
+        "level": case.difficulty,
+        "overall": result.metrics.overall,
+        "ms": 1000 * (time.perf_counter() - start) / max(len(case.objects), 1),
+    }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", default="packlab-bench-v1")
-    parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
-    parser.add_argument("--workers", type=int, default=0)
-    parser.add_argument("--out", default=None)
-    parser.add_argument("--quiet", action="store_true")
-    args = parser.parse_args()
-    root = Path(args.out or f"runs/plan-sweep-{Path(args.cases).name}-{args.backend}")
-    table = rows(args, root)
-    levels = [g for g in table[0][1] if g != "average"] + ["average"]
-    print(f"\n{args.cases}, {args.backend}, seeds {args.seeds}: Overall (mean over seeds)\n")
-    print("| method | " + " | ".join(levels) + " | hard ms / decision |")
-    print("| --- |" + " ---: |" * (len(levels) + 1))
-    for label, by_level, ms in table:
-        cells = " | ".join(f"{by_level.get(g, float('nan')):.3f}" for g in levels)
-        print(f"| {label} | {cells} | {'-' if ms is None else f'{ms:.1f}'} |")
+def run_variant(label: str, cases: list[tuple[str, Case]], workers: int) -> list[dict]:
+    policy, options = VARIANTS[label]
+    jobs = [(family, case, policy, options) for family, case in cases]
+    with ProcessPoolExecutor(workers) as pool:
+        return list(pool.map(_play, jobs, chunksize=4))
+
+
+def _interval(d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
+    means = d[rng.integers(0, d.size, (2000, d.size))].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def table(results: dict[str, list[dict]]) -> str:
+    rng = np.random.default_rng(0)
+    families = [f for f, *_ in FAMILIES]
+    head = "| variant | " + " | ".join(families) + " | all - default [95 % CI] | hard ms |"
+    lines = [head, "| --- |" + " ---: |" * (len(families) + 2)]
+    base = {r["key"]: r["overall"] for r in results.get("default", [])}
+    for label, rows in results.items():
+        means = [np.mean([r["overall"] for r in rows if r["family"] == f]) for f in families]
+        d = np.array([r["overall"] - base[r["key"]] for r in rows if r["key"] in base])
+        lo, hi = _interval(d, rng) if d.size else (float("nan"),) * 2
+        diff = "-" if label == "default" else f"{d.mean():+.4f} [{lo:+.4f}, {hi:+.4f}]"
+        hard = np.mean([r["ms"] for r in rows if r["level"] == "hard"])
+        cells = " | ".join(f"{m:.3f}" for m in means)
+        lines.append(f"| {label} | {cells} | {diff} | {hard:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", default="runs/plan-sweep")
+    p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--list", action="store_true")
+    args = p.parse_args(argv)
+    if args.list:
+        for label, (policy, options) in VARIANTS.items():
+            print(f"{label}: {policy} {options}")
+        return 0
+    labels = [v for v in args.variants.split(",") if v]
+    unknown = sorted(set(labels) - set(VARIANTS))
+    if unknown:
+        p.error(f"--variants: unknown {unknown}; see --list")
+    if "default" not in labels:
+        labels.insert(0, "default")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "results.jsonl"
+    done: dict[str, list[dict]] = {}
+    if path.is_file():
+        for line in path.read_text(encoding="utf-8").splitlines():
+            entry = json.loads(line)
+            done[entry["variant"]] = entry["rows"]
+    cases = training_cases()
+    for label in labels:
+        if label in done:
+            continue
+        print(f"{label} ...", flush=True)
+        done[label] = run_variant(label, cases, args.workers)
+        with open(path, "a", encoding="utf-8") as fh:  # one line per finished variant
+            fh.write(json.dumps({"variant": label, "rows": done[label]}) + "\n")
+    print(table({label: done[label] for label in labels}))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

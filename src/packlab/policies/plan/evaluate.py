@@ -5,7 +5,8 @@ are plain ratios): the space trapped under boxes placed along the path, the pits
 can reach (:func:`.surface.unreachable_volume`), the open space below the highest column, the
 area of the steps between columns, and the volume above the rim. Every bench case is a perfect
 layout, so a state that lost nothing can still be completed perfectly. Default weights come
-from the sweep in ``benchmarks/plan_sweep.py`` on generated training cases, never on a suite.
+from the sweep of an earlier version on generated training cases (docs/planner.md, "The
+lookahead"), never on a suite; ``benchmarks/plan_sweep.py`` re-measures them.
 """
 
 from __future__ import annotations
