@@ -115,3 +115,19 @@ def test_subset_sums_and_square_coverage():
     assert coverable_by_squares(l_shape, 3)
     l_shape[0:2, :] = False  # rows 2 and 3..5 left: a 1-cell-thick row of the upper arm
     assert not coverable_by_squares(l_shape, 3)
+
+
+def test_a_guess_keeps_the_tiling_whose_narrowest_joker_is_widest():
+    # 10 x 9 with one 4 x 5 box and two jokers: the first tiling in search order leaves a
+    # 4-wide strip; among the first 32 there is one whose jokers are all at least 5 wide.
+    region = np.ones((10, 9), bool)
+    pieces = [Piece(0, 4, 5)]
+
+    def narrowest(tilings: int) -> int:
+        rules = CoverRules(jokers=2, use_all=True, joker_side=3, tilings=tilings)
+        result = exact_cover(region, pieces, rules=rules)
+        assert result.slots is not None
+        _check_tiling(region, result.slots)
+        return min(min(s.fx, s.fy) for s in result.slots if s.key == JOKER)
+
+    assert narrowest(1) == 4 and narrowest(32) == 5

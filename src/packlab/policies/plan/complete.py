@@ -47,6 +47,8 @@ class CompletionConfig:
     smallest_side_mm: int = 75
     #: At most this many rectangles left for unseen boxes in one guess (0: exact tilings only).
     max_jokers: int = 3
+    #: Tilings a guess looks at before keeping the one whose narrowest rectangle is widest.
+    guesses: int = 32
 
     @property
     def stages(self) -> tuple[tuple[int, bool], ...]:
@@ -139,7 +141,7 @@ def find_completion(
                     continue
                 if jokers and list(seen_heights).count(h) < config.joker_min_seen:
                     continue
-                rules = CoverRules(jokers, use_all, smallest_side)
+                rules = CoverRules(jokers, use_all, smallest_side, config.guesses)
                 result: CoverResult = exact_cover(mask, pieces, config.max_nodes, rules)
                 if result.slots and any(s.key != JOKER for s in result.slots):
                     n = sum(s.key == JOKER for s in result.slots)

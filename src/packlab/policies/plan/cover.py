@@ -16,7 +16,8 @@ Pruning, each of which only removes nodes that have no completion:
   smallest side still available; the same holds for the region at the start (a cell no
   smallest-side square fits over can never be covered).
 
-A node budget bounds the work; running out answers "not found" (``CoverResult.exhausted``).
+A node budget bounds the work; running out answers "not found" (``CoverResult.exhausted``),
+or, when looking for several tilings (``CoverRules.tilings``), the best of those found so far.
 """
 
 from __future__ import annotations
@@ -109,6 +110,9 @@ class CoverRules:
     jokers: int = 0  # rectangles of free size left for boxes not yet seen
     use_all: bool = False  # every piece must be in the tiling
     joker_side: int = 1  # the smallest side of a joker (and of any gap left for one)
+    #: With jokers: look at up to this many tilings and keep the one whose narrowest joker is
+    #: widest (unseen boxes at least that wide can fill it: the more sizes, the safer a guess).
+    tilings: int = 1
 
 
 class _Search:
@@ -124,6 +128,8 @@ class _Search:
         self.order = sorted(range(len(pieces)), key=lambda i: (-pieces[i].area, i))
         self.used = [False] * len(pieces)
         self.placed: list[Slot] = []
+        self.found: list[tuple[Slot, ...]] = []
+        self.wanted = rules.tilings if rules.jokers else 1
 
     def run(self, left: int, unused_area: int, jokers_left: int) -> bool:
         """Whether the cells still to do (``left`` of them) can be finished."""
@@ -131,7 +137,10 @@ class _Search:
         if self.nodes > self.max_nodes:
             raise _OutOfBudget
         if left == 0:
-            return not self.rules.use_all or unused_area == 0
+            if self.rules.use_all and unused_area:
+                return False
+            self.found.append(tuple(self.placed))
+            return len(self.found) >= self.wanted
         if (unused_area < left and not jokers_left) or (self.rules.use_all and unused_area > left):
             return False
         x0, y0 = divmod(int(np.argmax(self.todo.ravel())), self.todo.shape[1])
@@ -242,7 +251,16 @@ def exact_cover(
         return CoverResult(None, 0, False)
     search = _Search(todo, pieces, rules, max_nodes)
     try:
-        found = search.run(area, total, rules.jokers)
+        search.run(area, total, rules.jokers)
     except _OutOfBudget:
-        return CoverResult(None, search.nodes, True)
-    return CoverResult(tuple(search.placed) if found else None, search.nodes, False)
+        if not search.found:
+            return CoverResult(None, search.nodes, True)
+    if not search.found:
+        return CoverResult(None, search.nodes, False)
+    return CoverResult(max(search.found, key=_narrowest_joker), search.nodes, False)
+
+
+def _narrowest_joker(slots: tuple[Slot, ...]) -> int:
+    """The narrowest side among a tiling's jokers (large when it has none); ``max`` keeps the
+    first of equals, i.e. the search order."""
+    return min((min(s.fx, s.fy) for s in slots if s.key == JOKER), default=1 << 30)
