@@ -50,6 +50,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "jokers-2": ("plan-fast", {"jokers": 2}),
     "joker-seen-2": ("plan-fast", {"joker_seen": 2}),
     "joker-seen-4": ("plan-fast", {"joker_seen": 4}),
+    "guesses-1": ("plan-fast", {"guesses": 1}),
     "nodes-20k": ("plan-fast", {"nodes": 20_000}),
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
     "plan": ("plan", {}),

@@ -11,6 +11,12 @@ Boxes of one height: a component closed with one height gets a flat top, the sta
 layout goes through; heights are tried in order of how well they continue the neighbours (a
 height that brings the component level with the columns around it first), then by the area
 shown in that height.
+
+When no exact tiling exists and boxes are still to come, a *guess* may leave up to
+``max_jokers`` rectangles for them (:class:`.cover.CoverRules`), for the component's likeliest
+height only and only when that height has been seen ``joker_min_seen`` times. A guess is not
+certain: the unseen boxes may not fill its rectangles. Where neither exists the planner's
+lookahead decides.
 """
 
 from __future__ import annotations
@@ -63,7 +69,7 @@ class CompletionConfig:
 
 @dataclass(frozen=True, slots=True)
 class Completion:
-    """An exact tiling of one lowest component by shown boxes of one height."""
+    """A tiling of one lowest component by shown boxes of one height (and jokers, if a guess)."""
 
     slots: tuple[Slot, ...]  # Slot.key indexes the shown buffer (JOKER: left for unseen boxes)
     z_mm: int  # the level the boxes rest at
@@ -94,7 +100,11 @@ def rim_heights(heightmap: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def height_order(
-    heightmap: np.ndarray, mask: np.ndarray, z0: int, shown: Sequence[ShownItem]
+    heightmap: np.ndarray,
+    mask: np.ndarray,
+    z0: int,
+    shown: Sequence[ShownItem],
+    tolerance_mm: int = 4,
 ) -> list[int]:
     """The shown box heights (mm) in the order to try them for ``mask`` (module docstring)."""
     rim = rim_heights(heightmap, mask) - z0
@@ -103,7 +113,7 @@ def height_order(
         area[s.size_mm[2]] = area.get(s.size_mm[2], 0) + s.size_cells[0] * s.size_cells[1]
 
     def key(h: int) -> tuple[int, int, int]:
-        level_with = int(np.count_nonzero(np.abs(rim - h) <= 4))
+        level_with = int(np.count_nonzero(np.abs(rim - h) <= tolerance_mm))
         return (-level_with, -area[h], h)
 
     return sorted(area, key=key)
@@ -121,7 +131,7 @@ def find_completion(
     """A tiling of one lowest component by shown boxes of one height, and with ``unseen`` > 0
     (boxes still to come) up to the configured jokers for them; None when no stage finds one."""
     z0, masks = lowest_components(heightmap, config.tolerance_mm)
-    orders = [height_order(heightmap, mask, z0, shown) for mask in masks]
+    orders = [height_order(heightmap, mask, z0, shown, config.tolerance_mm) for mask in masks]
     for jokers, use_all in config.stages:
         if jokers > unseen:
             continue
