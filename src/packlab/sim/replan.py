@@ -46,6 +46,14 @@ class Perception:
     dims_error_mm: tuple[float, ...] = ()
     yaw_error_deg: tuple[float, ...] = ()
     heightmap_mae_mm: float | None = None
+    #: Per shown object, how far the estimated pose of the box on the buffer is from its true
+    #: pose: (dx mm, dy mm, dyaw degrees), estimated minus true, world frame, yaw wrapped to the
+    #: box's symmetry. A robot grasps and turns the box by its estimate, so this error travels
+    #: into the placement (``Episode`` adds it to the executed drop). Empty: no error (exact).
+    grasp_errors: tuple[tuple[float, float, float], ...] = ()
+    #: Shown objects the perceiver could not find or split after a re-scan (case indices of the
+    #: scene's ``shown``): the episode sets them aside, as a robot cell would, and counts them.
+    missed: tuple[int, ...] = ()
 
 
 class Perceiver(Protocol):
