@@ -6,9 +6,9 @@ import pytest
 from layered_cases import make_layered_case
 
 from packlab.core.errors import ConfigError
-from packlab.core.types import Box, Case, Container
+from packlab.core.types import Action, Box, Case, Container
 from packlab.policies import make_policy
-from packlab.sim.episode import run_episode
+from packlab.sim.episode import Episode, run_episode
 
 
 def _case(sizes_mm, container_mm, buffer_size, episode_id="hand") -> Case:
@@ -44,11 +44,30 @@ def test_every_action_is_in_bounds_on_generated_layouts(seed):
     assert all(step.valid for step in result.steps)
 
 
-def test_same_budget_same_actions():
-    case = make_layered_case(5, buffer_size=3, pieces=5)
-    runs = [run_episode(case, make_policy("plan"), seed=s, backend="geometric") for s in (0, 0)]
-    actions = [[step.action for step in r.steps] for r in runs]
-    assert actions[0] == actions[1]
+def _actions_with_policy_seed(case: Case, policy_seed: int, **options) -> list[Action]:
+    """One episode (run seed 0: the same buffer shuffles every time) whose policy is reset with
+    ``policy_seed``: the seed is all that differs between two calls. Checks that the lookahead,
+    not only the completion search, took some of the decisions."""
+    episode = Episode("geometric")
+    observation = episode.reset(case, 0)
+    policy = make_policy("plan", **options)
+    policy.reset(case, policy_seed)
+    actions = []
+    while not episode.done:
+        actions.append(policy.act(observation))
+        episode.step(actions[-1])
+        if not episode.done:
+            observation = episode.observe()
+    assert policy.decisions - policy.completed >= 3
+    return actions
+
+
+@pytest.mark.parametrize("options", [{}, {"complete": False, "beam": 2}])
+def test_the_seed_is_ignored_same_budget_same_actions(options):
+    case = make_layered_case(0, buffer_size=2, pieces=6)  # the lookahead takes 9 of 12 steps
+    runs = {s: _actions_with_policy_seed(case, s, **options) for s in (0, 1, 2, 987_654_321)}
+    assert len(runs[0]) == len(case.objects)
+    assert all(actions == runs[0] for actions in runs.values()), runs
 
 
 class _Untouchable:
