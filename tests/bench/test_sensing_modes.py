@@ -37,7 +37,12 @@ def test_modes_enter_the_identity(tiny_suite):
     perceived = resolve(RunConfig(cases=str(tiny_suite), observation="perceived", noise="stereo"))
     saved = perceived.to_json()
     assert "sensing" in IDENTITY_KEYS
-    assert saved["sensing"] == {"observation": "perceived", "execution": "exact", "noise": "stereo"}
+    assert saved["sensing"] == {
+        "observation": "perceived",
+        "execution": "exact",
+        "noise": "stereo",
+        "segmentation": "depth",
+    }
     assert perceived.episode_modes().perceiver is not None
     exact = resolve(RunConfig(cases=str(tiny_suite))).to_json()
     with pytest.raises(ConfigError, match="'sensing' = None here"):
@@ -56,8 +61,10 @@ def test_each_mode_gets_its_own_default_run_directory(tiny_suite):
             {"execution": "noisy"},
         )
     ]
+    truth = resolve(RunConfig(cases=str(tiny_suite), observation="perceived", segmentation="truth"))
     exact = outs[0].name
     assert exact.startswith("bench-") and len(set(outs)) == 4
+    assert truth.out.name == f"{exact}-perceived-structured-light-truth-masks"
     assert outs[1].name == f"{exact}-perceived-structured-light"
     assert outs[2].name == f"{exact}-perceived-noisy-stereo"
     assert outs[3].name == f"{exact}-noisy-structured-light"

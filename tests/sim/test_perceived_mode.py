@@ -11,6 +11,7 @@ from layered_cases import make_layered_case
 
 from packlab.bench.task import run_task
 from packlab.core.records import EpisodeOk
+from packlab.core.types import Action
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.sim.modes import episode_modes
@@ -30,6 +31,7 @@ def _record(result, drop_mode_keys=False):
     rec["metrics"].pop("wall_time_s")
     if drop_mode_keys:
         rec["metrics"].pop("replans")
+        assert rec["metrics"].pop("missed") == 0
     for step in rec["steps"]:
         step.pop("wall_time_s")
         if drop_mode_keys:
@@ -64,7 +66,17 @@ def test_prediction_is_eq2_and_deviation_follows_the_rule():
     ],
 )
 def test_noise_free_perceived_episodes_equal_exact_episodes(backend, policy):
+    """A perfect sensor replays the exact episode, on a case whose catalogue lists every box
+    longer side first (perception lists the sides that way: a camera cannot see which side a
+    catalogue calls l; on other cases the policy sees the same boxes with l and w named the
+    other way round)."""
     case = make_layered_case(2, pieces=5)
+    objects = tuple(
+        replace(b, size_mm=(max(b.size_mm[:2]), min(b.size_mm[:2]), b.size_mm[2]))
+        for b in case.objects
+    )
+    assert objects != case.objects  # the case does list some boxes shorter side first
+    case = replace(case, objects=objects, gt_plan=None)
     exact = run_episode(case, make_policy(policy), 1, backend=backend)
     modes = episode_modes("perceived", "exact", "none")
     seen = run_episode(case, make_policy(policy), 1, backend=backend, perceiver=modes.perceiver)
@@ -136,3 +148,52 @@ def test_bench_task_records_with_modes_are_valid_records():
     errors = data["steps"][0]["perception"]
     assert len(errors["dims_error_mm"]) == len(data["steps"][0]["shown"])
     assert 0.0 <= errors["heightmap_mae_mm"] < 10.0  # stereo over an empty container
+
+
+def _missing_first_box(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver: never finds the case's first box while it is shown."""
+    exact = exact_perceiver(scene, rng)
+    missed = tuple(i for i, index in enumerate(scene.shown) if index == 0)
+    sizes = tuple((0, 0, 0) if i in missed else s for i, s in enumerate(exact.sizes_mm))
+    return replace(exact, sizes_mm=sizes, missed=missed)
+
+
+def test_missed_objects_are_set_aside_counted_and_never_shown():
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_missing_first_box)
+    seen_ids = []
+    observation = episode.reset(case, 0)
+    policy = make_policy("dblf")
+    policy.reset(case, 0)
+    while not episode.done:
+        seen_ids += [item.internal_id for item in observation.shown]
+        episode.step(policy.act(observation))
+        if not episode.done:
+            observation = episode.observe()
+    first = case.objects[0].internal_id
+    assert first not in seen_ids and episode.missed == 1
+    assert len(episode.steps) == len(case.objects) - 1
+    metrics = episode.metrics()
+    assert metrics.n_set_aside >= 1 and metrics.success_ratio < 1.0
+    result = run_episode(case, make_policy("dblf"), 0, "geometric", perceiver=_missing_first_box)
+    assert result.missed == 1 and result.to_record()["metrics"]["missed"] == 1
+
+
+def _swapped_sides(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver: lists every box w first, and says so (``axis_swapped``)."""
+    exact = exact_perceiver(scene, rng)
+    sizes = tuple((w, l, h) for l, w, h in exact.sizes_mm)
+    return replace(exact, sizes_mm=sizes, axis_swapped=(True,) * len(sizes))
+
+
+def test_the_policys_rotation_refers_to_the_sides_it_was_shown():
+    """Rotation 0 of a box shown (w, l) lays its shown first side, its true w, along x."""
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_swapped_sides)
+    observation = episode.reset(case, 0)
+    item = next(s for s in observation.shown if s.size_cells[0] != s.size_cells[1])
+    policy_view = item.size_cells  # (w cells, l cells, h)
+    episode.step(Action(object_id=item.shown_index, rotation=0, x=0, y=0))
+    placed = episode.heightmap > 0
+    xs, ys = np.nonzero(placed)
+    assert (xs.max() + 1, ys.max() + 1) == policy_view[:2]

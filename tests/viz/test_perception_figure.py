@@ -24,7 +24,7 @@ def test_perception_figure_has_its_panels_and_saves(tmp_path):
     fig = perception_figure(state, exact, "test")
     titles = [ax.get_title() for ax in fig.axes]
     assert "perceived heightmap" in titles and "true heightmap" in titles
-    buffer_ax = next(ax for ax in fig.axes if ax.get_title().startswith("buffer views"))
+    buffer_ax = next(ax for ax in fig.axes if ax.get_title().startswith("buffer:"))
     assert len(buffer_ax.patches) == len(shown)  # one estimated box outline per shown object
     path = save_figure(fig, tmp_path / "perception.png")
     assert path.stat().st_size > 10_000

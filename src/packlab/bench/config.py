@@ -25,6 +25,7 @@ from packlab.core.choices import (
     NoisePreset,
     ObservationMode,
     PhysicsBackend,
+    Segmentation,
     require_choice,
 )
 from packlab.core.errors import ConfigError
@@ -32,7 +33,7 @@ from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
 from packlab.policies import available_policies
 from packlab.policies.heuristics import SCORERS
-from packlab.sim.modes import DEFAULT_NOISE, EpisodeModes, episode_modes
+from packlab.sim.modes import DEFAULT_NOISE, DEFAULT_SEGMENTATION, EpisodeModes, episode_modes
 from packlab.sim.physics.mujoco_backend import PhysicsConfig
 
 #: RUN_FORMAT (packlab.core.records, with the record types): the version of the run-directory
@@ -209,6 +210,10 @@ class RunConfig:
     execution: ExecutionMode = "exact"
     #: The sensor and robot noise preset of the two modes above (``packlab.sim.modes``).
     noise: NoisePreset = DEFAULT_NOISE
+    #: Perceived observation: how the buffer's boxes are told apart, from the depth image (as
+    #: a robot must) or by the simulator's masks (``truth``, an ablation). Part of the identity
+    #: of perceived runs.
+    segmentation: Segmentation = DEFAULT_SEGMENTATION
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -267,6 +272,11 @@ def _check_sensing(config: RunConfig) -> None:
     require_choice(config.observation, ObservationMode, "observation")
     require_choice(config.execution, ExecutionMode, "execution")
     require_choice(config.noise, NoisePreset, "noise")
+    require_choice(config.segmentation, Segmentation, "segmentation")
+    if config.observation == "exact" and config.segmentation != DEFAULT_SEGMENTATION:
+        raise ConfigError(
+            f"segmentation = {config.segmentation!r}: only used with --observation perceived"
+        )
     if config.execution == "noisy" and config.backend != "mujoco":
         raise ConfigError(
             f"execution = 'noisy': the {config.backend} backend places boxes on whole cells "
@@ -280,10 +290,15 @@ def _check_sensing(config: RunConfig) -> None:
 
 
 def sensing_identity(config: RunConfig) -> dict[str, str] | None:
-    """config.json's ``sensing`` entry: None (left out) when both modes are exact."""
+    """config.json's ``sensing`` entry: None (left out) when both modes are exact; with a
+    ``segmentation`` key in perceived runs."""
     if config.observation == "exact" and config.execution == "exact":
         return None
-    return {"observation": config.observation, "execution": config.execution, "noise": config.noise}
+    identity = {"observation": config.observation, "execution": config.execution}
+    identity["noise"] = config.noise
+    if config.observation == "perceived":
+        identity["segmentation"] = config.segmentation
+    return identity
 
 
 def default_out(label: str, config: RunConfig) -> Path:
@@ -294,7 +309,8 @@ def default_out(label: str, config: RunConfig) -> Path:
     if sensing is None:
         return Path("runs") / f"bench-{label}"
     modes = [m for m in (sensing["observation"], sensing["execution"]) if m != "exact"]
-    return Path("runs") / "-".join(["bench", label, *modes, sensing["noise"]])
+    ablation = ["truth-masks"] if sensing.get("segmentation") == "truth" else []
+    return Path("runs") / "-".join(["bench", label, *modes, sensing["noise"], *ablation])
 
 
 @dataclass(frozen=True, slots=True)
@@ -344,7 +360,7 @@ class ResolvedRun:
     def episode_modes(self) -> EpisodeModes:
         """The perceiver and execution noise episodes run with (both None when exact)."""
         c = self.config
-        return episode_modes(c.observation, c.execution, c.noise)
+        return episode_modes(c.observation, c.execution, c.noise, c.segmentation)
 
     def physics_config(self) -> Any:
         """The PhysicsConfig to build backends with (None for the geometric backend)."""

@@ -125,6 +125,14 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
         "--noise",
         help="sensor and robot noise preset of the two modes above; default {default}",
     )
+    add_field(
+        p,
+        RunConfig,
+        "segmentation",
+        "--segmentation",
+        help="with --observation perceived: tell the buffer's boxes apart from the depth image "
+        "(as a robot must) or by the simulator's masks (truth, an ablation); default {default}",
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

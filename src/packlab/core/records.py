@@ -127,9 +127,11 @@ class ActionRecord(Struct, frozen=True):
 class PerceptionErrors(Struct, frozen=True):
     """A step's perception errors (``packlab.sim.replan.Perception``), shown order."""
 
-    dims_error_mm: tuple[float, ...]  # largest |estimated - true| of (l, w, h) per object
-    yaw_error_deg: tuple[float, ...]  # |estimated - true| yaw per object
+    #: Per object; None for an object perception missed (it was set aside, never shown).
+    dims_error_mm: tuple[float | None, ...]  # largest |estimated - true| of (l, w, h)
+    yaw_error_deg: tuple[float | None, ...]  # |estimated - true| yaw of the long axis
     heightmap_mae_mm: float | None  # mean |perceived - exact| over the container's cells
+    scans: int | UnsetType = UNSET  # looks at the buffer (2: one re-scan); absent in old runs
 
 
 class StepRecord(Struct, frozen=True):
@@ -186,6 +188,8 @@ class MetricsRecord(Struct, frozen=True):
     wall_time_s: float
     #: Issue 15, perceived observation only: steps with a re-plan event.
     replans: int | UnsetType = UNSET
+    #: Perceived observation only: objects perception did not find (set aside, not packed).
+    missed: int | UnsetType = UNSET
 
 
 class FinalPose(Struct, frozen=True):
@@ -302,6 +306,7 @@ class PolicyCounts(Struct, frozen=True):
     #: mean perception errors over every shown object of every step (dims mm, yaw degrees)
     #: and over every step (heightmap mean absolute error, mm).
     replans_per_episode: float | UnsetType = UNSET
+    missed_per_episode: float | UnsetType = UNSET
     dims_error_mm: float | None | UnsetType = UNSET
     yaw_error_deg: float | None | UnsetType = UNSET
     heightmap_mae_mm: float | None | UnsetType = UNSET

@@ -16,8 +16,10 @@ the environment may draw, so one policy network can train across container sizes
 * ``info``: per step ``valid``/``reason``; at the end also ``metrics`` (``EpisodeMetrics.to_dict``).
 * Modes (as ``packlab bench``'s switches, ``packlab.sim.modes``): ``observation="perceived"``
   shows the heightmap and sizes the simulated depth cameras recover under the ``noise``
-  preset (``info["replan"]`` per step); ``execution="noisy"`` (mujoco backend) executes each
-  drop with the preset's robot noise. Both default to ``"exact"``.
+  preset (``info["replan"]`` per step), the buffer's boxes told apart by ``segmentation``
+  (``"depth"``, the default, or the simulator's ``"truth"`` masks); objects perception missed
+  are set aside unpacked; ``execution="noisy"`` (mujoco backend) executes each drop with the
+  preset's robot noise. Both modes default to ``"exact"``.
 """
 
 from __future__ import annotations
@@ -32,12 +34,12 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
-from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode
+from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, Segmentation
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.core.types import Action, Case
 from packlab.metrics import inside_mask, success_ratio
 from packlab.sim.episode import Episode
-from packlab.sim.modes import DEFAULT_NOISE, episode_modes
+from packlab.sim.modes import DEFAULT_NOISE, DEFAULT_SEGMENTATION, episode_modes
 from packlab.sim.raster import heightmap_to_rgb
 
 ENV_ID = "packlab/Pack-v0"
@@ -97,8 +99,9 @@ class PackEnv(gym.Env):
         observation: ObservationMode = "exact",
         execution: ExecutionMode = "exact",
         noise: NoisePreset = DEFAULT_NOISE,
+        segmentation: Segmentation = DEFAULT_SEGMENTATION,
     ) -> None:
-        modes = episode_modes(observation, execution, noise)  # checks the names first
+        modes = episode_modes(observation, execution, noise, segmentation)  # checks names first
         if cases is None:
             cases = demo_cases_path()
         self.cases: list[Case] = (
@@ -119,8 +122,8 @@ class PackEnv(gym.Env):
             c.container.height_mm + sum(b.size_mm[2] for b in c.objects) for c in self.cases
         )
         size_bound = max(max(b.size_mm) for c in self.cases for b in c.objects)
-        if modes.perceiver is not None:  # a perceived side can snap one grid step long
-            size_bound += max(c.container.cell_xy_mm for c in self.cases)
+        if modes.perceiver is not None:  # two boxes taken for one, snapped a grid step long
+            size_bound = 2 * size_bound + max(c.container.cell_xy_mm for c in self.cases)
         n_actions = self.k * 2 * self.grid[0] * self.grid[1]
         self.observation_space = spaces.Dict(
             {

@@ -2,8 +2,9 @@
 
 ``observation``: ``exact`` (the true heightmap and sizes) or ``perceived`` (what the simulated
 depth cameras and perception of ``packlab.sim.sensing`` recover under the ``noise`` preset's
-sensor). ``execution``: ``exact`` or ``noisy`` (the preset's robot noise,
-``packlab.sim.execution``). Both exact: no perceiver, no noise, the exact-mode loop.
+sensor, the buffer's boxes told apart by ``segmentation``: ``depth``, or the ``truth`` masks).
+``execution``: ``exact`` or ``noisy`` (the preset's robot noise, ``packlab.sim.execution``).
+Both exact: no perceiver, no noise, the exact-mode loop.
 """
 
 from __future__ import annotations
@@ -12,20 +13,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, require_choice
+from packlab.core.choices import (
+    ExecutionMode,
+    NoisePreset,
+    ObservationMode,
+    Segmentation,
+    require_choice,
+)
 from packlab.sim.execution import ExecutionNoise, execution_noise
 from packlab.sim.replan import Perceiver, Perception, Scene
 from packlab.sim.sensing import perceive_state
 
 #: The noise preset when none is named: the structured-light camera the issue targets.
 DEFAULT_NOISE: NoisePreset = "structured-light"
+#: How perceived mode tells the buffer's boxes apart unless told: from depth, as a robot must.
+DEFAULT_SEGMENTATION: Segmentation = "depth"
 
 
 @dataclass(frozen=True, slots=True)
 class SensingPerceiver:
-    """A ``Perceiver`` over ``packlab.sim.sensing.perceive_state`` with one sensor preset."""
+    """A ``Perceiver`` over ``packlab.sim.sensing.perceive_state``: one sensor preset, and how
+    the buffer's boxes are told apart (``depth``: from the depth image alone, the robot's
+    default; ``truth``: the simulator's masks, an ablation)."""
 
     preset: NoisePreset
+    segmentation: Segmentation = DEFAULT_SEGMENTATION
 
     def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception:
         shown = scene.sizes_mm[list(scene.shown)].reshape(-1, 3)
@@ -37,14 +49,20 @@ class SensingPerceiver:
             shown,
             self.preset,
             rng,
+            self.segmentation,
         )
         sizes = tuple(tuple(int(v) for v in row) for row in np.asarray(state.shown_sizes_mm))
+        grasp = tuple(tuple(float(v) for v in row) for row in state.grasp_errors)
         return Perception(
             np.asarray(state.heightmap, dtype=np.int32),
             sizes,  # type: ignore[arg-type]
             dims_error_mm=tuple(float(v) for v in state.stats.dims_error_mm),
             yaw_error_deg=tuple(float(v) for v in state.stats.yaw_error_deg),
             heightmap_mae_mm=float(state.stats.heightmap_mae_mm),
+            grasp_errors=grasp,  # type: ignore[arg-type]
+            missed=state.missed,
+            axis_swapped=tuple(bool(v) for v in state.axis_swapped),
+            scans=state.stats.scans,
         )
 
 
@@ -64,15 +82,25 @@ def episode_modes(
     observation: ObservationMode = "exact",
     execution: ExecutionMode = "exact",
     noise: NoisePreset = DEFAULT_NOISE,
+    segmentation: Segmentation = DEFAULT_SEGMENTATION,
 ) -> EpisodeModes:
     """The modes by name (ConfigError naming the field for an unknown value)."""
     require_choice(observation, ObservationMode, "observation")
     require_choice(execution, ExecutionMode, "execution")
     require_choice(noise, NoisePreset, "noise")
+    require_choice(segmentation, Segmentation, "segmentation")
+    perceiver = SensingPerceiver(noise, segmentation) if observation == "perceived" else None
     return EpisodeModes(
-        perceiver=SensingPerceiver(noise) if observation == "perceived" else None,
+        perceiver=perceiver,
         execution=execution_noise(noise) if execution == "noisy" else None,
     )
 
 
-__all__ = ["DEFAULT_NOISE", "EXACT_MODES", "EpisodeModes", "SensingPerceiver", "episode_modes"]
+__all__ = [
+    "DEFAULT_NOISE",
+    "DEFAULT_SEGMENTATION",
+    "EXACT_MODES",
+    "EpisodeModes",
+    "SensingPerceiver",
+    "episode_modes",
+]

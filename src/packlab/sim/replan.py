@@ -51,9 +51,15 @@ class Perception:
     #: box's symmetry. A robot grasps and turns the box by its estimate, so this error travels
     #: into the placement (``Episode`` adds it to the executed drop). Empty: no error (exact).
     grasp_errors: tuple[tuple[float, float, float], ...] = ()
-    #: Shown objects the perceiver could not find or split after a re-scan (case indices of the
+    #: Shown objects the perceiver could not find or split after a re-scan (positions in the
     #: scene's ``shown``): the episode sets them aside, as a robot cell would, and counts them.
     missed: tuple[int, ...] = ()
+    #: Simulator bookkeeping per shown object: True where the perceived first side (the longer
+    #: one: a camera cannot see which side a catalogue calls l) is the box's own w side, so the
+    #: episode turns the box by the other rotation to do what the policy chose. Empty: none.
+    axis_swapped: tuple[bool, ...] = ()
+    #: Looks at the buffer this perception took (2: one re-scan; None: not reported).
+    scans: int | None = None
 
 
 class Perceiver(Protocol):

@@ -1,5 +1,5 @@
 """The perception figure of one step: container depth image, recovered vs true heightmap, and
-the segmented buffer views with their estimated boxes (``packlab.sim.sensing``).
+the segmented buffer image with its estimated boxes (``packlab.sim.sensing``).
 
 Built on ``matplotlib.figure.Figure`` directly (no pyplot state); save with
 ``packlab.viz.plots.save_figure``.
@@ -35,53 +35,39 @@ def _image(ax, data: np.ndarray, extent, title: str, cmap: str, label: str, fig:
 
 
 def _buffer_panel(ax, state: PerceivedState) -> None:
-    """The buffer table: each view's heights, its segment tinted, the estimated box outlined."""
-    x0, y0, x1, y1 = state.buffer_scene.extent_mm
+    """The buffer: its depth image, the segments (tint) and each estimated box outlined."""
+    image, labels = state.buffer.image, state.buffer.labels
+    nx, ny = image.shape
+    x0, y0 = image.origin_mm
+    x1, y1 = x0 + nx * image.pixel_mm, y0 + ny * image.pixel_mm
     ax.set_facecolor("#EEEEEE")
-    top = (
-        max(float(np.nanmax(v.heights_mm())) for v in state.buffer_images)
-        if state.buffer_images
-        else 1.0
-    )
-    for image, labels, estimate, view in zip(
-        state.buffer_images, state.buffer_labels, state.estimates, state.buffer_scene.views_mm
-    ):
-        heights = np.ma.masked_invalid(image.heights_mm())
-        ax.imshow(
-            heights.T,
-            origin="lower",
-            extent=(view[0], view[2], view[1], view[3]),
-            cmap="Greys",
-            vmin=0,
-            vmax=top,
+    heights = np.ma.masked_invalid(image.heights_mm())
+    top = float(heights.max()) if heights.count() else 1.0
+    window = (x0, x1, y0, y1)
+    ax.imshow(heights.T, origin="lower", extent=window, cmap="Greys", vmin=0, vmax=top)
+    tint = np.ma.masked_less(labels % 10, 0)
+    ax.imshow(tint.T, origin="lower", extent=window, cmap="tab10", alpha=0.35, vmin=0, vmax=9)
+    for estimate in state.buffer.found:
+        outline = _box_outline(estimate, estimate.size_mm[:2])
+        ax.add_patch(Polygon(outline, closed=True, fill=False, edgecolor="#D62728", lw=1.2))
+        l, w, h = estimate.size_mm
+        ax.text(
+            *estimate.top_centre_mm[:2],
+            f"{l}x{w}x{h}\n{estimate.yaw_deg:.1f}°",
+            fontsize=6,
+            ha="center",
+            va="center",
+            color="#FFD700",
         )
-        mask = np.ma.masked_less(labels, 0)
-        ax.imshow(
-            mask.T,
-            origin="lower",
-            extent=(view[0], view[2], view[1], view[3]),
-            cmap="tab10",
-            alpha=0.35,
-            vmin=0,
-            vmax=9,
-            interpolation="nearest",
-        )
-        if estimate is not None:
-            outline = _box_outline(estimate, estimate.size_mm[:2])
-            ax.add_patch(Polygon(outline, closed=True, fill=False, edgecolor="#D62728", lw=1.2))
-            l, w, h = estimate.size_mm
-            ax.text(
-                *estimate.top_centre_mm[:2],
-                f"{l}x{w}x{h}\n{estimate.yaw_deg:.1f}°",
-                fontsize=6,
-                ha="center",
-                va="center",
-                color="#FFD700",
-            )
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
-    ax.set_title("buffer views: segments (tint) and estimated boxes (red)", fontsize=9)
+    missed = state.stats.missed
+    ax.set_title(
+        f"buffer: segments (tint), estimated boxes (red); {state.stats.scans} scan(s)"
+        + (f", {missed} missed" if missed else ""),
+        fontsize=9,
+    )
     ax.tick_params(labelsize=7)
 
 
@@ -110,8 +96,8 @@ def perception_figure(state: PerceivedState, true_heightmap: np.ndarray, title: 
     stats = state.stats
     fig.suptitle(
         f"{title}  heightmap MAE {stats.heightmap_mae_mm:.2f} mm, dims error max "
-        f"{stats.dims_error_mm.max(initial=0):.0f} mm, yaw error max "
-        f"{stats.yaw_error_deg.max(initial=0):.2f}°",
+        f"{np.nanmax(stats.dims_error_mm, initial=0):.0f} mm, yaw error max "
+        f"{np.nanmax(stats.yaw_error_deg, initial=0):.2f}°",
         fontsize=10,
     )
     return fig

@@ -74,8 +74,8 @@ def test_noise_model_drops_only_edge_pixels_and_quantises():
 
 def test_buffer_layout_is_seeded_and_keeps_boxes_apart():
     sizes = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 500, 200]])
-    a = layout_buffer(sizes, np.random.default_rng(3), gap_mm=40)
-    b = layout_buffer(sizes, np.random.default_rng(3), gap_mm=40)
+    a = layout_buffer(sizes, np.random.default_rng(3), "apart")
+    b = layout_buffer(sizes, np.random.default_rng(3), "apart")
     np.testing.assert_array_equal(a.positions_mm, b.positions_mm)
     np.testing.assert_allclose(a.positions_mm[:, 2], sizes[:, 2] / 2)
     radius = np.hypot(sizes[:, 0], sizes[:, 1]) / 2
@@ -88,7 +88,60 @@ def test_buffer_layout_is_seeded_and_keeps_boxes_apart():
     assert (x0, y0) == (0.0, 0.0) and x1 > 0 and y1 > 0
     # Every box is fully inside the table: its whole top area is seen.
     for i, (l, w, _) in enumerate(sizes):
-        assert (image.ids == i).sum() * 25 == pytest.approx(l * w, rel=0.05)
+        assert (image.ids == i).sum() * image.pixel_mm**2 == pytest.approx(l * w, rel=0.05)
+
+
+def _corners(scene, sizes):
+    """(k, 4, 2) world xy corners of each box's footprint."""
+    out = []
+    for (x, y, _), yaw, (l, w, _) in zip(scene.positions_mm, scene.yaws_rad, sizes):
+        axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+        local = np.array([[-l, -w], [l, -w], [l, w], [-l, w]]) / 2.0
+        out.append(local @ axes + (x, y))
+    return np.array(out)
+
+
+def _overlap(a, b) -> float:
+    """Separating-axis overlap depth (mm) of two convex quads; <= 0: apart or touching."""
+    depth = np.inf
+    for quad in (a, b):
+        for i in range(4):
+            edge = quad[(i + 1) % 4] - quad[i]
+            axis = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
+            pa, pb = a @ axis, b @ axis
+            depth = min(depth, min(pa.max(), pb.max()) - max(pa.min(), pb.min()))
+    return depth
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_touching_layout_packs_boxes_against_each_other_without_overlap(seed):
+    sizes = np.array(
+        [
+            [400, 300, 100],
+            [75, 100, 80],
+            [200, 200, 90],
+            [1000, 500, 200],
+            [300, 250, 120],
+            [150, 150, 60],
+        ]
+    )
+    scene = layout_buffer(sizes, np.random.default_rng(seed), "touching")
+    np.testing.assert_array_equal(
+        scene.positions_mm, layout_buffer(sizes, np.random.default_rng(seed)).positions_mm
+    )
+    corners = _corners(scene, sizes)
+    depths = np.array(
+        [[_overlap(corners[i], corners[j]) for j in range(len(sizes))] for i in range(len(sizes))]
+    )
+    off = ~np.eye(len(sizes), dtype=bool)
+    assert depths[off].max() <= 1e-6  # never inside each other
+    # most boxes touch another (within a few mm: a box turned a few degrees meets its
+    # neighbour at a corner; one resting on the corner of a turned long box can sit further)
+    nearest = np.max(np.where(off, depths, -np.inf), axis=1)
+    assert np.mean(nearest > -15.0) >= 0.6
+    # each box is square to the tote within 6 degrees
+    quarter = np.degrees(scene.yaws_rad) % 90.0
+    assert np.all(np.minimum(quarter, 90.0 - quarter) <= 6.0 + 1e-9)
 
 
 def test_presets_are_ordered_and_validated():

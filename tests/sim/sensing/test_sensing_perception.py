@@ -13,7 +13,7 @@ from packlab.sim.heightmap import rasterise_poses
 from packlab.sim.sensing import (
     SENSOR_PRESETS,
     add_sensor_noise,
-    buffer_views,
+    buffer_camera,
     container_camera,
     estimate_objects,
     heightmap_from_depth,
@@ -22,6 +22,7 @@ from packlab.sim.sensing import (
     segment_depth,
     segment_truth,
 )
+from packlab.sim.sensing.camera import CARTON_BEVEL_MM
 from packlab.sim.sensing.perception import flatten_tops, min_area_rect_angle
 
 NONE = SENSOR_PRESETS["none"]
@@ -103,23 +104,21 @@ def test_binned_path_agrees_with_the_aligned_path_and_fills_missing_cells():
     np.testing.assert_array_equal(filled[1:, :], expected[1:, :])
 
 
-def _views(yaws_deg, sizes=SIZES):
-    """Each box's own buffer view with the boxes at the given yaws: (views, yaws rad)."""
-    scene = layout_buffer(sizes, np.random.default_rng(0))
-    yaw = np.radians(np.asarray(yaws_deg, dtype=float))
-    quats = np.column_stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)])
-    scene = replace(scene, quaternions=quats, yaws_rad=yaw)
-    return buffer_views(sizes, scene, NONE), yaw
+def _table(yaws_deg, sizes=SIZES, arrangement="apart", seed=0):
+    """The buffer image with the boxes at the given yaws: (image, scene)."""
+    scene = layout_buffer(sizes, np.random.default_rng(seed), arrangement)
+    if yaws_deg is not None:
+        yaw = np.radians(np.asarray(yaws_deg, dtype=float))
+        quats = np.column_stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)])
+        scene = replace(scene, quaternions=quats, yaws_rad=yaw)
+    return buffer_camera(sizes, scene, NONE), scene
 
 
-def _estimates(views):
-    """The estimate of each view's own box (ground-truth segmentation)."""
-    out = []
-    for index, view in enumerate(views):
-        found = estimate_objects(view, segment_truth(view))
-        assert [e.label for e in found] == [index]
-        out.append(found[0])
-    return out
+def _estimates(image):
+    """Each box's estimate by the ground-truth segmentation, in box order."""
+    found = estimate_objects(image, segment_truth(image))
+    assert [e.label for e in found] == list(range(len(found)))
+    return found
 
 
 def _yaw_error_deg(estimate, size, yaw_rad) -> float:
@@ -131,29 +130,59 @@ def _yaw_error_deg(estimate, size, yaw_rad) -> float:
 
 @pytest.mark.parametrize("quarter", [0, 90, 180, 270])
 def test_zero_noise_quarter_turns_give_exact_dims_and_yaw(quarter):
-    views, yaws = _views([quarter] * len(SIZES))
-    for est, size, yaw in zip(_estimates(views), SIZES, yaws):
+    image, scene = _table([quarter] * len(SIZES))
+    for est, size, yaw in zip(_estimates(image), SIZES, scene.yaws_rad):
         assert sorted(est.size_mm[:2]) == sorted(size[:2]) and est.size_mm[2] == size[2]
         assert _yaw_error_deg(est, size, yaw) < 1.0
+        # the top is flat inside the rounded edges
         assert est.top_centre_mm[2] == pytest.approx(size[2])
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_zero_noise_random_yaws_give_exact_dims_yaw_within_one_degree(seed):
+def test_zero_noise_random_yaws_give_exact_dims_yaw_within_two_degrees(seed):
     rng = np.random.default_rng(seed)
-    views, yaws = _views(rng.uniform(-180, 180, size=len(SIZES)))
-    for est, size, yaw in zip(_estimates(views), SIZES, yaws):
+    image, scene = _table(rng.uniform(-180, 180, size=len(SIZES)))
+    for est, size, yaw in zip(_estimates(image), SIZES, scene.yaws_rad):
         assert sorted(est.size_mm[:2]) == sorted(size[:2]) and est.size_mm[2] == size[2]
-        assert _yaw_error_deg(est, size, yaw) < 1.0
+        assert _yaw_error_deg(est, size, yaw) < 2.0
         assert est.size_mm[0] >= est.size_mm[1]  # l is the long side, along the yaw axis
 
 
-def test_depth_segmentation_matches_the_truth_at_zero_noise():
-    views, _ = _views(np.random.default_rng(9).uniform(-180, 180, size=len(SIZES)))
-    for index, view in enumerate(views):
-        found = segment_depth(view)
-        np.testing.assert_array_equal(found >= 0, segment_truth(view) == index)
-        assert found.max() == 0  # one component: the view's own box
+def _same_partition(found, truth, share=0.97):
+    """True when each true box has its own segment holding ``share`` of its pixels (a pixel
+    or two of the groove between two boxes may go to the neighbour)."""
+    owner = []
+    for box in range(truth.max() + 1):
+        labels, counts = np.unique(found[truth == box], return_counts=True)
+        best = int(np.argmax(counts))
+        if labels[best] < 0 or counts[best] < share * counts.sum():
+            return False
+        owner.append(int(labels[best]))
+    return len(set(owner)) == len(owner)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_depth_segmentation_splits_touching_boxes_at_zero_noise(seed):
+    """Boxes pushed together in a tote: every box is its own segment, however they touch."""
+    image, _ = _table(None, arrangement="touching", seed=seed)
+    found = segment_depth(image, window_px=2 * int(np.ceil(CARTON_BEVEL_MM / image.pixel_mm)) + 3)
+    truth = segment_truth(image)
+    assert found.max() + 1 == len(SIZES)
+    assert _same_partition(found, truth)
+    # and nearly every pixel of each box is in its segment
+    assert np.mean((found >= 0) == (truth >= 0)) > 0.99
+
+
+def test_without_rounded_edges_equal_boxes_side_by_side_merge():
+    """The groove is what splits two touching boxes of one height: flat-topped, they merge
+    (so the test above depends on it, not on luck)."""
+    sizes = np.array([[300, 200, 150], [300, 200, 150]], dtype=float)
+    positions = np.array([[150.0, 100.0, 75.0], [450.0, 100.0, 75.0]])
+    quats = np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+    flat = render_depth(sizes, positions, quats, (-10, -10, 610, 210), 2.0, 1500.0)
+    rounded = render_depth(sizes, positions, quats, (-10, -10, 610, 210), 2.0, 1500.0, 6.0)
+    assert segment_depth(flat, window_px=9).max() == 0
+    assert segment_depth(rounded, window_px=9).max() == 1
 
 
 def test_min_area_rect_angle_of_a_rotated_rectangle():

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from sensing_scenes import packed_layered_case
 
+import packlab.sim.sensing.buffer as buffer_module
 from packlab.core.errors import ConfigError
-from packlab.sim.sensing import SENSOR_PRESETS, buffer_views, layout_buffer, perceive_state
+from packlab.sim.sensing import SENSOR_PRESETS, perceive_state
+from packlab.sim.sensing.perception import EstimatedBox
 
 SHOWN = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 200], [125, 75, 88]])
 
@@ -36,9 +38,14 @@ def test_zero_noise_perception_is_exact(segmentation):
     )
     np.testing.assert_array_equal(state.heightmap, exact)
     assert state.heightmap.dtype == np.int32 and state.heightmap.shape == case.container.cells
-    np.testing.assert_array_equal(state.shown_sizes_mm, SHOWN)  # the catalogue's l/w order too
+    # Longer side first: which side the catalogue calls l is not something a camera sees.
+    long_first = np.column_stack([SHOWN[:, :2].max(axis=1), SHOWN[:, :2].min(axis=1), SHOWN[:, 2]])
+    np.testing.assert_array_equal(state.shown_sizes_mm, long_first)
+    np.testing.assert_array_equal(state.axis_swapped, SHOWN[:, 0] < SHOWN[:, 1])
     assert state.stats.heightmap_mae_mm == 0.0 and state.stats.missed == 0
-    assert np.all(state.stats.dims_error_mm == 0) and np.all(state.stats.yaw_error_deg < 1.0)
+    assert np.all(state.stats.dims_error_mm == 0) and np.all(state.stats.yaw_error_deg < 2.0)
+    # centres within a few pixels (a groove pixel or two may go to the neighbour)
+    assert np.abs(state.grasp_errors[:, :2]).max() < 3 * state.buffer.image.pixel_mm
 
 
 def test_unplaced_boxes_are_ignored():
@@ -74,6 +81,7 @@ def test_errors_grow_monotonically_with_the_noise_level():
             SHOWN,
             replace(SENSOR_PRESETS["stereo"], flat_tolerance_mm=0.0).scaled(f),
             np.random.default_rng(7),
+            "truth",  # the estimator's errors alone: at 4 x stereo depth cuts lose boxes
         ).stats
         for f in (0.0, 1.0, 2.0, 4.0)
     ]
@@ -124,12 +132,74 @@ def test_same_seed_same_perception():
     np.testing.assert_array_equal(a.stats.yaw_error_deg, b.stats.yaw_error_deg)
 
 
-def test_buffer_views_show_only_their_own_box():
-    scene = layout_buffer(SHOWN, np.random.default_rng(2))
-    for index, view in enumerate(buffer_views(SHOWN, scene, SENSOR_PRESETS["none"])):
-        assert view.shape == (128, 128)
-        assert set(np.unique(view.ids).tolist()) == {-1, index}
-        assert not (view.ids[0, :] >= 0).any() and not (view.ids[-1, :] >= 0).any()
+def _fake_estimates(monkeypatch, make):
+    """Replace the estimator: ``make(labels)`` gives the boxes the robot 'measures'."""
+    monkeypatch.setattr(
+        buffer_module, "estimate_objects", lambda image, labels, *grid: make(labels)
+    )
+
+
+def test_the_sizes_shown_are_the_estimates_never_the_true_sizes(monkeypatch):
+    """Whatever the estimator measures is what the policy is shown (a leak of the true sizes
+    would show SHOWN instead), and the errors are scored against the truth."""
+    case, sizes, positions, quats, _ = _packed()
+
+    def make(labels):
+        out = []
+        for label in range(int(labels.max()) + 1):
+            xs, ys = np.nonzero(labels == label)
+            # the right place, a wrong size: 50 x 25 x 40 mm (long side first)
+            centre = (float(xs.mean()), float(ys.mean()), 40.0)
+            out.append(EstimatedBox(label, (50, 25, 40), (50.0, 25.0, 40.0), centre, 0.0))
+        return out
+
+    _fake_estimates(monkeypatch, make)
+    state = perceive_state(
+        case.container, sizes, positions, quats, SHOWN, "none", np.random.default_rng(0), "truth"
+    )
+    np.testing.assert_array_equal(state.shown_sizes_mm, np.tile([50, 25, 40], (len(SHOWN), 1)))
+    assert np.all(state.stats.dims_error_mm > 0)
+
+
+def test_missed_objects_are_rescanned_then_reported_with_no_size(monkeypatch):
+    """A box the estimator never returns is looked for again, then reported missed: its size
+    row is zero (nothing leaks) and its errors NaN."""
+    case, sizes, positions, quats, _ = _packed()
+    real = buffer_module.estimate_objects
+
+    def without_box_1(image, labels, *grid):
+        return [e for e in real(image, labels, *grid) if e.label != 1]
+
+    monkeypatch.setattr(buffer_module, "estimate_objects", without_box_1)
+    state = perceive_state(
+        case.container, sizes, positions, quats, SHOWN, "none", np.random.default_rng(0), "truth"
+    )
+    assert state.missed == (1,) and state.stats.missed == 1
+    assert state.stats.scans == buffer_module.MAX_SCANS  # looked again before giving up
+    assert not state.shown_sizes_mm[1].any() and np.isnan(state.stats.dims_error_mm[1])
+    assert state.shown_sizes_mm[[0, 2, 3, 4]].all()
+
+
+def test_touching_boxes_are_found_and_measured_from_depth_alone():
+    """Structured light, boxes pushed together: every box found, sizes mostly exact."""
+    case, sizes, positions, quats, _ = _packed()
+    found = exact = total = 0
+    for seed in range(6):
+        state = perceive_state(
+            case.container,
+            sizes,
+            positions,
+            quats,
+            SHOWN,
+            "structured-light",
+            np.random.default_rng(seed),
+            "depth",
+        )
+        assert state.buffer.scene is not None
+        found += len(SHOWN) - state.stats.missed
+        exact += int(np.sum(state.stats.dims_error_mm == 0))
+        total += len(SHOWN)
+    assert found == total and exact >= 0.9 * total
 
 
 def test_bad_inputs_are_config_errors():

@@ -1,10 +1,11 @@
 """Simulated sensing: top-down depth cameras over the container and the buffer, and perception.
 
 ``perceive_state`` is the one entry the episode loop calls in perceived mode: it images the
-container (boxes at their settled poses) and the shown objects (laid out on a buffer table at
-random positions and yaws), and returns the heightmap and the shown sizes a policy would see on
-a robot, with the perception's errors. Modules: ``presets`` (noise models), ``camera`` (ray
-casting, noise, buffer layout), ``perception`` (heightmap, segmentation, box estimation).
+container (boxes at their settled poses) and the shown objects (lying together in a tote), and
+returns the heightmap and the shown sizes a policy would see on a robot, which objects were not
+found, and the perception's errors. Modules: ``presets`` (noise models), ``camera`` (ray
+casting, noise, buffer layouts), ``perception`` (heightmap, segmentation, box estimation),
+``buffer`` (scan, check, re-scan, and which segment is which box).
 """
 
 from __future__ import annotations
@@ -16,12 +17,12 @@ import numpy as np
 from packlab.core.choices import Segmentation, require_choice
 from packlab.core.types import Container
 from packlab.sim.heightmap import rasterise_poses
+from packlab.sim.sensing.buffer import BufferPerception, perceive_buffer
 from packlab.sim.sensing.camera import (
     BufferScene,
     DepthImage,
     add_sensor_noise,
     buffer_camera,
-    buffer_views,
     container_camera,
     layout_buffer,
     render_depth,
@@ -38,13 +39,14 @@ from packlab.sim.sensing.presets import SENSOR_PRESETS, SensorPreset, sensor_pre
 
 @dataclass(frozen=True, slots=True)
 class PerceptionStats:
-    """How far perception was from the truth at one step."""
+    """How far perception was from the truth at one step (NaN for a missed object)."""
 
     dims_error_mm: np.ndarray  # (k,) float64 max |estimated - true| over (l, w, h), snapped sizes
     raw_dims_error_mm: np.ndarray  # (k,) float64 the same before snapping to the grids
     yaw_error_deg: np.ndarray  # (k,) float64 |estimated - true| yaw of the long axis, degrees
     heightmap_mae_mm: float  # mean |perceived - exact| over the container's cells, mm
-    missed: int  # shown objects no segment was found for (their true size is passed on)
+    missed: int  # shown objects no box-like segment was found for (the episode sets them aside)
+    scans: int = 1  # looks at the buffer this step took (2: one re-scan)
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,13 +54,22 @@ class PerceivedState:
     """What a policy sees in perceived mode, and the intermediate data (for figures)."""
 
     heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, perceived
-    shown_sizes_mm: np.ndarray  # (k, 3) int64 estimated (l, w, h) in mm, shown order
+    #: (k, 3) int64 estimated (long side, short side, height) mm per shown object; 0 if missed.
+    #: Longer side first: which side a catalogue calls l is a label no camera can see.
+    shown_sizes_mm: np.ndarray
     stats: PerceptionStats
     container_image: DepthImage  # noisy depth image over the container
-    buffer_scene: BufferScene  # the true layout of the shown objects on the buffer table
-    buffer_images: tuple[DepthImage, ...]  # noisy view of each shown object, shown order
-    buffer_labels: tuple[np.ndarray, ...]  # (nx, ny) int32 segmentation of each view, -1 none
-    estimates: tuple[EstimatedBox | None, ...]  # each shown object's estimate, None if missed
+    buffer: BufferPerception  # the last scan of the buffer and its segments
+    #: Simulator bookkeeping per shown object: the estimated long axis is the true box's w axis
+    #: (so the episode turns the box by the other rotation to do what the policy chose).
+    axis_swapped: np.ndarray  # (k,) bool
+    #: Per shown object (dx mm, dy mm, dyaw deg), estimated minus true pose on the buffer.
+    grasp_errors: np.ndarray  # (k, 3) float64; zeros for a missed object
+
+    @property
+    def missed(self) -> tuple[int, ...]:
+        """Positions (in shown order) of the objects perception did not find."""
+        return tuple(i for i, e in enumerate(self.buffer.estimates) if e is None)
 
 
 def perceive_state(
@@ -69,15 +80,17 @@ def perceive_state(
     shown_sizes_mm: np.ndarray,
     preset: SensorPreset | str,
     rng: np.random.Generator,
-    segmentation: Segmentation = "truth",
+    segmentation: Segmentation = "depth",
+    arrangement: str = "touching",
 ) -> PerceivedState:
     """Perceive the container and the shown buffer through the preset's cameras.
 
     ``box_sizes_mm`` (n, 3), ``positions_mm`` (n, 3) and ``quaternions`` (n, 4, w x y z) are the
     case's boxes and their poses as ``backend.poses()`` returns them (NaN rows: not placed,
-    ignored). ``shown_sizes_mm`` (k, 3) are the shown objects' true (l, w, h). Noise and the
-    buffer layout are drawn from ``rng``. With a noise-free preset the heightmap equals the
-    rasterised one and the sizes are exact.
+    ignored). ``shown_sizes_mm`` (k, 3) are the shown objects' true (l, w, h): they place the
+    boxes in the buffer scene and score the estimates, nothing else. Noise and the buffer layout
+    are drawn from ``rng``. With a noise-free preset the heightmap equals the rasterised one and
+    the sizes are exact (longer side first).
     """
     require_choice(segmentation, Segmentation, "segmentation")
     preset = sensor_preset(preset)
@@ -85,7 +98,7 @@ def perceive_state(
     positions = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
     quats = np.asarray(quaternions, dtype=np.float64).reshape(-1, 4)
     # Independent streams: the buffer layout does not depend on how much noise was drawn.
-    layout_rng, container_rng, buffer_rng = rng.spawn(3)
+    buffer_rng, container_rng = rng.spawn(2)
     clean = container_camera(container, sizes, positions, quats, preset)
     container_image = add_sensor_noise(clean, preset, container_rng)
     heightmap = heightmap_from_depth(
@@ -96,76 +109,54 @@ def perceive_state(
         container.cells, container.cell_xy_mm, sizes[placed], positions[placed], quats[placed]
     )
     shown = np.asarray(shown_sizes_mm, dtype=np.int64).reshape(-1, 3)
-    scene = layout_buffer(shown, layout_rng)
     grid = (container.cell_xy_mm, container.cell_z_mm)
-    images, labels, estimates = _perceive_buffer(
-        shown, scene, preset, buffer_rng, segmentation, grid
-    )
-    sizes_out, errors = _shown_sizes_and_stats(shown, scene, estimates)
+    buffer = perceive_buffer(shown, preset, buffer_rng, segmentation, grid, arrangement)
+    sizes_out, swapped, grasp, errors = _compare_to_truth(shown, buffer)
     hm_error = float(np.mean(np.abs(heightmap.astype(np.int64) - exact))) if exact.size else 0.0
-    missed = sum(e is None for e in estimates)
-    stats = PerceptionStats(*errors, heightmap_mae_mm=hm_error, missed=missed)
-    return PerceivedState(
-        heightmap, sizes_out, stats, container_image, scene, images, labels, estimates
-    )
+    missed = sum(e is None for e in buffer.estimates)
+    stats = PerceptionStats(*errors, heightmap_mae_mm=hm_error, missed=missed, scans=buffer.scans)
+    return PerceivedState(heightmap, sizes_out, stats, container_image, buffer, swapped, grasp)
 
 
-def _perceive_buffer(shown, scene, preset, rng, segmentation, grid):
-    """(noisy views, their labels, each object's estimate or None), one per shown object."""
-    images, all_labels, estimates = [], [], []
-    view_rngs = rng.spawn(len(shown))
-    for index, view in enumerate(buffer_views(shown, scene, preset)):
-        image = add_sensor_noise(view, preset, view_rngs[index])
-        if segmentation == "truth":
-            labels = segment_truth(image)
-        else:  # foreground 5 sigma over the table: noise alone almost never crosses it
-            labels = segment_depth(image, min_height_mm=max(10.0, 5 * preset.depth_noise_mm))
-        found = estimate_objects(image, labels, *grid)
-        estimates.append(_pick(found, index, scene.views_mm[index], segmentation == "truth"))
-        images.append(image)
-        all_labels.append(labels)
-    return tuple(images), tuple(all_labels), tuple(estimates)
+def _wrap(angle_deg: float, period: float) -> float:
+    """``angle_deg`` wrapped into [-period / 2, period / 2)."""
+    return (angle_deg + period / 2) % period - period / 2
 
 
-def _pick(found: list[EstimatedBox], index: int, view_mm: np.ndarray, by_label: bool):
-    """The estimate of the view's own object: its ground-truth label, else the segment nearest
-    the view's centre (a view holds one box; stray segments are noise). None when none."""
-    if by_label:
-        return next((e for e in found if e.label == index), None)
-    if not found:
-        return None
-    centre = (view_mm[:2] + view_mm[2:]) / 2.0
-    return min(found, key=lambda e: float(np.hypot(*(np.asarray(e.top_centre_mm[:2]) - centre))))
+def _compare_to_truth(shown: np.ndarray, buffer: BufferPerception):
+    """(sizes, axis_swapped, grasp errors, (dims, raw dims, yaw errors)) per shown object.
 
-
-def _shown_sizes_and_stats(shown, scene, estimates):
-    """Estimated sizes in the catalogue's l/w order, and the (dims, raw dims, yaw) errors.
-
-    Which side of a box a catalogue calls l is a label, not something a camera can see, so the
-    estimated (long, short) pair is written in the order the catalogue uses for that object
-    (longer first when its l >= w). A noise-free preset then reproduces the exact observation.
+    The sizes are the estimates as measured (longer side first). Which true axis the estimated
+    long axis is, and the errors, are the simulator's: the long axis is the true l axis when the
+    two lie within 45 degrees, else the true w axis (a square box: always its l axis, yaws
+    compared modulo 90 degrees).
     """
     k = len(shown)
-    sizes = shown.copy()
-    dims, raw_dims, yaw = np.zeros(k), np.zeros(k), np.zeros(k)
-    for i in range(k):
-        est = estimates[i]
-        if est is None:  # missed: the true size is passed on, and counted in ``missed``
+    sizes = np.zeros((k, 3), dtype=np.int64)
+    swapped = np.zeros(k, dtype=bool)
+    grasp = np.zeros((k, 3))
+    dims, raw_dims, yaw = np.full(k, np.nan), np.full(k, np.nan), np.full(k, np.nan)
+    for i, est in enumerate(buffer.estimates):
+        if est is None:
             continue
-        flip = shown[i, 0] < shown[i, 1]
-        order = [1, 0, 2] if flip else [0, 1, 2]
-        sizes[i] = np.asarray(est.size_mm)[order]
-        dims[i] = np.max(np.abs(sizes[i] - shown[i]))
-        raw_dims[i] = np.max(np.abs(np.asarray(est.raw_size_mm)[order] - shown[i]))
-        true_yaw = np.degrees(scene.yaws_rad[i]) + (90.0 if flip else 0.0)
-        period = 90.0 if shown[i, 0] == shown[i, 1] else 180.0
-        diff = (est.yaw_deg - true_yaw) % period
-        yaw[i] = min(diff, period - diff)
-    return sizes, (dims, raw_dims, yaw)
+        sizes[i] = est.size_mm
+        true_yaw = float(np.degrees(buffer.scene.yaws_rad[i]))
+        square = shown[i, 0] == shown[i, 1]
+        swapped[i] = not square and abs(_wrap(est.yaw_deg - true_yaw, 180.0)) > 45.0
+        axis_yaw = true_yaw + (90.0 if swapped[i] else 0.0)
+        dyaw = _wrap(est.yaw_deg - axis_yaw, 90.0 if square else 180.0)
+        truth = shown[i][[1, 0, 2]] if swapped[i] else shown[i]
+        dims[i] = np.max(np.abs(sizes[i] - truth))
+        raw_dims[i] = np.max(np.abs(np.asarray(est.raw_size_mm) - truth))
+        yaw[i] = abs(dyaw)
+        centre = buffer.scene.positions_mm[i, :2]
+        grasp[i] = (est.top_centre_mm[0] - centre[0], est.top_centre_mm[1] - centre[1], dyaw)
+    return sizes, swapped, grasp, (dims, raw_dims, yaw)
 
 
 __all__ = [
     "SENSOR_PRESETS",
+    "BufferPerception",
     "BufferScene",
     "DepthImage",
     "EstimatedBox",
@@ -174,11 +165,11 @@ __all__ = [
     "SensorPreset",
     "add_sensor_noise",
     "buffer_camera",
-    "buffer_views",
     "container_camera",
     "estimate_objects",
     "heightmap_from_depth",
     "layout_buffer",
+    "perceive_buffer",
     "perceive_state",
     "render_depth",
     "segment_depth",

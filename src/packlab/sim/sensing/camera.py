@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from packlab.core.errors import ConfigError
 from packlab.core.types import Container
 from packlab.sim.heightmap import box_top_over_cells, quat_to_matrix
 from packlab.sim.sensing.presets import SensorPreset
@@ -58,13 +59,16 @@ def render_depth(
     extent_mm: tuple[float, float, float, float],
     pixel_mm: float,
     camera_z_mm: float,
+    bevel_mm: float = 0.0,
 ) -> DepthImage:
     """Ray-cast a noise-free depth image of posed boxes over ``extent_mm = (x0, y0, x1, y1)``.
 
     ``sizes_mm`` (n, 3) are the boxes' own (l, w, h), ``positions_mm`` (n, 3) their centres and
     ``quaternions`` (n, 4) (w, x, y, z): the arrays ``backend.poses()`` returns. Rows with a NaN
     position (boxes not placed yet) are skipped. The image covers the extent with square pixels
-    of ``pixel_mm`` (the count rounds up).
+    of ``pixel_mm`` (the count rounds up). ``bevel_mm`` > 0 rounds the top edges of upright
+    boxes (a 45-degree chamfer that deep and wide): a carton's folded edges, which is what makes
+    the seam between two touching boxes of one height visible to a depth camera.
     """
     x0, y0, x1, y1 = extent_mm
     nx = max(int(np.ceil((x1 - x0) / pixel_mm - 1e-9)), 1)
@@ -83,11 +87,12 @@ def render_depth(
             quat,
             (x0, y0),
             pixel_mm,
+            bevel_mm,
         )
     return DepthImage(camera_z_mm - top, ids, (float(x0), float(y0)), float(pixel_mm), camera_z_mm)
 
 
-def _cast_box(top, ids, index, size, position, quat, origin, pixel_mm) -> None:
+def _cast_box(top, ids, index, size, position, quat, origin, pixel_mm, bevel_mm=0.0) -> None:
     """Raise ``top`` (and set ``ids``) in place where this box's top is the highest surface."""
     nx, ny = top.shape
     rot = quat_to_matrix(quat)
@@ -106,6 +111,9 @@ def _cast_box(top, ids, index, size, position, quat, origin, pixel_mm) -> None:
         v = rot[0, 1] * (gx - position[0]) + rot[1, 1] * (gy - position[1])
         inside = (np.abs(u) <= half[0]) & (np.abs(v) <= half[1])
         hit = np.where(inside, position[2] + half[2], np.nan)
+        if bevel_mm > 0:  # depth below the top: bevel minus the distance to the nearest edge
+            edge = np.minimum(half[0] - np.abs(u), half[1] - np.abs(v))
+            hit = hit - np.clip(bevel_mm - edge, 0.0, bevel_mm)
     else:
         gx, gy = np.broadcast_arrays(gx, gy)
         hit = box_top_over_cells(position, rot, half, gx, gy)
@@ -174,6 +182,13 @@ def add_sensor_noise(
     return replace(image, depth_mm=depth)
 
 
+#: Depth and width (mm) of the rounded top edges of the cartons on the buffer (``render_depth``'s
+#: ``bevel_mm``): a folded carton edge is a few mm round, which leaves a groove of about twice
+#: this width between two touching boxes. The container image leaves it out: its heightmap
+#: takes each 25 mm cell's median, which a few mm of rounded edge do not move.
+CARTON_BEVEL_MM = 6.0
+
+
 @dataclass(frozen=True, slots=True)
 class BufferScene:
     """Shown objects lying on a table (z = 0) at random positions and yaws."""
@@ -181,23 +196,70 @@ class BufferScene:
     positions_mm: np.ndarray  # (k, 3) float64 box centres, mm
     quaternions: np.ndarray  # (k, 4) float64 (w, x, y, z), yaw only
     yaws_rad: np.ndarray  # (k,) float64 yaw of each box's l axis from world x, radians
-    views_mm: np.ndarray  # (k, 4) float64 (x0, y0, x1, y1) of each box's own view window, mm
     extent_mm: tuple[float, float, float, float]  # the table (x0, y0, x1, y1), mm
 
 
 def layout_buffer(
-    sizes_mm: np.ndarray, rng: np.random.Generator, gap_mm: float = 40.0
+    sizes_mm: np.ndarray, rng: np.random.Generator, arrangement: str = "touching"
 ) -> BufferScene:
-    """Lay the shown boxes on a table at random positions and yaws, resting on their bottom face.
+    """Lay the shown boxes on a table, resting on their bottom face.
 
-    Each box gets a square slot of its footprint diagonal plus ``2 * gap_mm`` (room for any yaw);
-    slots are shelved in a random order, left to right in rows about as wide as the table is
-    deep, and each box is shifted by up to ``gap_mm / 2`` inside its slot. Boxes therefore never
-    come closer than ``gap_mm``, so the classical segmentation can separate them, and the table
-    stays about as small as the boxes allow. Each box's view window (``views_mm``) lies inside
-    its slot, so a view shows its own box and nothing else.
+    ``touching`` (the default, what a robot cell meets): the boxes lie against each other as in
+    a tote or on an accumulating conveyor, square to its sides within a few degrees, so the
+    segmentation has to split them (``_touching_centres``). ``apart``: each box in its own slot
+    at a random yaw, at least 40 mm from the next (the easy case, kept as an ablation).
     """
     sizes = np.asarray(sizes_mm, dtype=np.float64).reshape(-1, 3)
+    if arrangement == "touching":
+        centres, yaws, extent = _touching_centres(sizes, rng)
+    elif arrangement == "apart":
+        centres, yaws, extent = _apart_centres(sizes, rng, gap_mm=40.0)
+    else:
+        raise ConfigError(f"buffer arrangement = {arrangement!r}: choose touching or apart")
+    k = len(sizes)
+    positions = np.column_stack([centres, sizes[:, 2] / 2.0])
+    quats = np.column_stack([np.cos(yaws / 2), np.zeros(k), np.zeros(k), np.sin(yaws / 2)])
+    return BufferScene(positions, quats, yaws, extent)
+
+
+def _touching_centres(sizes: np.ndarray, rng: np.random.Generator):
+    """(centres (k, 2), yaws (k,), extent) of boxes pushed together in a tote.
+
+    Each box is turned 0 or 90 degrees plus a small error (sigma 2, at most 6 degrees) and
+    placed in a random order left to right, each against the one before it; a row that would
+    pass the tote's width starts again at the left, and every box slides down (-y) until it
+    meets a box of an earlier row (a 1-D skyline), so boxes touch in x and in y.
+    """
+    k = len(sizes)
+    turn = rng.integers(0, 2, size=k) * (np.pi / 2)
+    yaws = turn + np.clip(rng.normal(0.0, np.radians(2.0), size=k), -np.radians(6), np.radians(6))
+    c, s = np.abs(np.cos(yaws)), np.abs(np.sin(yaws))
+    l, w = sizes[:, 0], sizes[:, 1]
+    extents = np.column_stack([c * l + s * w, s * l + c * w])
+    widest = float(extents[:, 0].max(initial=0.0))
+    width = max(float(np.sqrt(np.sum(extents[:, 0] * extents[:, 1]))), widest)
+    centres = np.zeros((k, 2))
+    placed: list[tuple[float, float, float]] = []  # (x0, x1, top y) of each box so far
+    x = 0.0
+    for i in rng.permutation(k):
+        if x > 0 and x + extents[i, 0] > width + 1e-9:
+            x = 0.0
+        x1 = x + extents[i, 0]
+        y = max((top for a, b, top in placed if a < x1 - 1e-6 and b > x + 1e-6), default=0.0)
+        centres[i] = (x + extents[i, 0] / 2, y + extents[i, 1] / 2)
+        placed.append((x, x1, y + extents[i, 1]))
+        x = x1
+    far = np.max(centres + extents / 2, axis=0) if k else np.ones(2)
+    return centres, yaws, (0.0, 0.0, max(float(far[0]), 1.0), max(float(far[1]), 1.0))
+
+
+def _apart_centres(sizes: np.ndarray, rng: np.random.Generator, gap_mm: float):
+    """(centres (k, 2), yaws (k,), extent) of boxes in separate slots, ``gap_mm`` apart or more.
+
+    Each box gets a square slot of its footprint diagonal plus ``2 * gap_mm`` (room for any
+    yaw); slots are shelved in a random order, left to right in rows about as wide as the table
+    is deep, and each box is shifted by up to ``gap_mm / 2`` inside its slot.
+    """
     k = len(sizes)
     slots = np.hypot(sizes[:, 0], sizes[:, 1]) + 2 * gap_mm
     row_width = max(float(np.sqrt(np.sum(slots**2))), float(slots.max(initial=0.0)))
@@ -211,49 +273,33 @@ def layout_buffer(
         row_depth = max(row_depth, slots[i])
         width = max(width, x)
     yaws = rng.uniform(-np.pi, np.pi, size=k)
-    # The view covers the box at any yaw and shift: half its diagonal plus half the gap.
-    half_view = (slots - gap_mm)[:, None] / 2.0
-    views = np.hstack([centres - half_view, centres + half_view])
     centres += rng.uniform(-gap_mm / 2, gap_mm / 2, size=(k, 2))
-    positions = np.column_stack([centres, sizes[:, 2] / 2.0])
-    quats = np.column_stack([np.cos(yaws / 2), np.zeros(k), np.zeros(k), np.sin(yaws / 2)])
-    extent = (0.0, 0.0, max(width, 1.0), max(y + row_depth, 1.0))
-    return BufferScene(positions, quats, yaws, views, extent)
+    return centres, yaws, (0.0, 0.0, max(width, 1.0), max(y + row_depth, 1.0))
 
 
-def buffer_views(
-    sizes_mm: np.ndarray, scene: BufferScene, preset: SensorPreset
-) -> tuple[DepthImage, ...]:
-    """One noise-free depth image per shown box, over its view window, ``buffer_view_px`` a side.
+#: The buffer camera's pixel budget: a tote of large boxes is imaged at a coarser pitch than
+#: the preset's finest, so that one look costs about the same whatever the boxes' sizes.
+MAX_BUFFER_PIXELS = 250_000
 
-    A camera zoomed onto each picking slot (or the robot's wrist camera above it) rather than one
-    wide view of the table: a 75 mm box then spans ~60 pixels, so its yaw is found within a
-    degree, and the cost is bounded (k * buffer_view_px**2 pixels) whatever the boxes' sizes.
-    """
-    sizes = np.asarray(sizes_mm, dtype=np.float64).reshape(-1, 3)
-    views = []
-    for i, (x0, y0, x1, y1) in enumerate(scene.views_mm):
-        pixel = max(x1 - x0, y1 - y0) / preset.buffer_view_px
-        # The layout keeps every other box out of this window: cast against box i only.
-        one = render_depth(
-            sizes[i : i + 1],
-            scene.positions_mm[i : i + 1],
-            scene.quaternions[i : i + 1],
-            (x0, y0, x1, y1),
-            pixel,
-            preset.camera_height_mm,
-        )
-        views.append(replace(one, ids=np.where(one.ids >= 0, i, -1).astype(np.int32)))
-    return tuple(views)
+
+def buffer_pixel_mm(scene: BufferScene, preset: SensorPreset) -> float:
+    """The buffer camera's pitch: the preset's ``buffer_pixel_mm``, coarser for a large tote."""
+    x0, y0, x1, y1 = scene.extent_mm
+    return max(preset.buffer_pixel_mm, float(np.sqrt((x1 - x0) * (y1 - y0) / MAX_BUFFER_PIXELS)))
 
 
 def buffer_camera(sizes_mm: np.ndarray, scene: BufferScene, preset: SensorPreset) -> DepthImage:
-    """One noise-free depth image of the whole buffer table at ``pixel_mm`` (figures, overview)."""
+    """The noise-free depth image of the whole buffer table (pitch ``buffer_pixel_mm``), with a
+    margin of table around the boxes and their edges rounded (``CARTON_BEVEL_MM``)."""
+    x0, y0, x1, y1 = scene.extent_mm
+    pixel = buffer_pixel_mm(scene, preset)
+    margin = 4 * pixel
     return render_depth(
         np.asarray(sizes_mm, dtype=np.float64).reshape(-1, 3),
         scene.positions_mm,
         scene.quaternions,
-        scene.extent_mm,
-        preset.pixel_mm,
+        (x0 - margin, y0 - margin, x1 + margin, y1 + margin),
+        pixel,
         preset.camera_height_mm,
+        bevel_mm=CARTON_BEVEL_MM,
     )

@@ -16,8 +16,9 @@ The numbers are typical of the sensor class at a working distance of about 1-1.5
 The pixel footprint is 5 mm for all of them (a 1280-pixel-wide image over ~6 m would be coarser;
 a real cell keeps the camera close): an odd number of pixels (5) per 25 mm cell puts one pixel on
 each cell centre, which makes the per-cell median agree with the centre-sampled rasteriser.
-Each buffered object is seen in its own view of ``buffer_view_px`` pixels a side (see
-``camera.buffer_views``), so small boxes get fine pixels and the yaw stays within a degree.
+The buffer (the shown boxes lying together on a table or in a tote) is imaged by a second camera
+closer to it, at ``buffer_pixel_mm``: a 75 mm box then spans about 37 pixels, so its yaw is found
+within a degree or two and the grooves between touching boxes span several pixels.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ class SensorPreset:
     quantisation_mm: float  # depth is rounded to multiples of this; 0 = continuous
     pixel_mm: float = 5.0  # ground sampling distance: pixel pitch on the imaged plane
     camera_height_mm: float = 1500.0  # camera above the container rim / table surface
-    buffer_view_px: int = 128  # pixels per side of each buffered object's own view (see camera)
+    buffer_pixel_mm: float = 2.0  # pixel pitch of the buffer camera on the table (see camera)
     #: Neighbouring heightmap cells closer than this (mm) are taken as one flat top and given
     #: their common median (``perception.flatten_tops``): about 5 sigma of one cell's median
     #: noise, far below a box's height. 0 (noise-free): off.
@@ -50,7 +51,7 @@ class SensorPreset:
             ("quantisation_mm", self.quantisation_mm >= 0),
             ("pixel_mm", self.pixel_mm > 0),
             ("camera_height_mm", self.camera_height_mm > 0),
-            ("buffer_view_px", self.buffer_view_px >= 16),
+            ("buffer_pixel_mm", 0 < self.buffer_pixel_mm <= 10),
             ("flat_tolerance_mm", self.flat_tolerance_mm >= 0),
         )
         for field, ok in checks:
