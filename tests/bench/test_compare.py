@@ -4,9 +4,19 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
+from record_helpers import ok_record
 
-from packlab.bench.compare import compare_markdown, merge_summaries
+from packlab.bench.compare import (
+    compare_markdown,
+    load_summary,
+    merge_summaries,
+    paired_differences,
+)
+from packlab.bench.intervals import Interval
+from packlab.bench.report import summary_json
+from packlab.bench.summary import summarize
 from packlab.cli.main import main
 from packlab.core.errors import PacklabError
 from packlab.core.records import summary_from_json
@@ -73,7 +83,10 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
                "--labels", "full,blank image", "--out", str(out)])  # fmt: skip
     assert rc == 0
     text = capsys.readouterr().out
-    assert "| blank image | 0.250 ± 0.010" in text and "| full | 0.400 ± 0.010" in text
+    # summaries without per-case cells: the means alone, and no paired differences to make
+    assert "| blank image | 0.250 | 0.250 |" in text and "| full | 0.400 |" in text
+    assert "none here: this summary has no per-case scores" in text
+    assert "| blank image | - | - | - |\n" in text  # row, cases, easy, verdict
     assert out.read_text() + "\n" == text  # the file holds exactly what was printed
     assert compare_markdown([tmp_path / "run-full"]).count("| run-full |") == 2  # both tables
 
@@ -81,3 +94,56 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
 def test_missing_summary_is_a_clear_error(tmp_path):
     with pytest.raises(PacklabError, match="no summary.json"):
         compare_markdown([tmp_path])
+
+
+def _run_dir(tmp_path, name, scores):
+    """A run directory whose summary.json comes from records: policy -> case -> per-seed."""
+    recs = [
+        ok_record(case, seed, policy, "easy" if int(case[1:]) % 2 else "hard", value)
+        for policy, cases in scores.items()
+        for case, per_seed in cases.items()
+        for seed, value in enumerate(per_seed)
+    ]
+    summary = summarize(recs, list(scores), [0, 1, 2], ["easy", "hard"])
+    (tmp_path / name).mkdir()
+    (tmp_path / name / "summary.json").write_text(summary_json(summary))
+    return tmp_path / name
+
+
+def test_paired_differences_mark_only_intervals_that_exclude_zero(tmp_path):
+    rng = np.random.default_rng(0)
+    base = {f"c{i}": float(v) for i, v in enumerate(rng.uniform(0.3, 0.8, 30))}
+    # scatter of +-0.01 that alternates within each level (cases alternate levels): no shift
+    noise = {f"c{i}": 0.01 if (i // 2) % 2 else -0.01 for i in range(30)}
+    run = _run_dir(
+        tmp_path,
+        "run",
+        {
+            "ref": {c: [v] * 3 for c, v in base.items()},
+            "better": {c: [v + 0.05] * 3 for c, v in base.items()},
+            "same": {c: [v + noise[c]] * 3 for c, v in base.items()},
+        },
+    )
+    text = compare_markdown([run])
+    assert "### Paired differences: each row minus run: ref" in text
+    assert "excludes 0" in text
+    better = next(line for line in text.splitlines() if line.startswith("| run: better | 30 |"))
+    assert "**+0.050 [+0.050, +0.050]**" in better and better.endswith("| yes, higher |")
+    same = next(line for line in text.splitlines() if line.startswith("| run: same | 30 |"))
+    assert "**" not in same and same.endswith("| no (interval includes 0) |")
+    merged = merge_summaries([load_summary(run)], ["run"])
+    diffs = paired_differences(merged, "run: same", "run: ref")
+    assert diffs["average"].interval.low < 0 < diffs["average"].interval.high
+    assert diffs["easy"].n_cases == 15 and diffs["average"].n_cases == 30
+
+
+def test_differences_pair_across_runs_on_common_cases(tmp_path):
+    a = _run_dir(tmp_path, "a", {"p": {"c1": [0.5, 0.5, 0.5], "c2": [0.4, 0.6, 0.5]}})
+    b = _run_dir(tmp_path, "b", {"p": {"c1": [0.2, 0.2, 0.2], "c2": [0.1, 0.3, 0.2]}})
+    merged = merge_summaries([load_summary(a), load_summary(b)], ["a", "b"])
+    diffs = paired_differences(merged, "b", "a")
+    assert diffs["average"].estimate == pytest.approx(-0.3)
+    assert diffs["easy"].interval == Interval(pytest.approx(-0.3), pytest.approx(-0.3))
+    text = compare_markdown([a, b])
+    # a's c2 varies over seeds: two-level intervals, said under the table
+    assert "for a, b (scores vary across seeds) seeds also resampled" in text

@@ -12,7 +12,8 @@ import pytest
 from report_helpers import as_run1, rewrite_records, sloppy_policy, small_run
 
 from packlab.bench.html_report import REPORT_HTML, compare_html, run_html
-from packlab.bench.report import load_run
+from packlab.bench.report import load_run, summary_of
+from packlab.bench.summary import run_intervals
 from packlab.cli.main import main
 from packlab.core.errors import EXIT_OK, EXIT_USAGE, PacklabError
 from packlab.core.records import EpisodeOk
@@ -73,6 +74,26 @@ def test_the_page_needs_no_network(run_dir):
     # No string in the data (the sloppy policy's "<left>") can end the data's script element.
     data_part = html.split('id="packlab-data">', 1)[1].split("</script>", 1)[0]
     assert "<" not in data_part
+
+
+def test_the_page_carries_the_bootstrap_intervals(run_dir):
+    run = load_run(run_dir)
+    data = embedded_data(_page(run_dir))
+    summary = summary_of(run.config, run.records)
+    found = run_intervals(summary)
+    groups = [*summary.difficulties, "average"] if len(summary.difficulties) > 1 else []
+    groups = groups or list(summary.difficulties)
+    for m in data["methods"]:
+        cell = m["cells"][-1]  # the last group's Overall: [mean, std, low, high]
+        low, high = found.bounds(m["policy"], groups[-1], "overall")
+        assert cell[2:] == [pytest.approx(low), pytest.approx(high)]
+        assert cell[2] <= cell[0] <= cell[3]
+    assert data["intervals"][0]["resamples"] == found.resamples
+    assert any("95 % bootstrap interval over cases" in n for n in data["notes"])
+    mean = summary.table["dblf"][groups[-1]].overall.mean
+    low, high = found.bounds("dblf", groups[-1], "overall")
+    assert any(n.startswith("DBLF: ") and f"{mean:.3f} [{low:.3f}, {high:.3f}]" in n
+               for n in data["notes"])  # fmt: skip
 
 
 def test_replays_hold_what_the_records_hold(run_dir, sloppy):
@@ -264,6 +285,9 @@ def test_compare_html_has_one_row_per_run_and_method(tiny_suite, tmp_path, capsy
     assert [m["name"] for m in data["methods"]] == ["A: DBLF", "A: Random", "B: DBLF", "B: Random"]
     assert [m["run"] for m in data["methods"]] == [0, 0, 1, 1]
     assert [r["label"] for r in data["runs"]] == ["A", "B"]
+    assert all(len(c) == 4 for m in data["methods"] for c in m["cells"] if c is not None)
+    # every row after the first against the first, with its verdict
+    assert sum("minus A: DBLF" in n for n in data["notes"]) == 3
     assert len(data["episodes"]) == 2 * 2 * 4 and len(data["cases"]) == 4
     assert main([*argv, "--html", str(tmp_path / "x.html")]) == EXIT_OK
     assert (tmp_path / "x.html").is_file()

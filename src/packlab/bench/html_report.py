@@ -5,6 +5,12 @@ report``): config.json, cases.jsonl and episodes.jsonl, through ``packlab.viz.re
 and ``packlab.viz.report_html``. Written at the end of every ``packlab bench`` run (unless
 ``--no-html``) and by ``packlab bench report DIR --html``. Without plotly (the ``report``
 extra) nothing is written and the caller gets ``ReportUnavailable`` to turn into a note.
+
+The 95 % bootstrap intervals (``packlab.bench.summary.run_intervals``) go into the page's data:
+each method's cells carry ``[mean, std, low, high]`` (the page's script reads the first two),
+``intervals`` holds them in summary.json's layout per run, and the notes list every method's
+Overall with its interval per level and on average (and, for a comparison, the paired
+differences to the first row), so the page states how sure each mean is.
 """
 
 from __future__ import annotations
@@ -13,14 +19,18 @@ import os
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
-from packlab.bench.compare import merge_summaries
+from packlab.bench.compare import merge_summaries, paired_differences
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
+from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
 from packlab.bench.table import headline
 from packlab.core.errors import ConfigError
-from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary
+from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary, to_builtins
 from packlab.core.types import Case
+from packlab.metrics import AVERAGE, METRICS
+from packlab.viz.labels import display_name, group_title
 from packlab.viz.report_data import Method, ReportRun, method_name, report_data, row_colours
 from packlab.viz.report_html import ReportUnavailable, render_report_html
 
@@ -42,6 +52,72 @@ def _write_atomic(path: Path, text: str) -> Path:
     return path
 
 
+def _groups(summary: RunSummary) -> list[str]:
+    groups = list(summary.difficulties)
+    return groups + [AVERAGE] if len(groups) > 1 else groups
+
+
+def interval_notes(summary: RunSummary, intervals: RunIntervals) -> list[str]:
+    """One note per method: Overall's mean and 95 % interval per level and on average."""
+    notes = [
+        (
+            f"Overall with its {intervals.confidence * 100:.0f} % bootstrap interval over cases "
+            f"({intervals.resamples} resamples, seed {intervals.seed}; cases resampled within "
+            "each level; seeds also resampled within each case where marked). The table's ± is "
+            "the spread over run seeds, not an interval."
+        )
+    ]
+    for p in summary.policies:
+        row = intervals.policies.get(p)
+        parts = []
+        for g in _groups(summary):
+            cells = summary.table[p].get(g)
+            mean = None if cells is None else cells.overall.mean
+            bounds = intervals.bounds(p, g, "overall")
+            if mean is not None and bounds is not None:
+                parts.append(f"{group_title(g)} {mean:.3f} [{bounds[0]:.3f}, {bounds[1]:.3f}]")
+        marked = (
+            " (seeds resampled)" if row is not None and row.resampled != RESAMPLED_CASES else ""
+        )
+        notes.append(f"{display_name(p)}{marked}: " + ("; ".join(parts) or "no interval"))
+    return notes
+
+
+def difference_notes(merged: RunSummary) -> list[str]:
+    """Per row after the first: its paired Overall difference to the first, on average."""
+    if len(merged.policies) < 2 or not merged.difficulties:
+        return []
+    ref, last = merged.policies[0], _groups(merged)[-1]
+    notes = []
+    for row in merged.policies[1:]:
+        diff = paired_differences(merged, row, ref).get(last)
+        if diff is None:
+            continue
+        lo, hi = diff.interval.low, diff.interval.high
+        verdict = "significant" if diff.significant else "not significant (interval includes 0)"
+        notes.append(
+            f"{row} minus {ref}, {group_title(last)} Overall: {diff.estimate:+.3f} "
+            f"[{lo:+.3f}, {hi:+.3f}] over {diff.n_cases} paired cases: {verdict}"
+        )
+    return notes
+
+
+def with_intervals(
+    data: dict[str, Any], summaries: Sequence[RunSummary], intervals: Sequence[RunIntervals]
+) -> dict[str, Any]:
+    """``report_data``'s dict with each method's cells extended by ``low, high`` (None where
+    there is none) and summary.json's ``intervals`` of each run."""
+    for m in data["methods"]:
+        summary, found = summaries[m["run"]], intervals[m["run"]]
+        bounds = [found.bounds(m["policy"], g, k) for g in _groups(summary) for k in METRICS]
+        m["cells"] = [
+            None if c is None else [*c, *(b if b is not None else (None, None))]
+            for c, b in zip(m["cells"], bounds)
+        ]
+    data["intervals"] = [to_builtins(i) for i in intervals]
+    return data
+
+
 def run_html(
     config: RunConfigHead | Mapping[str, object],
     records: Sequence[EpisodeRecord],
@@ -58,14 +134,16 @@ def run_html(
         Method(method_name("", p, len(policies)), 0, p, colour)
         for p, colour in zip(policies, colours)
     ]
+    intervals = run_intervals(summary)
     data = report_data(
         [ReportRun("", summary, tuple(records), tuple(cases))],
         methods,
         title=f"packlab bench report: {head.suite or 'cases'}",
         subtitle=headline(summary),
         initial_case=pick_showcase_case(summary, cases),
-        notes=[] if cases else [NO_CASES],
+        notes=[*interval_notes(summary, intervals), *([] if cases else [NO_CASES])],
     )
+    data = with_intervals(data, [summary], [intervals])
     return render_report_html(data, generated or now_stamp())
 
 
@@ -112,14 +190,20 @@ def compare_html(
         ReportRun(name, s, tuple(r.records), r.cases) for name, s, r in zip(names, summaries, runs)
     ]
     listed = ", ".join(f"{n} ({r.run_dir})" for n, r in zip(names, runs))
+    intervals = [run_intervals(s) for s in summaries]
     data = report_data(
         report_runs,
         methods,
         title="packlab bench compare: " + ", ".join(names),
         subtitle=f"{headline(merged)}; runs: {listed}",
         initial_case=pick_showcase_case(summaries[0], runs[0].cases),
-        notes=[f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases],
+        notes=[
+            *interval_notes(merged, run_intervals(merged)),
+            *difference_notes(merged),
+            *(f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases),
+        ],
     )
+    data = with_intervals(data, summaries, intervals)
     return render_report_html(data, generated or now_stamp())
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from packlab.bench.records import CASES_FILE, CONFIG_FILE, EPISODES_FILE, read_records
-from packlab.bench.summary import summarize
+from packlab.bench.summary import RunIntervals, run_intervals, summarize
 from packlab.bench.table import render_markdown
 from packlab.cases import load_cases
 from packlab.core.errors import ConfigError
@@ -86,9 +86,13 @@ def _atomic_text(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def summary_json(summary: RunSummary) -> str:
-    """summary.json's text (the layout ``json.dumps(indent=1)`` has always written)."""
-    return json.dumps(to_builtins(summary), indent=1) + "\n"
+def summary_json(summary: RunSummary, intervals: RunIntervals | None = None) -> str:
+    """summary.json's text (the layout ``json.dumps(indent=1)`` has always written), with the
+    bootstrap intervals under an added ``intervals`` key (``packlab.bench.summary.RunIntervals``;
+    readers of the older layout ignore it)."""
+    intervals = run_intervals(summary) if intervals is None else intervals
+    obj = {**to_builtins(summary), "intervals": to_builtins(intervals)}
+    return json.dumps(obj, indent=1) + "\n"
 
 
 def pick_showcase_case(summary: RunSummary, cases: Sequence[Case]) -> str | None:
@@ -160,8 +164,9 @@ def write_outputs(
     """Write summary.json, table.md and (optionally) the figures; return (summary, table, paths)."""
     root = Path(run_dir)
     summary = summary_of(config, records)
-    table_md = render_markdown(summary)
-    _atomic_text(root / SUMMARY_FILE, summary_json(summary))
+    intervals = run_intervals(summary)  # one bootstrap for both files
+    table_md = render_markdown(summary, intervals)
+    _atomic_text(root / SUMMARY_FILE, summary_json(summary, intervals))
     _atomic_text(root / TABLE_FILE, table_md)
     paths = [root / SUMMARY_FILE, root / TABLE_FILE]
     if figures and any(isinstance(r, EpisodeOk) for r in records):

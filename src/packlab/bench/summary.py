@@ -15,6 +15,13 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
 * Failed episodes (``status: "error"``) are left out of the means and counted in ``counts`` and
   ``errors``; the table flags a method with failures, since its mean covers fewer episodes.
 
+* Intervals (``run_intervals``, written to summary.json under ``intervals``): per method, group
+  and metric a 95 % percentile bootstrap interval of the cell's mean over cases, computed from
+  ``per_case`` by ``packlab.bench.intervals`` (cases resampled within each level, the average kept
+  as the mean of the levels; seeds resampled within each case too for methods whose scores vary
+  across seeds on some case). Fixed resample count and generator seed: the same records give the
+  same intervals.
+
 Records are sorted by key before any sum, so the result does not depend on the order in which
 parallel workers finished, and the summary of records read back from disk equals the live one.
 
@@ -28,9 +35,17 @@ import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 
-from msgspec import UNSET
+from msgspec import UNSET, Struct
 
 from packlab.bench.describe import difficulty_order
+from packlab.bench.intervals import (
+    BOOTSTRAP_SEED,
+    CONFIDENCE,
+    N_RESAMPLES,
+    CaseScores,
+    bootstrap_interval,
+    varies_over_seeds,
+)
 from packlab.core.records import (
     SUMMARY_FORMAT,
     CaseCells,
@@ -113,11 +128,13 @@ def _perception_counts(mine: list[EpisodeOk]) -> dict[str, float | None]:
     if not replans:
         return {}
     seen = [s.perception for r in mine for s in r.steps if s.perception is not UNSET]
-    dims = [v for p in seen for v in p.dims_error_mm]
-    yaws = [v for p in seen for v in p.yaw_error_deg]
+    dims = [v for p in seen for v in p.dims_error_mm if v is not None]
+    yaws = [v for p in seen for v in p.yaw_error_deg if v is not None]
     maes = [p.heightmap_mae_mm for p in seen if p.heightmap_mae_mm is not None]
+    missed = [r.metrics.missed for r in mine if r.metrics.missed is not UNSET]
     return {
         "replans_per_episode": math.fsum(replans) / len(replans),
+        **({"missed_per_episode": math.fsum(missed) / len(missed)} if missed else {}),
         "dims_error_mm": _number(_mean(dims)),
         "yaw_error_deg": _number(_mean(yaws)),
         "heightmap_mae_mm": _number(_mean(maes)),
@@ -229,4 +246,91 @@ def summarize(
     )
 
 
-__all__ = ["AGGREGATION", "AVERAGE", "METRICS", "summarize"]
+#: How a method's intervals resampled: cases only (its scores are the same for every seed on
+#: every case) or cases and then seeds within each case (the two-level bootstrap).
+RESAMPLED_CASES = "cases"
+RESAMPLED_CASES_SEEDS = "cases, then seeds within each case"
+INTERVAL_METHOD = (
+    "percentile bootstrap of the mean over cases of each case's mean over seeds; cases resampled "
+    "within each level (average: mean of the levels' resampled means)"
+)
+
+
+class PolicyIntervals(Struct, frozen=True):
+    """One method's intervals: ``cells[group][metric]`` is ``[low, high]`` (None: no scores)."""
+
+    resampled: str  # RESAMPLED_CASES or RESAMPLED_CASES_SEEDS
+    cells: dict[str, dict[str, tuple[float, float] | None]]
+
+
+class RunIntervals(Struct, frozen=True, kw_only=True):
+    """summary.json ``intervals``: the bootstrap's settings and every method's intervals."""
+
+    confidence: float
+    resamples: int
+    seed: int
+    method: str
+    policies: dict[str, PolicyIntervals]
+
+    def bounds(self, policy: str, group: str, metric: str) -> tuple[float, float] | None:
+        row = self.policies.get(policy)
+        return None if row is None else row.cells.get(group, {}).get(metric)
+
+
+def _strata(cases: dict[str, CaseCells], levels: Sequence[str], metric: str) -> list[CaseScores]:
+    return [
+        {
+            c: _case_cell(cells, metric).per_seed
+            for c, cells in cases.items()
+            if cells.difficulty == d
+        }
+        for d in levels
+    ]
+
+
+def _case_cell(cells: CaseCells, metric: str) -> Cell:
+    value = getattr(cells, metric)
+    assert isinstance(value, Cell), metric
+    return value
+
+
+def policy_intervals(summary: RunSummary, policy: str) -> PolicyIntervals:
+    """A method's intervals from its per-case cells (none for summaries without them)."""
+    cases = summary.per_case.get(policy, {})
+    stochastic = varies_over_seeds(
+        _case_cell(cells, m).per_seed for cells in cases.values() for m in METRICS
+    )
+    groups = [(d, [d]) for d in summary.difficulties]
+    groups.append((AVERAGE, list(summary.difficulties)))
+    out: dict[str, dict[str, tuple[float, float] | None]] = {}
+    for group, levels in groups:
+        out[group] = {}
+        for m in METRICS:
+            found = bootstrap_interval(_strata(cases, levels, m), over_seeds=stochastic)
+            out[group][m] = None if found is None else (found.low, found.high)
+    return PolicyIntervals(RESAMPLED_CASES_SEEDS if stochastic else RESAMPLED_CASES, out)
+
+
+def run_intervals(summary: RunSummary) -> RunIntervals:
+    """Every method's intervals (see the module docstring); a pure function of ``per_case``."""
+    return RunIntervals(
+        confidence=CONFIDENCE,
+        resamples=N_RESAMPLES,
+        seed=BOOTSTRAP_SEED,
+        method=INTERVAL_METHOD,
+        policies={p: policy_intervals(summary, p) for p in summary.policies},
+    )
+
+
+__all__ = [
+    "AGGREGATION",
+    "AVERAGE",
+    "METRICS",
+    "RESAMPLED_CASES",
+    "RESAMPLED_CASES_SEEDS",
+    "PolicyIntervals",
+    "RunIntervals",
+    "policy_intervals",
+    "run_intervals",
+    "summarize",
+]

@@ -1,19 +1,38 @@
-"""Summary -> the Table-2-style Markdown table (and a run-details table), pure string building."""
+"""Summary -> the Table-2-style Markdown table (and a run-details table), pure string building.
+
+Each results cell is the mean over seeds with its 95 % bootstrap interval over cases
+(``packlab.bench.summary.run_intervals``): ``0.961 [0.930, 0.987]``. The spread over run seeds
+is its own, labelled column (Average Overall), since for policies that play every seed alike it
+is 0 and says nothing about how sure the mean is.
+"""
 
 from __future__ import annotations
 
 from msgspec import UNSET
 
+from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
 from packlab.core.records import Cell, RunSummary
 from packlab.metrics import AVERAGE, METRICS
 from packlab.viz.labels import METRIC_SHORT, display_name, group_title
 
 
-def format_cell(cell: Cell | None, digits: int = 3) -> str:
-    """``"0.812 ± 0.010"``: mean over seeds ± sample std across seeds; ``-`` when nothing ran."""
+def format_cell(
+    cell: Cell | None, digits: int = 3, bounds: tuple[float, float] | None = None
+) -> str:
+    """``"0.812 [0.790, 0.833]"``: mean over seeds and its 95 % bootstrap interval; the mean
+    alone when there is no interval (a summary without per-case cells); ``-`` when nothing ran."""
     if cell is None or cell.mean is None:
         return "-"
-    return f"{cell.mean:.{digits}f} ± {cell.std or 0.0:.{digits}f}"
+    if bounds is None:
+        return f"{cell.mean:.{digits}f}"
+    return f"{cell.mean:.{digits}f} [{bounds[0]:.{digits}f}, {bounds[1]:.{digits}f}]"
+
+
+def format_spread(cell: Cell | None, digits: int = 3) -> str:
+    """The sample std of the per-seed scores (``-`` with fewer than two seeds scored)."""
+    if cell is None or cell.std is None or len(cell.per_seed) < 2:
+        return "-"
+    return f"{cell.std:.{digits}f}"
 
 
 def _row(cells: list[str]) -> str:
@@ -25,19 +44,58 @@ def _cell(summary: RunSummary, policy: str, group: str, metric: str) -> Cell | N
     return None if cells is None else cells.cell(metric)
 
 
-def results_table(summary: RunSummary, digits: int = 3) -> str:
-    """Rows = methods; column groups = difficulties and the average; SR, Compactness, Overall."""
+#: The results table's last column: the spread of the last group's Overall over run seeds.
+SPREAD_COLUMN = "Overall sd over seeds"
+
+
+def results_table(
+    summary: RunSummary, digits: int = 3, intervals: RunIntervals | None = None
+) -> str:
+    """Rows = methods; column groups = difficulties and the average; SR, Compactness, Overall,
+    each ``mean [95 % interval]``; then the Overall's sample std over seeds (several seeds).
+    The note under the table (``interval_note``) names the methods whose intervals also
+    resampled seeds."""
+    intervals = run_intervals(summary) if intervals is None else intervals
     groups = list(summary.difficulties)
     if len(groups) > 1:
         groups.append(AVERAGE)
+    spread = len(summary.seeds) > 1 and bool(groups)
     header = ["Method"] + [f"{group_title(g)} {METRIC_SHORT[m]}" for g in groups for m in METRICS]
+    if spread:
+        header.append(f"{group_title(groups[-1])} {SPREAD_COLUMN}")
     lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
     for p in summary.policies:
         flag = " *" if summary.counts[p].errors else ""
         cells = [f"{display_name(p)}{flag}"]
-        cells += [format_cell(_cell(summary, p, g, m), digits) for g in groups for m in METRICS]
+        cells += [
+            format_cell(_cell(summary, p, g, m), digits, intervals.bounds(p, g, m))
+            for g in groups
+            for m in METRICS
+        ]
+        if spread:
+            cells.append(format_spread(_cell(summary, p, groups[-1], "overall"), digits))
         lines.append(_row(cells))
     return "\n".join(lines)
+
+
+def interval_note(summary: RunSummary, intervals: RunIntervals) -> str:
+    """One paragraph under the results table: how the intervals were computed."""
+    both = [
+        display_name(p)
+        for p in summary.policies
+        if p in intervals.policies and intervals.policies[p].resampled != RESAMPLED_CASES
+    ]
+    text = (
+        f"[low, high]: {intervals.confidence * 100:.0f} % bootstrap interval of the mean "
+        f"({intervals.resamples} resamples, generator seed {intervals.seed}): cases resampled "
+        "within each level, the average kept as the mean of the levels"
+    )
+    if both:
+        names = ", ".join(both)
+        text += f"; for {names} (scores vary across seeds) seeds also resampled within each case"
+    if not summary.per_case:
+        text += "; none here: this summary has no per-case scores (rebuild it with bench report)"
+    return text + "."
 
 
 def details_table(summary: RunSummary) -> str:
@@ -95,13 +153,15 @@ def headline(summary: RunSummary) -> str:
     backend = "?" if summary.backend is UNSET else summary.backend
     return (
         f"{suite}: backend {backend}, seeds {seeds}{cases}; "
-        f"mean over seeds ± sample std across seeds"
+        f"mean over seeds [95 % bootstrap interval over cases]"
     )
 
 
-def render_markdown(summary: RunSummary) -> str:
-    """The whole table.md: headline, results table, failure note, details table."""
-    parts = [f"## {headline(summary)}", "", results_table(summary), ""]
+def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) -> str:
+    """The whole table.md: headline, results table, interval note, failure note, details."""
+    intervals = run_intervals(summary) if intervals is None else intervals
+    parts = [f"## {headline(summary)}", "", results_table(summary, intervals=intervals), ""]
+    parts += [interval_note(summary, intervals), ""]
     if summary.errors:
         n = len(summary.errors)
         parts += [
@@ -115,4 +175,13 @@ def render_markdown(summary: RunSummary) -> str:
     return "\n".join(parts)
 
 
-__all__ = ["details_table", "format_cell", "headline", "render_markdown", "results_table"]
+__all__ = [
+    "SPREAD_COLUMN",
+    "details_table",
+    "format_cell",
+    "format_spread",
+    "headline",
+    "interval_note",
+    "render_markdown",
+    "results_table",
+]
