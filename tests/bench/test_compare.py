@@ -10,6 +10,7 @@ from record_helpers import ok_record
 
 from packlab.bench.compare import (
     compare_markdown,
+    differences_markdown,
     load_summary,
     merge_summaries,
     paired_differences,
@@ -132,6 +133,10 @@ def test_paired_differences_mark_only_intervals_that_exclude_zero(tmp_path):
     same = next(line for line in text.splitlines() if line.startswith("| run: same | 30 |"))
     assert "**" not in same and same.endswith("| no (interval includes 0) |")
     merged = merge_summaries([load_summary(run)], ["run"])
+    against_better = differences_markdown(merged, reference="run: better")
+    assert "| run: ref | 30 |" in against_better and "yes, lower |" in against_better
+    with pytest.raises(PacklabError, match="reference 'nope' is not a row"):
+        differences_markdown(merged, reference="nope")
     diffs = paired_differences(merged, "run: same", "run: ref")
     assert diffs["average"].interval.low < 0 < diffs["average"].interval.high
     assert diffs["easy"].n_cases == 15 and diffs["average"].n_cases == 30

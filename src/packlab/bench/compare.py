@@ -160,11 +160,16 @@ def _verdict(diff: Difference | None) -> str:
     return "yes, higher" if diff.estimate > 0 else "yes, lower"
 
 
-def differences_markdown(summary: RunSummary) -> str:
-    """The paired-difference table: every row but the first against the first."""
+def differences_markdown(summary: RunSummary, reference: str | None = None) -> str:
+    """The paired-difference table: every other row against ``reference`` (default: the
+    first row)."""
     if len(summary.policies) < 2:
         return ""
-    reference = summary.policies[0]
+    reference = summary.policies[0] if reference is None else reference
+    if reference not in summary.policies:
+        raise PacklabError(
+            f"bench compare: reference {reference!r} is not a row; rows: {list(summary.policies)}"
+        )
     groups = list(summary.difficulties)
     if len(groups) > 1:
         groups.append(AVERAGE)
@@ -184,7 +189,7 @@ def differences_markdown(summary: RunSummary) -> str:
         "| " + " | ".join(header) + " |",
         "| --- |" + " ---: |" * (len(header) - 2) + " --- |",
     ]
-    for row in summary.policies[1:]:
+    for row in (r for r in summary.policies if r != reference):
         diffs = paired_differences(summary, row, reference)
         last = diffs.get(groups[-1])
         cells = [row, "-" if last is None else str(last.n_cases)]
