@@ -89,7 +89,8 @@ def test_errors_grow_monotonically_with_the_noise_level():
     raw_dims = [float(np.mean(s.raw_dims_error_mm)) for s in stats]
     dims = [float(np.mean(s.dims_error_mm)) for s in stats]
     assert heightmap[0] == 0.0 and np.all(np.diff(heightmap) > 0), heightmap
-    assert np.all(np.diff(raw_dims) > 0), raw_dims
+    # sides are measured in whole pixels, so small noise may leave them unchanged
+    assert np.all(np.diff(raw_dims) >= 0) and raw_dims[-1] > raw_dims[0], raw_dims
     assert dims[0] == 0.0 and np.all(np.diff(dims) >= 0), dims
 
 

@@ -279,7 +279,7 @@ def _apart_centres(sizes: np.ndarray, rng: np.random.Generator, gap_mm: float):
 
 #: The buffer camera's pixel budget: a tote of large boxes is imaged at a coarser pitch than
 #: the preset's finest, so that one look costs about the same whatever the boxes' sizes.
-MAX_BUFFER_PIXELS = 250_000
+MAX_BUFFER_PIXELS = 80_000
 
 
 def buffer_pixel_mm(scene: BufferScene, preset: SensorPreset) -> float:
