@@ -8,7 +8,8 @@ Usage:
 The cases are generated here, in the ``train`` seed domain (``packlab.datagen.seeds``) with the
 fixed seeds below, never read from a bench suite: 40 cases per level of the layered family in
 each arrival order (``removal``, ``layers``) and 20 per level of the ``stepped`` and ``random``
-families. Every variant plays every case once on the geometric backend (run seed 0). Results
+families; they pass ``packlab.datagen.guard.require_training_cases`` (bench seeds refused).
+Every variant plays every case once on the geometric backend (run seed 0). Results
 are appended per variant to ``OUT/results.jsonl`` as they finish, so an interrupted sweep
 resumes; the table gives each family's mean Overall and the paired difference to ``default``
 over all cases with its 95 % bootstrap interval (a variant differs only when the interval
@@ -29,6 +30,7 @@ import numpy as np
 from packlab.core.types import Case
 from packlab.datagen import generate_cases
 from packlab.datagen.config import CaseConfig
+from packlab.datagen.guard import require_training_cases
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
 
@@ -65,7 +67,8 @@ def training_cases() -> list[tuple[str, Case]]:
     for family, config, seed, n in FAMILIES:
         for level in LEVELS:
             cases = generate_cases(level, n, seed, validate=False, config=config, domain="train")
-            out += [(family, c) for c in cases]
+            label = f"plan sweep family {family} (seed {seed})"
+            out += [(family, c) for c in require_training_cases(cases, label, "tuning")]
     return out
 
 

@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 import json
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from packlab.bench.suites import resolve_cases
 from packlab.cli.options import add_field, config_kwargs
 from packlab.cli.train_rl import register_rl
 from packlab.core.errors import PacklabError
+from packlab.datagen.format import INFO_FILE
+from packlab.datagen.guard import require_training_cases
+from packlab.datagen.stats import dataset_cases
 from packlab.policies.listed import TEACHERS
 from packlab.viz.plots import plot_loss_curve
 from packlab.viz.pointer_curves import write_curves
@@ -116,8 +120,21 @@ def config_from_args(args: argparse.Namespace) -> SFTConfig:
     return SFTConfig(**config_kwargs(args, "train sft", SFTConfig))
 
 
+def check_sft_data(data: str) -> None:
+    """Refuse SFT data whose episodes are bench cases, by the cases' seeds: the episodes of the
+    PackData directory at or above ``data`` (``meta/info.json``). A loose JSONL outside any
+    dataset carries no case seeds and is not checked (``packlab generate`` writes every SFT
+    export inside its dataset, in the train seed domain)."""
+    p = Path(data)
+    start = p if p.is_dir() else p.parent
+    root = next((d for d in (start, *start.parents) if (d / INFO_FILE).is_file()), None)
+    if root is not None:
+        require_training_cases(dataset_cases(root), f"dataset {str(root)!r}")
+
+
 def run_sft(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
+    check_sft_data(cfg.data)
     trainer = _torch_side(TRAINER_MODULE)
     res = trainer.train_sft(cfg)
     if not res.is_main_process:
@@ -164,7 +181,9 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
 
 def run_candidate(args: argparse.Namespace) -> int:
     cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
+    source = resolve_cases(args.cases)
+    cases = require_training_cases(source.cases, source.origin)
     dagger = _torch_side(DAGGER_MODULE)
-    final = dagger.run_dagger(cfg, resolve_cases(args.cases).cases, write_curves)
+    final = dagger.run_dagger(cfg, cases, write_curves)
     print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")
     return 0

@@ -6,13 +6,14 @@ import argparse
 from functools import partial
 from typing import Any
 
-from packlab.bench.suites import SUITES, resolve_cases
+from packlab.bench.suites import resolve_cases
 from packlab.cases import cases_sha256
 from packlab.cli.options import add_field, config_kwargs
-from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.errors import PacklabError
 from packlab.core.types import Case
 from packlab.datagen.config import RECIPES
 from packlab.datagen.generator import generate_cases
+from packlab.datagen.guard import require_training_cases
 from packlab.rl.config import RLTrainConfig
 from packlab.rl.extra import RLExtraMissing, import_rl
 from packlab.viz.rl_curves import write_rl_curves
@@ -25,14 +26,10 @@ def training_cases(spec: str) -> tuple[list[Case], dict[str, Any]]:
 
     A dataset recipe name (``packdata-20k``, ``packdata-mini``) generates its cases in the
     training seed domain without the physics replay (agents train on the geometric backend);
-    a path loads a case file or ``packlab generate`` output. Bench suites are refused: they are
-    for evaluation only.
+    a path loads a case file or ``packlab generate`` output. Cases from the bench seed domain
+    are refused by their seeds (``packlab.datagen.guard``), however they are named: a suite, or
+    the same suite exported to a file.
     """
-    if spec in SUITES:
-        raise ConfigError(
-            f"cases = {spec!r} is a bench suite; train on generated cases (a recipe: "
-            f"{', '.join(RECIPES)}, or a packlab generate directory)"
-        )
     if spec in RECIPES:
         recipe = RECIPES[spec]
         print(f"generating {sum(recipe.episodes):,} training cases ({spec}) ...", flush=True)
@@ -41,9 +38,11 @@ def training_cases(spec: str) -> tuple[list[Case], dict[str, Any]]:
             for level, n in zip(recipe.difficulties, recipe.episodes)
             for case in generate_cases(level, n, recipe.seed, validate=False, domain="train")
         ]
+        cases = require_training_cases(cases, f"recipe:{spec}")
         return cases, {"cases": f"recipe:{spec}", "cases_sha256": cases_sha256(cases)}
     source = resolve_cases(spec)
-    return list(source.cases), {"cases": source.origin, "cases_sha256": source.sha256}
+    cases = require_training_cases(source.cases, source.origin)
+    return cases, {"cases": source.origin, "cases_sha256": source.sha256}
 
 
 def register_rl(sub: argparse._SubParsersAction) -> None:

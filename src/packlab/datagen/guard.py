@@ -1,0 +1,70 @@
+"""The one check that keeps bench cases out of training and tuning, by the cases' own seeds.
+
+Every command or script that trains a model, labels states for one, or picks a default by a
+score (``packlab train rl``, ``packlab train candidate``, ``packlab train sft`` on a PackData
+directory, ``benchmarks/proposer_ceiling.py``, ``benchmarks/plan_sweep.py``,
+``benchmarks/vlm_ablations.py``) passes its cases through :func:`require_training_cases`. The
+check reads each case's seed, not the name it was given under: a bench suite exported to a file
+(``packlab cases export``), copied or renamed is refused all the same.
+
+Seed domains (``packlab.datagen.seeds``):
+
+* ``train`` (what ``packlab generate`` and ``generate_cases(..., domain="train")`` write):
+  accepted;
+* ``bench`` (every registered suite): refused;
+* ``manual`` (small seeds below 2**50: test fixtures, hand-made cases): accepted, so that
+  tests and hand cases can drive a training loop, *except* a row read from a reference-layout
+  file's ``test`` split, which is the public reference's own benchmark (its seeds, e.g.
+  610000, are small): refused. A hand-made case must not be an evaluation case; the seed space
+  cannot tell, so that rule rests on the person who made it;
+* anything else (a seed no packlab domain produces, e.g. negative): refused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from packlab.cases import REFERENCE_SPLIT
+from packlab.core.errors import ConfigError
+from packlab.core.types import Case
+from packlab.datagen.seeds import seed_domain
+
+#: Seed domains whose cases may be trained or tuned on (see the module docstring).
+TRAINING_DOMAINS = ("train", "manual")
+
+#: What to do instead, appended to every refusal.
+INSTEAD = (
+    "train and tune on generated cases instead (packlab generate, or "
+    "generate_cases(..., domain='train')); bench suites are for evaluation only"
+)
+
+
+def refusal(case: Case, source: str, use: str) -> str | None:
+    """Why ``case`` may not be used for ``use`` ("training", "tuning"), or None if it may."""
+    domain = seed_domain(case.seed)
+    where = f"{source}: case {case.episode_id!r} (seed {case.seed})"
+    if domain == "bench":
+        return f"{where} is in the bench seed domain, refused for {use}; {INSTEAD}"
+    if domain not in TRAINING_DOMAINS:
+        return f"{where} is in no packlab seed domain, refused for {use}; {INSTEAD}"
+    if domain == "manual" and case.origin is not None and case.origin.split == REFERENCE_SPLIT:
+        return (
+            f"{where} is a reference benchmark row (split {REFERENCE_SPLIT!r}, hand-made seed), "
+            f"refused for {use}; {INSTEAD}"
+        )
+    return None
+
+
+def require_training_cases(cases: Iterable[Case], source: str, use: str = "training") -> list[Case]:
+    """``cases`` as a list, or ``ConfigError`` naming the source, the first refused case's id
+    and seed and what to do instead (one line). ``source`` is how the user named the cases (a
+    suite, a path, a recipe)."""
+    out = list(cases)
+    for case in out:
+        reason = refusal(case, source, use)
+        if reason is not None:
+            raise ConfigError(reason)
+    return out
+
+
+__all__ = ["INSTEAD", "TRAINING_DOMAINS", "refusal", "require_training_cases"]
