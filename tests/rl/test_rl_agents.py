@@ -38,7 +38,8 @@ SMALL = {"n_steps": 64, "batch": 32, "envs": 1, "vec": "dummy", "eval_cases_per_
 
 @pytest.fixture(scope="module")
 def cases():
-    return [c for level in ("easy", "medium", "hard") for c in generate_cases(level, 3, 11, False)]
+    levels = ("easy", "medium", "hard")
+    return [c for level in levels for c in generate_cases(level, 3, 11, False, domain="train")]
 
 
 @pytest.fixture(scope="module")
