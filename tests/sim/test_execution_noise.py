@@ -7,7 +7,6 @@ import pytest
 from layered_cases import make_layered_case
 
 from packlab.core.errors import ConfigError
-from packlab.core.types import Box, Container
 from packlab.policies import make_policy
 from packlab.sim.episode import Episode, run_episode
 from packlab.sim.execution import (
@@ -17,7 +16,6 @@ from packlab.sim.execution import (
     execution_noise,
     perturb_drop,
 )
-from packlab.sim.physics.mujoco_backend import MujocoBackend
 
 NOISY = ExecutionNoise(xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=10.0)
 
@@ -103,55 +101,4 @@ def test_noisy_execution_is_seeded_and_lands_boxes_off_plan():
     assert {len(s.to_record()["executed"]) for s in runs[0].steps if s.valid} == {4}
 
 
-# -- the place skill: comply and seat (MujocoBackend._comply / _seat) ---------------------------
-
-
-def _row(noise_mm: float, yaw_deg: float, seat_mm: float):
-    """Three 100 mm boxes into a 300 mm row, each dropped +noise_mm in x and turned yaw_deg:
-    the settled centres (3, 3) mm."""
-    container = Container((300, 100, 200))
-    boxes = [Box(f"b{i}", (100, 100, 100)) for i in range(3)]
-    backend = MujocoBackend()
-    backend.reset(container, boxes)
-    for i in range(3):
-        backend.place(
-            i,
-            0,
-            (100 * i, 0, 0),
-            offset_mm=(noise_mm, 0.0),
-            yaw_deg=yaw_deg,
-            comply_mm=10.0,
-            seat_mm=seat_mm,
-        )
-    backend.finish()
-    return backend.poses()[0]
-
-
-def test_without_seating_errors_add_up_and_the_last_box_of_a_tight_row_lands_on_top():
-    positions = _row(noise_mm=2.0, yaw_deg=2.0, seat_mm=0.0)
-    assert positions[2, 2] > 120  # resting on its neighbours, not on the floor (z = 50)
-
-
-def test_seating_pushes_each_box_flush_so_a_tight_row_fits():
-    positions = _row(noise_mm=2.0, yaw_deg=2.0, seat_mm=5.0)
-    np.testing.assert_allclose(positions[:, 2], 50.0, atol=0.5)
-    # Flush to within the collision inset (0.5 mm per side).
-    np.testing.assert_allclose(positions[:, 0], [50.0, 150.0, 250.0], atol=1.5)
-
-
-def _single(planned_x: int, offset_mm: float, seat_mm: float = 5.0) -> float:
-    """Settled x centre of one 100 mm box dropped at planned_x + offset in a 400 mm container."""
-    backend = MujocoBackend()
-    backend.reset(Container((400, 100, 200)), [Box("b", (100, 100, 100))])
-    backend.place(0, 0, (planned_x, 0, 0), offset_mm=(offset_mm, 0.0), seat_mm=seat_mm)
-    return float(backend.poses()[0][0, 0])
-
-
-def test_seating_goes_toward_the_side_the_plan_is_flush_with_and_only_there():
-    # Flush with the +x wall (planned x = 300): pushed back to it from 3 mm short.
-    assert _single(300, -3.0) == pytest.approx(350.0, abs=1.0)
-    # Flush with the -x wall: pushed back from 3 mm past the plan.
-    assert _single(0, 3.0) == pytest.approx(50.0, abs=1.0)
-    # Nothing beside the planned pose in x (the -y wall is met, so the box is squared and
-    # pushed in y only): the x error stays.
-    assert _single(150, 3.0) == pytest.approx(203.0, abs=0.5)
+# The place skill (comply and seat) is tested in test_place_skill.py.

@@ -27,7 +27,13 @@ from packlab.core.types import (
 )
 from packlab.metrics import EpisodeMetrics, score_final_state
 from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
-from packlab.sim.execution import ExecutedDrop, ExecutionNoise, perturb_drop
+from packlab.sim.execution import (
+    NO_GRASP_ERROR,
+    ExecutedDrop,
+    ExecutionNoise,
+    perturb_drop,
+    seat_sides,
+)
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
 from packlab.sim.pose_log import pose_updates
 from packlab.sim.replan import (
@@ -308,7 +314,9 @@ class Episode:
         if not reason:
             rotation, x, y = int(action.rotation), int(action.x), int(action.y)
             fx, fy = self._footprint_cells(index, rotation)
-            z = placement_height(self._heightmap, x, y, fx, fy)
+            # The release height from what the robot sees (perceived mode: the perceived
+            # heightmap; too low, _lift_clear stops the descent on contact).
+            z = placement_height(seen_before, x, y, fx, fy)
             cell = self.case.container.cell_xy_mm
             drop = (x * cell, y * cell, z)
             executed = self._executed_drop(index, rotation, drop)
@@ -364,14 +372,41 @@ class Episode:
     def _executed_drop(
         self, index: int, rotation: int, drop: tuple[int, int, int]
     ) -> ExecutedDrop | None:
-        """Noisy execution: the drop as the robot executes it (None in exact execution)."""
+        """Noisy execution: the drop as the robot executes it (None in exact execution): the
+        arm's noise plus, in perceived mode, the grasped box's pose-estimate error, and the
+        sides the place skill seats it toward, read from the observed heightmap."""
         if self._execution is None:
             return None
         c = self.case.container
         footprint = self.case.objects[index].footprint_mm(rotation)
-        return perturb_drop(
-            self._execution, drop, footprint, (c.size_mm[0], c.size_mm[1]), self._execution_rng
+        executed = perturb_drop(
+            self._execution,
+            drop,
+            footprint,
+            (c.size_mm[0], c.size_mm[1]),
+            self._execution_rng,
+            self._grasp_error(index),
         )
+        if executed.is_exact or executed.seat_mm == 0:
+            return executed
+        cell = c.cell_xy_mm
+        sides = seat_sides(
+            self.observed_heightmap,
+            drop[0] // cell,
+            drop[1] // cell,
+            self._footprint_cells(index, rotation),
+            drop[2],
+        )
+        return replace(executed, seat_sides=sides)
+
+    def _grasp_error(self, index: int) -> tuple[float, float, float]:
+        """Perceived mode: the error of the estimated pose of shown object ``index`` (case
+        index), from the perception the decision was made on; zeros when none is reported."""
+        if self._perceiver is None or index not in self._shown_indices:
+            return NO_GRASP_ERROR
+        errors = self._perception.grasp_errors
+        shown = list(self._shown_indices).index(index)
+        return tuple(errors[shown]) if shown < len(errors) else NO_GRASP_ERROR
 
     def _place(
         self, index: int, rotation: int, drop: tuple[int, int, int], executed: ExecutedDrop | None
@@ -387,6 +422,7 @@ class Episode:
             release_mm=executed.release_mm,
             comply_mm=executed.comply_mm,
             seat_mm=executed.seat_mm,
+            seat_sides=executed.seat_sides,
         )
 
     def _predicted(self, item: ShownItem, rotation: int, x: int, y: int) -> np.ndarray:

@@ -1,10 +1,14 @@
 """Execution noise (issue 15): a chosen placement as a robot would really execute it.
 
 The policy chooses a drop (footprint minimum corner in mm, rotation 0/1); a robot puts the box
-down with an error: the gripper's xy offset and a yaw error (grasp-pose estimate plus arm
-repeatability, Gaussian, zero mean) and a release height above the planned rest height (the
-gripper opens before contact, so the box falls that far). The physics decides what happens
-next, so boxes can land off-plan.
+down with an error: the gripper's xy offset and a yaw error (the arm's repeatability, Gaussian,
+zero mean, plus in perceived mode the error of the grasped box's estimated pose) and a release
+height above the planned rest height (the gripper opens before contact, so the box falls that
+far). The physics decides what happens next, so boxes can land off-plan.
+
+The place skill acts only on what the robot knows: the sides it pushes the box toward
+(``seat_sides``) are read from the observed heightmap around the planned footprint, never from
+the true scene, and the push stops on contact force (``MujocoBackend._seat``).
 
 Only the mujoco backend executes noisy drops (``MujocoBackend.place`` with ``offset_mm``,
 ``yaw_deg``, ``release_mm``): the geometric backend places boxes on whole cells and cannot turn
@@ -32,9 +36,10 @@ class ExecutionNoise:
     #: A box that would start inside a neighbour (itself off-plan) slides up to this far aside,
     #: as a compliant wrist lets it (``MujocoBackend._comply``), instead of landing on top.
     comply_mm: float = 0.0
-    #: The place skill pushes the box, squared up, against the walls or boxes its planned pose
-    #: is flush with, at most this far past the plan (``MujocoBackend._seat``), so errors do
-    #: not add up along a row. 0: the box stays where the noise put it.
+    #: The place skill pushes the box toward the sides its planned pose is flush with on the
+    #: observed heightmap (``seat_sides``), a guarded move that stops on contact force, at most
+    #: this far past the plan (``MujocoBackend._seat``), so errors do not add up along a row.
+    #: 0: the box stays where the noise put it.
     seat_mm: float = 0.0
 
     def __post_init__(self) -> None:
@@ -78,6 +83,8 @@ class ExecutedDrop:
     release_mm: float  # extra drop height above the planned rest height, mm
     comply_mm: float = 0.0  # how far the box may slide aside off a neighbour (ExecutionNoise)
     seat_mm: float = 0.0  # how far past the plan the box may be pushed flush (ExecutionNoise)
+    #: Per axis (x, y), the side the skill pushes toward (-1, +1, or 0: none), ``seat_sides``.
+    seat_sides: tuple[int, int] = (0, 0)
 
     @property
     def is_exact(self) -> bool:
@@ -94,31 +101,43 @@ def _half_extent(footprint_mm: tuple[float, float], yaw_deg: float) -> tuple[flo
     return (c * fx + s * fy) / 2, (s * fx + c * fy) / 2
 
 
+NO_GRASP_ERROR = (0.0, 0.0, 0.0)
+
+
 def perturb_drop(
     noise: ExecutionNoise,
     min_corner_mm: tuple[int, int, int],
     footprint_mm: tuple[int, int],
     container_mm: tuple[int, int],
     rng: np.random.Generator,
+    grasp_error: tuple[float, float, float] = NO_GRASP_ERROR,
 ) -> ExecutedDrop:
     """Sample the executed drop of a planned one (pure but for ``rng``, which it advances).
 
     ``footprint_mm`` is the box's (x, y) footprint under the chosen rotation, ``container_mm``
-    the container's inner (X, Y). The xy offset is clamped so the turned footprint stays inside
-    the walls: a robot guided by the walls does not push a box into them, and a box started
-    inside a wall would be shot out by the contact solver. Exactly three normal draws per call
-    (x, y, yaw), whatever the noise, so one seed gives one noise sequence.
+    the container's inner (X, Y). ``grasp_error`` is the error of the grasped box's estimated
+    pose (dx mm, dy mm, dyaw deg; estimated minus true, ``Perception.grasp_errors``): the robot
+    puts the box's *estimated* pose at the plan, so the true box lands off by the error with its
+    sign reversed, on top of the arm's noise. The xy offset is clamped so the turned footprint
+    stays inside the walls: a robot guided by the walls does not push a box into them, and a
+    box started inside a wall would be shot out by the contact solver. Exactly three normal
+    draws per call (x, y, yaw), whatever the noise, so one seed gives one noise sequence.
     """
     dx, dy, dyaw = rng.normal(size=3)
-    if noise.is_zero:
+    if noise.is_zero and tuple(grasp_error) == NO_GRASP_ERROR:
         return EXACT_DROP
-    yaw = float(dyaw) * noise.yaw_sigma_deg
+    gx, gy, gyaw = (float(v) for v in grasp_error)
+    yaw = float(dyaw) * noise.yaw_sigma_deg - gyaw
     half_x, half_y = _half_extent(footprint_mm, yaw)
     cx = min_corner_mm[0] + footprint_mm[0] / 2
     cy = min_corner_mm[1] + footprint_mm[1] / 2
     # Clamp the centre into [half, size - half] (an oversized footprint stays where planned).
-    nx = float(np.clip(cx + dx * noise.xy_sigma_mm, half_x, max(half_x, container_mm[0] - half_x)))
-    ny = float(np.clip(cy + dy * noise.xy_sigma_mm, half_y, max(half_y, container_mm[1] - half_y)))
+    nx = float(
+        np.clip(cx + dx * noise.xy_sigma_mm - gx, half_x, max(half_x, container_mm[0] - half_x))
+    )
+    ny = float(
+        np.clip(cy + dy * noise.xy_sigma_mm - gy, half_y, max(half_y, container_mm[1] - half_y))
+    )
     return ExecutedDrop(
         (nx - cx, ny - cy),
         yaw,
@@ -128,11 +147,50 @@ def perturb_drop(
     )
 
 
+#: A side of a planned footprint is flush (something to push the box against) when a cell of
+#: the strip beside it on the observed heightmap rises at least this far above the box's
+#: bottom: over the per-cell error of the stereo preset's heightmap (a few mm) so a neighbour
+#: level with the support never reads as a face, and at most the smallest box height (20 mm
+#: and up in the suites) so a real neighbour always does.
+SEAT_FACE_MM = 10
+
+
+def seat_sides(
+    heightmap: np.ndarray,
+    x: int,
+    y: int,
+    footprint_cells: tuple[int, int],
+    bottom_mm: int,
+    face_mm: int = SEAT_FACE_MM,
+) -> tuple[int, int]:
+    """Per axis (x, y), the side (-1, +1, or 0: none) a planned footprint is flush with, read
+    from ``heightmap`` (what the robot observed) only: a container wall, or a strip of cells
+    beside the footprint with a cell at least ``bottom_mm + face_mm`` high. With both sides
+    flush (a tight slot) the minimum side wins, as a minimum-corner rule plans."""
+    fx, fy = footprint_cells
+    # Per axis: the grid with that axis first, the footprint's start and length along it, and
+    # its cells across it.
+    axes = ((heightmap, x, fx, slice(y, y + fy)), (heightmap.T, y, fy, slice(x, x + fx)))
+    sides = []
+    for grid, start, length, across in axes:
+        side = 0
+        for direction, strip in ((-1, start - 1), (1, start + length)):
+            wall = not 0 <= strip < grid.shape[0]
+            if wall or (grid[strip, across] >= bottom_mm + face_mm).any():
+                side = direction
+                break
+        sides.append(side)
+    return sides[0], sides[1]
+
+
 __all__ = [
     "EXACT_DROP",
     "EXECUTION_PRESETS",
+    "NO_GRASP_ERROR",
+    "SEAT_FACE_MM",
     "ExecutedDrop",
     "ExecutionNoise",
     "execution_noise",
     "perturb_drop",
+    "seat_sides",
 ]

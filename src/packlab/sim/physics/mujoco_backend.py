@@ -41,10 +41,26 @@ _REUSE_MM = 0.02  # see MujocoBackend._rasterise
 _REUSE_QUAT = 1e-5
 _LIFT_TOLERANCE_MM = 0.1
 _COMPLY_STEP_MM = 0.5  # ring spacing of MujocoBackend._comply's search
-_SEAT_STEP_MM = 0.25  # step of MujocoBackend._seat's push
-#: How far _seat looks beside a planned pose for what it is flush with: past the collision
-#: inset (0.5 mm per side) and the lag of settled poses, well inside one 25 mm cell.
-_SEAT_PROBE_MM = 2.0
+_SEAT_STEP_MM = 0.25  # step of MujocoBackend._seat's guarded push
+#: The guarded push stops when the contacts on the held box push back along the push axis with
+#: more than this many times the box's weight. The robot knows its payload's weight (its wrist
+#: sensor weighs it at the pick), so the threshold scales with it: MuJoCo's soft contacts push
+#: back in proportion to the held mass times the depth (about 3.9 weights per mm against a wall
+#: or a heavier box, at this solref/solimp), so 0.5 weights stops about 0.13 mm into a contact,
+#: for any box: past the 0.1 mm a box may touch at when released (``_LIFT_TOLERANCE_MM``, what
+#: ``_comply`` leaves), so a box resting lightly on a side does not stop a push along the other,
+#: and far above the zero a box touching nothing feels. A fixed force in newtons would not do:
+#: a 0.03 kg box would go 2 mm deep before 2 N, a 24 kg one stop at 0.002 mm.
+_SEAT_FORCE_WEIGHTS = 0.5
+#: A held box pushed into a face with a corner first is turned by the contact's torque (a
+#: wrist compliant in yaw) until its face is flush (``MujocoBackend._flush_turn``): by at
+#: most this much per contact (beyond the arm's and the estimate's yaw errors), found to
+#: 5 deg / 2**12 (0.001 deg), at most _SEAT_TURNS times per push, turns under
+#: _SEAT_MIN_TURN rad (0.003 deg) not taken.
+_SEAT_MAX_YIELD_DEG = 5.0
+_SEAT_TURN_BISECTIONS = 12
+_SEAT_TURNS = 4
+_SEAT_MIN_TURN = 5e-5
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +163,25 @@ def _yawed_quaternion(rotation: int, yaw_deg: float) -> np.ndarray:
     """Quaternion (wxyz) of the action's yaw (0 or 90 degrees) plus ``yaw_deg`` about z."""
     angle = math.radians(90.0 * rotation + yaw_deg)
     return np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])
+
+
+def _turned(quat: np.ndarray, angle: float) -> np.ndarray:
+    """Quaternion (wxyz) ``quat`` turned about the world z axis by ``angle`` radians."""
+    out = np.empty(4)
+    rot = np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])
+    mujoco.mju_mulQuat(out, rot, np.asarray(quat, dtype=np.float64))
+    return out
+
+
+def _pivoted(pose: np.ndarray, pivot: np.ndarray, angle: float) -> np.ndarray:
+    """Free-joint ``pose`` (7,: position m, quaternion wxyz) turned about the vertical line
+    through ``pivot`` (x, y in m) by ``angle`` radians."""
+    c, s = math.cos(angle), math.sin(angle)
+    out = pose.copy()
+    dx, dy = pose[0] - pivot[0], pose[1] - pivot[1]
+    out[0], out[1] = pivot[0] + c * dx - s * dy, pivot[1] + s * dx + c * dy
+    out[3:] = _turned(pose[3:], angle)
+    return out
 
 
 def _fmt(values: Sequence[float]) -> str:
@@ -258,13 +293,16 @@ class MujocoBackend:
         release_mm: float = 0.0,
         comply_mm: float = 0.0,
         seat_mm: float = 0.0,
+        seat_sides: tuple[int, int] = (0, 0),
     ) -> Transition:
         """Drop box ``index`` and settle. ``offset_mm`` (centre shift in x, y), ``yaw_deg``
         (added to the rotation's yaw) and ``release_mm`` (added drop height) execute the drop
         with robot noise (``packlab.sim.execution``); a box that would start inside another
-        slides up to ``comply_mm`` aside first (``_comply``), then is pushed against what its
-        plan is flush with, up to ``seat_mm`` past it (``_seat``). At their zero defaults the drop
-        is computed exactly as without them, so exact runs keep their scores bit for bit."""
+        slides up to ``comply_mm`` aside first (``_comply``), then is pushed toward
+        ``seat_sides`` (per axis -1, +1 or 0, decided by the caller from what the robot
+        observed) until contact, up to ``seat_mm`` past the plan (``_seat``). At their zero
+        defaults the drop is computed exactly as without them, so exact runs keep their scores
+        bit for bit."""
         model, data, cfg = self._model, self._data, self.config
         assert model is not None and data is not None and self._container is not None, (
             "reset() first"
@@ -290,8 +328,8 @@ class MujocoBackend:
         self._placed[index] = True
         if noisy and comply_mm > 0:
             self._comply(index, rotation, yaw_deg, comply_mm, planned[:2])
-        if noisy and seat_mm > 0:
-            self._seat(index, rotation, seat_mm, planned[:2])
+        if noisy and seat_mm > 0 and any(seat_sides):
+            self._seat(index, seat_sides, seat_mm, planned[:2])
         self._lift_clear(index, rotation, yaw_deg)
         return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
 
@@ -379,66 +417,168 @@ class MujocoBackend:
                     return True
         return False
 
-    def _seat(self, index: int, rotation: int, limit_mm: float, planned_xy: np.ndarray) -> None:
-        """Push a just-placed noisy box against what its planned pose is flush with.
+    def _seat(
+        self, index: int, sides: tuple[int, int], limit_mm: float, planned_xy: np.ndarray
+    ) -> None:
+        """Push a just-placed noisy box toward ``sides`` by guarded moves.
 
         A placement is planned flush against walls or boxes on some sides (on the -x and -y
         sides for a minimum-corner rule like DBLF's, anywhere for others); a robot's place
-        skill pushes the box toward those sides as it lowers it, until contact or
-        ``limit_mm`` past the planned position, so execution errors do not add up along a row
-        (each box otherwise lands a little off its neighbour and the last box of a tight row
-        no longer fits). The box is squared up first (pushed against a flat face, a turned box
-        turns flush); where no push meets anything, or the squared box would start inside
-        something, the box keeps its noisy pose.
+        skill pushes the box toward those sides as it lowers it, so execution errors do not add
+        up along a row (each box otherwise lands a little off its neighbour and the last box of
+        a tight row no longer fits). Which sides is the caller's decision from what the robot
+        observed (``packlab.sim.execution.seat_sides``); nothing here looks for what is there.
+        Per axis the held box (gravity carried by the gripper) moves in ``_SEAT_STEP_MM`` steps
+        until the contacts push back harder than ``_SEAT_FORCE_WEIGHTS`` of its weight, at most
+        ``limit_mm`` past the plan (``_guarded_push``); a push that meets nothing returns the
+        box to where it started. The yaw is not squared by fiat: it keeps its error unless a
+        contact's torque turns it.
         """
-        geom, tol = self._geom_ids[index], _LIFT_TOLERANCE_MM * _MM
-        pose = self._qpos_slice(index)
-        noisy_pose = self._data.qpos[pose].copy()
-        self._data.qpos[pose.start + 3 : pose.stop] = yaw_quaternion(rotation)
-        sides = self._flush_sides(geom, pose.start, planned_xy, noisy_pose)
-        met = False
-        if any(sides) and self._penetration(geom) <= tol:
-            for axis, side in enumerate(sides):
-                if side:
-                    # How far the box now is past its planned position (noise and _comply).
-                    past = side * (self._data.qpos[pose.start + axis] - planned_xy[axis])
-                    reach = max(0.0, -past / _MM) + limit_mm
-                    met = self._push_until_contact(geom, pose.start + axis, side, reach) or met
-        if not met:
-            self._data.qpos[pose] = noisy_pose
+        model = self._model
+        body, geom = self._body_ids[index], self._geom_ids[index]
+        address = self._qpos_slice(index).start
+        weight = float(model.body_mass[body]) * abs(self.config.gravity)
+        threshold = _SEAT_FORCE_WEIGHTS * weight
+        model.body_gravcomp[body] = 1.0  # held: the gripper carries its weight while pushing
+        for axis, side in enumerate(sides):
+            if side:
+                # How far the box now is past its planned position (noise and _comply).
+                past = side * (self._data.qpos[address + axis] - planned_xy[axis]) / _MM
+                reach = max(0.0, -past) + limit_mm
+                self._guarded_push(geom, address, axis, side, reach, threshold)
+        for axis in (0, 1):  # a later push or turn may have pressed a side pushed earlier
+            self._relax(geom, address, axis, limit_mm + 2.0)
+        model.body_gravcomp[body] = 0.0
 
-    def _flush_sides(
-        self, geom: int, address: int, planned_xy: np.ndarray, noisy_pose: np.ndarray
-    ) -> tuple[int, int]:
-        """Per axis, the side (-1, +1, or 0: none) the squared box at its planned centre is
-        flush with: moving it ``_SEAT_PROBE_MM`` that way would touch something. With both
-        sides flush (a tight slot) the minimum side wins. Leaves the box at ``noisy_pose``'s
-        position (squared)."""
-        tol, sides = _LIFT_TOLERANCE_MM * _MM, []
-        for axis in (0, 1):
-            side = 0
-            for direction in (-1, 1):
-                self._data.qpos[address : address + 3] = (*planned_xy, noisy_pose[2])
-                self._data.qpos[address + axis] += direction * _SEAT_PROBE_MM * _MM
-                if self._penetration(geom) > tol:
-                    side = direction
-                    break
-            sides.append(side)
-        self._data.qpos[address : address + 3] = noisy_pose[:3]
-        return sides[0], sides[1]
+    def _guarded_push(
+        self, geom: int, address: int, axis: int, side: int, reach_mm: float, threshold: float
+    ) -> bool:
+        """Move the held box (pose at ``qpos[address:address + 7]``) toward ``side`` of ``axis``
+        in ``_SEAT_STEP_MM`` steps, at most ``reach_mm``, until the step would make the
+        contacts push back along the axis harder than ``threshold`` (N). There it stays at
+        the last step under the threshold, first letting the contact's torque turn it flush
+        with the face it met (``_flush_turn``, a few times while that lets it go on), and
+        returns True; with nothing met it goes back to its start and returns False."""
+        data, start = self._data, self._data.qpos[address : address + 7].copy()
+        pose = slice(address, address + 7)
+        moved, step, turns_left = 0.0, side * _SEAT_STEP_MM * _MM, _SEAT_TURNS
+        while True:
+            if moved + _SEAT_STEP_MM > reach_mm + 1e-9:
+                data.qpos[pose] = start
+                return False
+            data.qpos[address + axis] += step
+            force, torque, pivot = self._side_load(geom, address)
+            if -side * force[axis] <= threshold:
+                moved += _SEAT_STEP_MM
+                continue
+            turned = self._flush_turn(geom, address, axis, torque, pivot) if turns_left else None
+            data.qpos[address + axis] -= step  # back to the last pose under the threshold
+            if turned is None:
+                break
+            backed = data.qpos[pose].copy()
+            data.qpos[pose] = turned
+            if not self._back_off(geom, address, axis, side, threshold):
+                data.qpos[pose] = backed  # the turn presses the other side (a wall seated on)
+                break
+            turns_left -= 1
+        return True
 
-    def _push_until_contact(self, geom: int, address: int, side: int, limit_mm: float) -> bool:
-        """Move ``qpos[address]`` toward ``side`` (-1 or +1) in ``_SEAT_STEP_MM`` steps (at most
-        ``limit_mm``) until the next step would touch something; leave it flush there and
-        return True, or return False with it unmoved when nothing is met within the limit."""
-        tol, start = _LIFT_TOLERANCE_MM * _MM, float(self._data.qpos[address])
-        for step in np.arange(_SEAT_STEP_MM, limit_mm + 1e-9, _SEAT_STEP_MM):
-            self._data.qpos[address] = start + side * step * _MM
-            if self._penetration(geom) > tol:
-                self._data.qpos[address] = start + side * (step - _SEAT_STEP_MM) * _MM
-                return True
-        self._data.qpos[address] = start
-        return False
+    def _back_off(self, geom: int, address: int, axis: int, side: int, threshold: float) -> bool:
+        """Back a just-turned box (turned pressed into what it met) off along ``axis`` by
+        ``_SEAT_STEP_MM`` steps (at least one, at most three) until the contacts push back
+        along it with at most ``threshold``, a turned box bearing at both ends of its face
+        bears twice; return whether the other axis is then under the threshold too."""
+        for _ in range(3):
+            self._data.qpos[address + axis] -= side * _SEAT_STEP_MM * _MM
+            force = self._side_load(geom, address)[0]
+            if -side * force[axis] <= threshold:
+                break
+        return abs(force[1 - axis]) <= threshold and -side * force[axis] <= threshold
+
+    def _flush_turn(
+        self, geom: int, address: int, axis: int, torque: float, pivot: np.ndarray
+    ) -> np.ndarray | None:
+        """The pose (7,) a wrist compliant in yaw lets the contact's ``torque`` give the held
+        box, pressed into what it met: turned in the torque's sense, the arm holding its centre
+        across ``axis`` and letting it follow the contact (``pivot``, the centre of pressure)
+        along it, up to where the torque reverses (the face is flush,
+        bearing at both ends), found by bisection within ``_SEAT_MAX_YIELD_DEG``. None when it
+        does not reverse there (a corner against a corner: nothing flat to turn flush with)
+        or the turn is under ``_SEAT_MIN_TURN``. Leaves the box's pose as it was."""
+        pose = self._data.qpos[address : address + 7]
+        held = pose.copy()
+        sense = math.copysign(1.0, torque)
+
+        def turned(angle: float) -> np.ndarray:
+            out = _pivoted(held, pivot, angle)
+            out[1 - axis] = held[1 - axis]
+            return out
+
+        def reversed_at(angle: float) -> bool:
+            pose[:] = turned(sense * angle)
+            return self._side_load(geom, address)[1] * sense < 0.0
+
+        low, high = 0.0, math.radians(_SEAT_MAX_YIELD_DEG)
+        if torque == 0.0 or not reversed_at(high):
+            pose[:] = held
+            return None
+        for _ in range(_SEAT_TURN_BISECTIONS):
+            mid = (low + high) / 2
+            low, high = (low, mid) if reversed_at(mid) else (mid, high)
+        pose[:] = held
+        return turned(sense * low) if low >= _SEAT_MIN_TURN else None
+
+    def _relax(self, geom: int, address: int, axis: int, limit_mm: float) -> None:
+        """Back a seated box off along ``axis`` in ``_SEAT_STEP_MM`` steps (at most
+        ``limit_mm``, as far as a push may have gone) while it is deeper than
+        ``_LIFT_TOLERANCE_MM`` in a contact across that axis: the force threshold allows
+        about 0.13 mm, more where a neighbour lighter than the held box yields, and a box
+        released wedged into a side would be lifted on top by ``_lift_clear``; released, the
+        compressed contact springs back."""
+        tol = _LIFT_TOLERANCE_MM * _MM
+        for _ in range(int(limit_mm / _SEAT_STEP_MM)):
+            deepest, normal = self._deepest_across(geom, axis)
+            if deepest <= tol:
+                return
+            self._data.qpos[address + axis] += normal * _SEAT_STEP_MM * _MM
+
+    def _deepest_across(self, geom: int, axis: int) -> tuple[float, float]:
+        """Deepest penetration (m) of ``geom`` in a contact whose normal lies along ``axis``,
+        and the sign (+1, -1) of the way out of it along the axis (0, 0 if none)."""
+        self._penetration(geom)  # runs the collision
+        deepest, out = 0.0, 0.0
+        for c in self._data.contact[: self._data.ncon]:
+            if geom in (c.geom1, c.geom2) and abs(c.frame[axis]) > 0.5 and -c.dist > deepest:
+                # The normal points from geom1 to geom2: geom2 goes out along it.
+                deepest = -c.dist
+                out = math.copysign(1.0, c.frame[axis]) * (1.0 if c.geom2 == geom else -1.0)
+        return deepest, out
+
+    def _side_load(self, geom: int, address: int) -> tuple[np.ndarray, float, np.ndarray]:
+        """Force (N, world x and y), torque about z (N m, about the box's centre) and centre
+        of pressure (m, x and y) of the contacts on ``geom`` whose normal is mostly horizontal
+        (what it is pushed against, not its support), at the current positions, with every
+        velocity as it is: what a wrist force sensor would read. Zero force and torque (and
+        the box's centre), without solving, when the box touches nothing."""
+        model, data = self._model, self._data
+        centre = data.qpos[address : address + 2].copy()
+        force, torque, pressure, total = np.zeros(2), 0.0, np.zeros(2), 0.0
+        if self._penetration(geom) <= 0.0:
+            return force, torque, centre
+        mujoco.mj_forward(model, data)
+        wrench = np.zeros(6)
+        for i, contact in enumerate(data.contact[: data.ncon]):
+            if geom not in (contact.geom1, contact.geom2) or abs(contact.frame[2]) > 0.5:
+                continue
+            mujoco.mj_contactForce(model, data, i, wrench)
+            # The normal points from geom1 to geom2; the force pushes geom2 along it.
+            on_box = wrench[0] * contact.frame[:2] * (1.0 if contact.geom2 == geom else -1.0)
+            force += on_box
+            r = contact.pos[:2] - centre
+            torque += float(r[0] * on_box[1] - r[1] * on_box[0])
+            pressure += abs(wrench[0]) * contact.pos[:2]
+            total += abs(wrench[0])
+        return force, torque, pressure / total if total > 0 else centre
 
     def _clear_below(self, index: int, rotation: int, yaw_deg: float = 0.0) -> bool:
         """Cheap sufficient test that box ``index`` starts clear: every placed box whose planar
