@@ -150,8 +150,8 @@ def perturb_drop(
 #: A side of a planned footprint is flush (something to push the box against) when a cell of
 #: the strip beside it on the observed heightmap rises at least this far above the box's
 #: bottom: over the per-cell error of the stereo preset's heightmap (a few mm) so a neighbour
-#: level with the support never reads as a face, and at most the smallest box height (20 mm
-#: and up in the suites) so a real neighbour always does.
+#: level with the support never reads as a face, and far below the smallest box height (80 mm
+#: in packlab-bench-v1) so a real neighbour always does.
 SEAT_FACE_MM = 10
 
 

@@ -43,14 +43,16 @@ _LIFT_TOLERANCE_MM = 0.1
 _COMPLY_STEP_MM = 0.5  # ring spacing of MujocoBackend._comply's search
 _SEAT_STEP_MM = 0.25  # step of MujocoBackend._seat's guarded push
 #: The guarded push stops when the contacts on the held box push back along the push axis with
-#: more than this many times the box's weight. The robot knows its payload's weight (its wrist
-#: sensor weighs it at the pick), so the threshold scales with it: MuJoCo's soft contacts push
-#: back in proportion to the held mass times the depth (about 3.9 weights per mm against a wall
-#: or a heavier box, at this solref/solimp), so 0.5 weights stops about 0.13 mm into a contact,
-#: for any box: past the 0.1 mm a box may touch at when released (``_LIFT_TOLERANCE_MM``, what
-#: ``_comply`` leaves), so a box resting lightly on a side does not stop a push along the other,
-#: and far above the zero a box touching nothing feels. A fixed force in newtons would not do:
-#: a 0.03 kg box would go 2 mm deep before 2 N, a 24 kg one stop at 0.002 mm.
+#: more than this many times the box's weight (its gravity is carried by the gripper while it
+#: pushes, so the reading is the side contacts' alone). The robot knows its payload's weight
+#: (its wrist sensor weighs it at the pick), so the threshold scales with it: MuJoCo's soft
+#: contacts push back in proportion to the held mass times the depth (about 3.9 weights per mm
+#: against a wall or a heavier box, at this solref/solimp), so 0.5 weights stops about 0.13 mm
+#: into a contact for any box, from the bench's 0.28 kg boxes to its 97 kg ones. That is just
+#: past the 0.1 mm a box may already touch at (``_LIFT_TOLERANCE_MM``, what ``_comply``
+#: leaves), so a box resting lightly on one side is not stopped before it moves, and far above
+#: the zero a box touching nothing feels. A fixed force would stop the heavy boxes at the first
+#: touch and let the light ones press in several times deeper.
 _SEAT_FORCE_WEIGHTS = 0.5
 #: A held box pushed into a face with a corner first is turned by the contact's torque (a
 #: wrist compliant in yaw) until its face is flush (``MujocoBackend._flush_turn``): by at
