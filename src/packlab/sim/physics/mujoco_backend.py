@@ -503,10 +503,10 @@ class MujocoBackend:
         """The pose (7,) a wrist compliant in yaw lets the contact's ``torque`` give the held
         box, pressed into what it met: turned in the torque's sense, the arm holding its centre
         across ``axis`` and letting it follow the contact (``pivot``, the centre of pressure)
-        along it, up to where the torque reverses (the face is flush,
-        bearing at both ends), found by bisection within ``_SEAT_MAX_YIELD_DEG``. None when it
-        does not reverse there (a corner against a corner: nothing flat to turn flush with)
-        or the turn is under ``_SEAT_MIN_TURN``. Leaves the box's pose as it was."""
+        along it, up to where the torque reverses (the face is flush, bearing at both ends),
+        found by bisection within ``_SEAT_MAX_YIELD_DEG``. None when it does not reverse there
+        (a corner against a corner: nothing flat to turn flush with) or the turn is under
+        ``_SEAT_MIN_TURN``. Leaves the box's pose as it was."""
         pose = self._data.qpos[address : address + 7]
         held = pose.copy()
         sense = math.copysign(1.0, torque)
