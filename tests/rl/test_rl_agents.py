@@ -47,32 +47,61 @@ def cases_file(cases, tmp_path_factory):
     return str(save_cases(cases, tmp_path_factory.mktemp("cases") / "train.jsonl"))
 
 
-def _random_mean(agent: str, case, episodes: int = 40) -> float:
-    env = ListedActionEnv(agent, [case])
-    rng = np.random.default_rng(0)
-    returns = []
-    for i in range(episodes):
-        env.reset(seed=i, options={"case_index": 0})
-        total, done = 0.0, False
-        while not done:
-            _, r, done, _, _ = env.step(int(rng.choice(np.flatnonzero(env.action_masks()))))
-            total += r
-        returns.append(total)
-    return float(np.mean(returns))
+#: Held-out evaluation: the agent trains on some generated cases of the training seed domain
+#: and is scored on others (another user seed: other case seeds) it never saw.
+TRAIN_SEED, HELD_OUT_SEED = 1, 2
+
+
+@pytest.fixture(scope="module")
+def hard_split():
+    """8 hard training cases and 12 held-out ones (hard: 19-29 objects, buffer choices that
+    matter; an untrained or random agent scores about 0.4-0.5 Overall on them)."""
+    train = generate_cases("hard", 8, TRAIN_SEED, False, domain="train")
+    held_out = generate_cases("hard", 12, HELD_OUT_SEED, False, domain="train")
+    assert not {c.seed for c in train} & {c.seed for c in held_out}
+    return train, held_out
+
+
+def _mean_overall(model_or_policy, agent: str, cases, seeds=(0,)) -> float:
+    """Mean Overall on ``cases`` (geometric): a model's greedy play, or a named policy's."""
+    if isinstance(model_or_policy, str):
+        results = [
+            run_episode(c, make_policy(model_or_policy), seed=s, backend="geometric")
+            for c in cases
+            for s in seeds
+        ]
+        return float(np.mean([r.metrics.overall for r in results]))
+    spec = FeatureSpec.default(agent)
+    return float(np.mean([play(model_or_policy, spec, c).overall for c in cases]))
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Small networks: more threads only oversubscribe a shared CPU (10 x slower here)."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
 
 
 @pytest.mark.parametrize("agent", AGENTS)
-def test_a_few_hundred_steps_beat_random_on_one_case(agent, cases, tmp_path):
-    case = cases[3]  # a medium case: buffer 5, enough choice for random to be poor
+@pytest.mark.usefixtures("one_torch_thread")
+def test_a_short_training_beats_untrained_and_random_on_held_out_cases(agent, hard_split, tmp_path):
+    train, held_out = hard_split
     cfg = RLTrainConfig(agent=agent, out=str(tmp_path), lr=1e-3, **SMALL)
-    venv = DummyVecEnv([lambda: ListedActionEnv(agent, [case])])
+    venv = DummyVecEnv([lambda: ListedActionEnv(agent, train)])
     venv.seed(0)
     model = make_model(cfg, venv, tmp_path)
-    untrained = play(model, FeatureSpec.default(agent), case).overall
-    model.learn(640)
-    trained = play(model, FeatureSpec.default(agent), case).overall
-    baseline = _random_mean(agent, case)
-    assert trained > baseline + 0.02, (untrained, trained, baseline)
+    untrained = _mean_overall(model, agent, held_out)
+    model.learn(960)
+    trained = _mean_overall(model, agent, held_out)
+    random_rows = _mean_overall(f"{agent}-random", agent, held_out, seeds=(0, 1, 2))
+    # Measured (irbpp, tapnet): untrained 0.40, 0.52; random rows 0.46, 0.38; trained 0.65,
+    # 0.66. A trainer that does not learn stays at the untrained score: 0.08 short fails.
+    assert trained > untrained + 0.08, (untrained, trained, random_rows)
+    assert trained > random_rows + 0.08, (untrained, trained, random_rows)
 
 
 def _greedy_rows(model, spec, cases) -> list[int]:
