@@ -13,6 +13,7 @@ import pickle
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from _cases import small_case
 
@@ -20,6 +21,7 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Unparsable
 from packlab.policies import available_policies, make_policy
 from packlab.sim.episode import INVALID_REASONS, run_episode
+from packlab.vlm.prompt.compact import parse_choice
 from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
 FAMILIES = ("qwen3_5", "qwen3_vl", "qwen2_5_vl")
@@ -370,6 +372,116 @@ def test_endpoint_against_the_tiny_model_server_matches_the_local_policy(torch):
     assert {s["finish_reason"] for s in remote.step_log} <= {"stop", "length"}
 
 
+# -- candidate mode: answers are placement indices (or free JSON in the format ablation) ---------
+def _stub_candidate_policy(answer: str):
+    """A candidate-mode policy around no model at all: the test replaces its scorer or its
+    generator (``answer`` = ``index`` or ``json``, as a checkpoint's card says)."""
+    from packlab.vlm.candidate.policy import IN_MEMORY, CandidateVLMPolicy
+
+    policy = CandidateVLMPolicy(IN_MEMORY)
+    card = {"prompt_version": PROMPT_VERSION, "proposer": {"k": 8}, "instructions": "short"}
+    policy.use_model(object(), meta={**card, "answer": answer})
+    return policy
+
+
+@pytest.mark.torch
+def test_malformed_and_out_of_range_json_answers_are_counted_and_the_episode_goes_on(torch):
+    case = small_case()
+    answers = iter(
+        [
+            "I would put it on the left.",  # malformed: no action at all
+            action_text(Action(7, 0, 0, 0)),  # object 7 of a 2-object buffer
+            action_text(Action(0, 0, 99, 0)),  # off the 8 x 6 floor
+            action_text(Action(0, 0, 0, 0)),  # fine
+            '{"object_id": 0, "rotation": 0',  # cut off
+            action_text(Action(0, 2, 0, 0)),  # no rotation 2
+        ]
+    )
+    policy = _stub_candidate_policy("json")
+    policy._generate = lambda model, observation, listed, settings: next(answers)
+    result = run_episode(case, policy, seed=0, backend="geometric")
+    _check_steps(result, case)
+    assert [s.reason for s in result.steps] == [
+        "unparsable",
+        "bad_object_id",
+        "out_of_bounds",
+        "",
+        "unparsable",
+        "unparsable",
+    ]
+    assert result.metrics.invalid_by_reason == {
+        "bad_object_id": 1,
+        "out_of_bounds": 1,
+        "unparsable": 3,
+    }
+    assert result.metrics.n_set_aside == 5
+
+
+def _pick_third(chosen):
+    """A scorer that ranks listed placement 2 (or the last, with fewer) first."""
+
+    def score(model, observation, listed, settings):
+        index = min(2, len(listed) - 1)
+        chosen.append((listed, index))
+        return np.eye(len(listed))[index]
+
+    return score
+
+
+@pytest.mark.torch
+def test_an_index_answer_takes_exactly_the_placement_it_names(torch):
+    case = small_case()
+    chosen: list = []
+    policy = _stub_candidate_policy("index")
+    policy._score = _pick_third(chosen)
+    result = run_episode(case, policy, seed=0, backend="geometric")
+    assert len(chosen) + policy.fallbacks == len(result.steps) == len(case.objects)
+    assert policy.fallbacks == 0 and any(index == 2 for _, index in chosen)
+    for step, (listed, index) in zip(result.steps, chosen):
+        assert step.action == listed[index].action == parse_choice(str(index), listed)
+
+
+def _extra_score(model, observation, listed, settings):
+    return np.r_[np.zeros(len(listed)), 1.0]  # the best "placement" is not listed
+
+
+def _nan_scores(model, observation, listed, settings):
+    return np.full(len(listed), np.nan)
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(
+    "scorer",
+    [
+        pytest.param(
+            _extra_score,
+            marks=pytest.mark.xfail(
+                raises=IndexError,
+                strict=True,
+                reason="CandidateVLMPolicy.act indexes listed with the raw argmax "
+                "(src/packlab/vlm/candidate/policy.py, `listed[int(np.argmax(scores))]`): an "
+                "out-of-range index raises instead of being an unparsable step",
+            ),
+        ),
+        pytest.param(
+            _nan_scores,
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="NaN scores silently take listed placement 0 (argmax of all-NaN) instead "
+                "of being an unparsable step (src/packlab/vlm/candidate/policy.py)",
+            ),
+        ),
+    ],
+)
+def test_scores_that_name_no_listed_placement_are_unparsable_steps(torch, scorer):
+    case = small_case()
+    policy = _stub_candidate_policy("index")
+    policy._score = scorer
+    result = run_episode(case, policy, seed=0, backend="geometric")
+    _check_steps(result, case)
+    assert result.metrics.invalid_by_reason == {"unparsable": len(case.objects)}
+
+
 @pytest.mark.torch
 def test_shipped_vlm_small_checkpoint_plays_a_bench_case():
     import packlab.vlm.infer.policy as vp
@@ -383,8 +495,26 @@ def test_shipped_vlm_small_checkpoint_plays_a_bench_case():
         pytest.skip(f"shipped vlm-small predates {PROMPT_VERSION} ({trained_with}): retrain it")
     pytest.importorskip("torch")
     case = next(c for c in load_suite("packlab-bench-v1") if c.difficulty == "easy")
-    result = run_episode(case, make_policy("vlm-small"), seed=0, backend="geometric")
+    policy = make_policy("vlm-small")
+    policy.load()
+    real, seen = policy._score, []
+
+    def score(model, observation, listed, settings):
+        scores = real(model, observation, listed, settings)
+        seen.append((listed, np.asarray(scores)))
+        return scores
+
+    policy._score = score
+    result = run_episode(case, policy, seed=0, backend="geometric")
     assert result.policy == "vlm-small"
-    assert len(result.steps) == len(case.objects)
-    # The trained model answers in the action format: nothing it says is unparsable.
-    assert result.metrics.invalid_by_reason.get("unparsable", 0) == 0
+    assert len(result.steps) == len(case.objects) == policy.decisions
+    assert policy.fallbacks == 0 and len(seen) == len(result.steps)  # every step was scored
+    # The trained model's answer at every step is one finite score per listed placement; its
+    # best names a listed placement (the index answer parses to the very action taken), and the
+    # scores tell placements apart (a constant head would always answer 0).
+    for step, (listed, scores) in zip(result.steps, seen):
+        assert scores.shape == (len(listed),) and np.isfinite(scores).all()
+        best = int(np.argmax(scores))
+        assert step.action == listed[best].action == parse_choice(str(best), listed)
+        assert len(listed) == 1 or np.ptp(scores) > 0
+    assert result.metrics.invalid_by_reason == {}
