@@ -111,7 +111,8 @@ def with_intervals(
         summary, found = summaries[m["run"]], intervals[m["run"]]
         bounds = [found.bounds(m["policy"], g, k) for g in _groups(summary) for k in METRICS]
         m["cells"] = [
-            None if c is None else [*c, *(b if b is not None else (None, None))]
+            # rounded as report_data rounds the means (6 places: the page's data stays small)
+            None if c is None else [*c, *((None, None) if b is None else (round(x, 6) for x in b))]
             for c, b in zip(m["cells"], bounds)
         ]
     data["intervals"] = [to_builtins(i) for i in intervals]
