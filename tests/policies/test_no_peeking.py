@@ -93,13 +93,16 @@ def _case() -> Case:
     return make_layered_case(2, cells=(8, 6), layer_heights_mm=(100, 60), buffer_size=3)
 
 
-def _play(policy, case: Case, handed, perceiver=None) -> list:
-    """``run_episode``'s loop, handing ``handed`` to the policy in place of ``case``."""
+def _play(policy, case: Case, handed, perceiver=None, shown: list | None = None) -> list:
+    """``run_episode``'s loop, handing ``handed`` to the policy in place of ``case``; the sizes
+    the policy was shown go to ``shown``."""
     episode = Episode("geometric", perceiver=perceiver)
     observation = episode.reset(case, 1)
     policy.reset(handed, 1)
     actions = []
     while not episode.done:
+        if shown is not None:
+            shown.extend(item.size_mm for item in observation.shown)
         action = policy.act(observation)
         actions.append(action)
         episode.step(action)
@@ -126,13 +129,15 @@ def _policy_maker(name: str) -> Iterator:
 
 
 def _check_blind(name: str, perceiver=None) -> None:
-    case = _case()
+    case, shown = _case(), []
     with _policy_maker(name) as make:
         honest = _play(make(), case, case, perceiver)
         blind = BlindCase(case)
-        actions = _play(make(), case, blind, perceiver)
+        actions = _play(make(), case, blind, perceiver, shown)
     assert blind.forbidden_reads == [], f"{name} read case.{blind.forbidden_reads[0]}"
     assert actions == honest, f"{name} acts differently on what it is handed alone"
+    if perceiver is not None:  # the true sizes never reached the policy
+        assert shown and not {b.size_mm for b in case.objects} & set(shown)
 
 
 @pytest.mark.parametrize("name", [n for n in BENCH_POLICIES if n not in PEEKS_BY_DESIGN])
