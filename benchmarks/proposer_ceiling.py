@@ -1,8 +1,15 @@
 """The candidate proposer's own ceiling: how much of each teacher survives its K listed placements.
 
 Usage:
-    python benchmarks/proposer_ceiling.py                      # packlab-bench-v1, geometric, seed 0
+    python benchmarks/proposer_ceiling.py                      # generated cases, geometric, seed 0
     python benchmarks/proposer_ceiling.py --k 8 --rules lowest --teachers sdf   # a quick look
+    python benchmarks/proposer_ceiling.py --cases runs/data/packdata-mini      # generated on disk
+
+The proposer's defaults (K and rule) are chosen from this table, so it never reads the bench:
+its cases are generated here in the ``train`` seed domain (``packlab.datagen.seeds``), user seed
+``--seed`` (default 2611), ``--per-level`` cases per level (default 12), or read from
+``--cases`` (a ``packlab generate`` directory or a case file); either way they pass
+``packlab.datagen.guard.require_training_cases``, which refuses bench cases by their seeds.
 
 For each teacher (registered policies ``sdf``, ``mta``, ``plan``) and each proposer setting
 (``--rules`` x ``--k``, see ``packlab.policies.candidates``) it reports, per level:
@@ -40,12 +47,16 @@ import numpy as np
 from packlab.bench.suites import resolve_cases
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
+from packlab.datagen import generate_cases
+from packlab.datagen.guard import require_training_cases
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 
 LEVELS = ("easy", "medium", "hard")
+#: Default user seed of the generated cases (train seed domain).
+SEED = 2611
 
 
 @dataclass
@@ -97,12 +108,15 @@ def run_item(item: tuple[str, str, tuple[ProposerConfig, ...], Case]) -> dict[st
     case)``; geometric backend, seed 0."""
     kind, teacher, configs, case = item
     policy = Probe(teacher, configs) if kind == "probe" else Restricted(teacher, configs[0])
+    start = time.perf_counter()
     result = run_episode(case, policy, seed=0, backend="geometric")
     out = {
         "kind": kind,
         "teacher": teacher,
         "level": case.difficulty,
+        "case": case.episode_id,
         "overall": result.metrics.overall,
+        "seconds": time.perf_counter() - start,
     }
     if kind == "probe":
         out["hits"] = list(policy.hits)
@@ -161,9 +175,49 @@ def table(results: list[dict[str, Any]], configs: tuple[ProposerConfig, ...]) ->
     return "\n".join(lines)
 
 
+#: Restricted-plan averages within this of the best count as tied (the table's rounding).
+TIE = 0.005
+
+
+def choose(results: list[dict[str, Any]], configs: tuple[ProposerConfig, ...]) -> ProposerConfig:
+    """The decision rule of docs/candidates.md: the best restricted-plan Overall (mean of the
+    level means), ties within ``TIE`` to the smaller K, then to ``"lowest"``."""
+    scores = {}
+    for config in configs:
+        by: dict[str, list[float]] = defaultdict(list)
+        key = ["restricted", "plan", [config.rule, config.k]]
+        for r in results:
+            if [r["kind"], r["teacher"], r.get("config")] == key:
+                by[r["level"]].append(r["overall"])
+        if by:
+            scores[config] = float(np.mean([np.mean(v) for v in by.values()]))
+    if not scores:
+        raise ValueError("no restricted-plan results: run with plan among --restricted")
+    best = max(scores.values())
+    tied = [c for c, v in scores.items() if v >= best - TIE]
+    return min(tied, key=lambda c: (c.k, c.rule != "lowest"))
+
+
+def tuning_cases(spec: str | None, seed: int, per_level: int) -> tuple[tuple[Case, ...], str]:
+    """The cases to tune on and how to name them: generated now (train seed domain) unless
+    ``spec`` names generated cases on disk; bench cases are refused by their seeds."""
+    if spec is None:
+        label = f"generated train-domain cases, seed {seed}, {per_level} per level"
+        cases = [
+            c
+            for level in LEVELS
+            for c in generate_cases(level, per_level, seed, False, domain="train")
+        ]
+    else:
+        label, cases = spec, list(resolve_cases(spec).cases)
+    return tuple(require_training_cases(cases, label, "tuning")), label
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", default="packlab-bench-v1")
+    parser.add_argument("--cases", default=None, help="generated cases on disk (default: none)")
+    parser.add_argument("--seed", type=int, default=SEED, help="user seed (train domain)")
+    parser.add_argument("--per-level", type=int, default=12, help="generated cases per level")
     parser.add_argument("--teachers", default="sdf,mta,plan")
     parser.add_argument("--rules", default="lowest,lowest+largest")
     parser.add_argument("--k", default="8,16", help="comma-separated list sizes")
@@ -179,7 +233,7 @@ def main() -> None:
     configs = tuple(
         ProposerConfig(int(k), rule) for rule in args.rules.split(",") for k in args.k.split(",")
     )
-    cases = resolve_cases(args.cases).cases
+    cases, label = tuning_cases(args.cases, args.seed, args.per_level)
     teachers = args.teachers.split(",")
     restricted = teachers if args.restricted is None else args.restricted.split(",")
     todo = items(cases, teachers, [t for t in restricted if t], configs)
@@ -187,10 +241,13 @@ def main() -> None:
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         results = list(pool.map(run_item, todo))
     print(
-        f"{len(results)} episodes in {time.perf_counter() - start:.0f} s ({args.cases}, "
+        f"{len(results)} episodes in {time.perf_counter() - start:.0f} s ({label}, "
         "geometric backend, seed 0)"
     )
     print(table(results, configs))
+    if "plan" in restricted:
+        chosen = choose(results, configs)
+        print(f"chosen by the rule (best restricted plan, ties to smaller K): {chosen}")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(results, f)

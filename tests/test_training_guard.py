@@ -162,3 +162,24 @@ def test_tuning_benchmarks_refuse_bench_cases(bench_file, train_file):
     train = ablations.training_cases(str(train_file))
     held = ablations.heldout_cases(train, 3, 2)  # same user seed: the shared cases drop out
     assert len(held) == 2 and not {c.seed for c in held} & {c.seed for c in train}
+
+
+def test_the_proposer_choice_rule_prefers_the_smaller_k_on_a_tie():
+    ceiling = _benchmark("proposer_ceiling")
+    configs = (
+        ceiling.ProposerConfig(8, "lowest"),
+        ceiling.ProposerConfig(16, "lowest"),
+        ceiling.ProposerConfig(8, "lowest+largest"),
+    )
+
+    def results(k16: float) -> list[dict]:
+        scores = {(8, "lowest"): 0.80, (16, "lowest"): k16, (8, "lowest+largest"): 0.70}
+        return [
+            {"kind": "restricted", "teacher": "plan", "level": level, "overall": v,
+             "config": [rule, k]}
+            for (k, rule), v in scores.items()
+            for level in ("easy", "medium", "hard")
+        ]  # fmt: skip
+
+    assert ceiling.choose(results(0.82), configs) == configs[1]  # clearly better: K=16
+    assert ceiling.choose(results(0.803), configs) == configs[0]  # within the tie: smaller K
