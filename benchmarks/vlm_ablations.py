@@ -155,7 +155,8 @@ def main() -> None:
             continue
         b = r["heldout"]
         print(
-            f"| {r['variant']} | {r['heldout_match']} | {r['heldout_nll']} | {r['marginal_nll']} "
+            f"| {r['variant']} | {r.get('heldout_match', '-')} | {r.get('heldout_nll', '-')} "
+            f"| {r.get('marginal_nll', '-')} "
             f"| {b['easy']} | {b['medium']} | {b['hard']} | {b['average']} |"
         )
 
