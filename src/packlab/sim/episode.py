@@ -6,6 +6,7 @@ object is set aside outside the container (it counts as unpacked) and the episod
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
@@ -118,10 +119,16 @@ def _errors(perception: Perception) -> dict[str, Any]:
     """The perception errors of a step record (lists in shown order; mae None if unknown)."""
     mae = perception.heightmap_mae_mm
     return {
-        "dims_error_mm": [round(v, 3) for v in perception.dims_error_mm],
-        "yaw_error_deg": [round(v, 4) for v in perception.yaw_error_deg],
+        # None for a missed object (no estimate to compare)
+        "dims_error_mm": [_rounded(v, 3) for v in perception.dims_error_mm],
+        "yaw_error_deg": [_rounded(v, 4) for v in perception.yaw_error_deg],
         "heightmap_mae_mm": None if mae is None else round(mae, 4),
+        **({} if perception.scans is None else {"scans": perception.scans}),
     }
+
+
+def _rounded(value: float, digits: int) -> float | None:
+    return None if math.isnan(value) else round(value, digits)
 
 
 def _executed_record(drop: ExecutedDrop) -> list[float]:
@@ -190,6 +197,7 @@ class Episode:
         self._heightmap = self.backend.reset(case.container, case.objects)
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
+        self.missed = 0  # objects perception did not find, set aside (perceived mode)
         self._history: list[HistoryEntry] = []
         self.steps = []
         # The latest settle (placement, then the final one): what "at rest" is judged on.
@@ -198,10 +206,11 @@ class Episode:
         self._reshuffle()
         return self.observe()
 
-    def _perceive(self) -> None:
-        """Perceived mode: look at the scene after the buffer was refilled (no-op otherwise)."""
+    def _perceive(self) -> list[int]:
+        """Perceived mode: look at the scene after the buffer was refilled (no-op otherwise).
+        Returns the case indices of the shown objects perception missed."""
         if self._perceiver is None:
-            return
+            return []
         positions, quaternions = self.backend.poses()
         scene = Scene(
             container=self.case.container,
@@ -231,6 +240,14 @@ class Episode:
             )
             for item, size in zip(self._shown, self._perception.sizes_mm)
         )
+        return [self._shown_indices[i] for i in self._perception.missed]
+
+    def _turned(self, object_id: int, rotation: int) -> int:
+        """The box's own rotation that does what the policy chose: the policy's rotation refers
+        to the sides it was shown, which perception lists longer first (``axis_swapped``)."""
+        if self._perceiver is None or not self._perception.axis_swapped:
+            return rotation
+        return rotation ^ int(self._perception.axis_swapped[object_id])
 
     @property
     def done(self) -> bool:
@@ -240,7 +257,28 @@ class Episode:
     def heightmap(self) -> np.ndarray:
         return self._heightmap
 
-    def _reshuffle(self) -> None:
+    def _reshuffle(self) -> int:
+        """Show the next objects and perceive them. Objects perception missed are set aside
+        (as a robot cell passes them on) and the buffer refilled until none is missed; returns
+        the final settle's steps when that emptied the stream, else 0."""
+        while True:
+            self._show_window()
+            missed = self._perceive()
+            if not missed:
+                return 0
+            for index in missed:
+                self._set_aside.add(index)
+                self._pending.remove(index)
+            self.missed += len(missed)
+            if not self._pending:
+                final = self._last_settle = self.backend.finish()
+                self._heightmap = final.heightmap
+                self.final_settle_steps = final.settle_steps
+                self._shown_indices, self._shown = [], ()
+                self._perceive()
+                return final.settle_steps
+
+    def _show_window(self) -> None:
         window = visible_window(self._pending, self.case.buffer_size)
         self._shown_indices = shuffled_view(window, self._rng)
         c = self.case.container
@@ -258,7 +296,6 @@ class Episode:
             )
             for i, idx in enumerate(self._shown_indices)
         )
-        self._perceive()
 
     def observe(self) -> Observation:
         if self.case is None:
@@ -284,7 +321,8 @@ class Episode:
         index = self._shown_indices[int(action.object_id)]
         if action.rotation not in (0, 1):
             return "bad_rotation", index
-        fx, fy = self._footprint_cells(index, int(action.rotation))
+        rotation = self._turned(int(action.object_id), int(action.rotation))
+        fx, fy = self._footprint_cells(index, rotation)
         if not footprint_fits(self._heightmap.shape, int(action.x), int(action.y), fx, fy):
             return "out_of_bounds", index
         return "", index
@@ -312,7 +350,8 @@ class Episode:
         drop = executed = None
         placed: Transition | None = None
         if not reason:
-            rotation, x, y = int(action.rotation), int(action.x), int(action.y)
+            chosen, x, y = int(action.rotation), int(action.x), int(action.y)
+            rotation = self._turned(int(action.object_id), chosen)
             fx, fy = self._footprint_cells(index, rotation)
             # The release height from what the robot sees (perceived mode: the perceived
             # heightmap; too low, _lift_clear stops the descent on contact).
@@ -323,7 +362,7 @@ class Episode:
             placed = self._last_settle = self._place(index, rotation, drop, executed)
             self._heightmap = placed.heightmap
             if self._perceiver is not None:
-                predicted = self._predicted(shown_before[int(action.object_id)], rotation, x, y)
+                predicted = self._predicted(shown_before[int(action.object_id)], chosen, x, y)
         else:
             self._set_aside.add(index)
         settle_steps = placed.settle_steps if placed else 0
@@ -336,7 +375,7 @@ class Episode:
         self._history.append(HistoryEntry(seen_before, shown_before, action, not reason))
         self._pending.remove(index)
         if self._pending:
-            self._reshuffle()
+            settle_steps += self._reshuffle()
         else:
             self._shown_indices, self._shown = [], ()
             self._perceive()
@@ -494,6 +533,8 @@ class EpisodeResult:
     policy_time_s: float = 0.0
     #: Perceived mode only (else None): steps with a re-plan event (``StepResult.replan``).
     replans: int | None = None
+    #: Perceived mode only (else None): objects perception did not find, set aside unpacked.
+    missed: int | None = None
 
     def to_record(self) -> dict[str, Any]:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
@@ -505,8 +546,10 @@ class EpisodeResult:
             )
             steps = [{**rec, "poses": m} for rec, m in zip(steps, moved)]
         metrics = self.metrics.to_dict()
-        if self.replans is not None:  # an added key, only in perceived mode
+        if self.replans is not None:  # added keys, only in perceived mode
             metrics["replans"] = self.replans
+        if self.missed is not None:
+            metrics["missed"] = self.missed
         return {
             "case_id": self.case_id,
             "seed": self.seed,
@@ -563,4 +606,5 @@ def run_episode(
         poses=episode.final_poses(),
         policy_time_s=policy_time,
         replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
+        missed=None if perceiver is None else episode.missed,
     )
