@@ -450,29 +450,7 @@ def _nan_scores(model, observation, listed, settings):
 
 
 @pytest.mark.torch
-@pytest.mark.parametrize(
-    "scorer",
-    [
-        pytest.param(
-            _extra_score,
-            marks=pytest.mark.xfail(
-                raises=IndexError,
-                strict=True,
-                reason="CandidateVLMPolicy.act indexes listed with the raw argmax "
-                "(src/packlab/vlm/candidate/policy.py, `listed[int(np.argmax(scores))]`): an "
-                "out-of-range index raises instead of being an unparsable step",
-            ),
-        ),
-        pytest.param(
-            _nan_scores,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="NaN scores silently take listed placement 0 (argmax of all-NaN) instead "
-                "of being an unparsable step (src/packlab/vlm/candidate/policy.py)",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("scorer", [_extra_score, _nan_scores])
 def test_scores_that_name_no_listed_placement_are_unparsable_steps(torch, scorer):
     case = small_case()
     policy = _stub_candidate_policy("index")
@@ -480,6 +458,29 @@ def test_scores_that_name_no_listed_placement_are_unparsable_steps(torch, scorer
     result = run_episode(case, policy, seed=0, backend="geometric")
     _check_steps(result, case)
     assert result.metrics.invalid_by_reason == {"unparsable": len(case.objects)}
+
+
+def test_pick_listed_takes_the_best_finite_score_and_names_what_is_wrong():
+    from packlab.vlm.candidate.policy import pick_listed
+
+    class Listed:
+        def __init__(self, action):
+            self.action = action
+
+    listed = [Listed(f"a{i}") for i in range(3)]
+    assert pick_listed(listed, [np.nan, 0.2, np.inf]) == "a1"  # inf is not finite, NaN ignored
+    assert pick_listed(listed, [0.1, np.nan, 0.3]) == "a2"
+    assert pick_listed(listed, [-5.0, -np.inf, np.nan]) == "a0"
+    bad = {
+        "shape (4,) for 3 listed": [0.0, 0.0, 0.0, 1.0],
+        "shape (2,) for 3 listed": [0.0, 1.0],
+        "shape (1, 3) for 3 listed": [[0.0, 1.0, 2.0]],
+        "no finite score among 3": [np.nan, np.nan, -np.inf],
+        "not numbers": ["x", "y", "z"],
+    }
+    for words, scores in bad.items():
+        out = pick_listed(listed, scores)
+        assert isinstance(out, Unparsable) and words in out.error, (words, out)
 
 
 @pytest.mark.torch

@@ -4,6 +4,10 @@ the best. Torch-free at import (the registry imports it); the model loads on fir
 Every answer is a listed placement, so it always parses and always fits. When nothing fits (the
 proposer lists nothing) the policy hands the step to SDF-Pack, which then makes the same
 set-aside decision any policy would; such steps are counted in ``fallbacks``.
+
+A scorer whose scores are not one number per listed placement, or none of them finite, names no
+listed placement: that step is an :class:`Unparsable` (invalid, ``unparsable``), never a crash
+or a silent pick of placement 0 (:func:`pick_listed`).
 """
 
 from __future__ import annotations
@@ -92,4 +96,24 @@ class CandidateVLMPolicy:
                 self._generate(self._model, observation, listed, self._settings)
             )
         scores = self._score(self._model, observation, listed, self._settings)
-        return listed[int(np.argmax(scores))].action
+        return pick_listed(listed, scores)
+
+
+def pick_listed(listed: Any, scores: Any) -> Action | Unparsable:
+    """The listed placement with the highest score, or an :class:`Unparsable` (with the scores'
+    shape or the reason in ``error``) when the scores are not one number per listed placement
+    or none of them is finite: an answer that names no listed placement is an invalid step, not
+    a crash or a silent pick of placement 0. Non-finite scores among finite ones never win."""
+    try:
+        values = np.asarray(scores, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        return Unparsable(text="", error=f"scores are not numbers: {exc}")
+    if values.shape != (len(listed),):
+        return Unparsable(
+            text="",
+            error=f"scores of shape {values.shape} for {len(listed)} listed placements",
+        )
+    finite = np.isfinite(values)
+    if not finite.any():
+        return Unparsable(text="", error=f"no finite score among {len(listed)} placements")
+    return listed[int(np.argmax(np.where(finite, values, -np.inf)))].action
