@@ -152,3 +152,45 @@ def test_differences_pair_across_runs_on_common_cases(tmp_path):
     text = compare_markdown([a, b])
     # a's c2 varies over seeds: two-level intervals, said under the table
     assert "for a, b (scores vary across seeds) seeds also resampled" in text
+
+
+def test_cli_reference_picks_the_row_differences_are_taken_against(tmp_path, capsys):
+    base = {f"c{i}": 0.3 + 0.01 * i for i in range(10)}
+    run = _run_dir(
+        tmp_path,
+        "run",
+        {
+            "ref": {c: [v] * 3 for c, v in base.items()},
+            "better": {c: [v + 0.05] * 3 for c, v in base.items()},
+        },
+    )
+    assert main(["bench", "compare", str(run)]) == 0
+    default = capsys.readouterr().out
+    assert "each row minus run: ref" in default and "| run: better | 10 |" in default
+    assert main(["bench", "compare", str(run), "--reference", "run: ref"]) == 0
+    assert capsys.readouterr().out == default  # naming the first row is the default
+    out = tmp_path / "against.md"
+    rc = main(["bench", "compare", str(run), "--reference", "run: better", "--out", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "### Paired differences: each row minus run: better" in text
+    ref_row = next(line for line in text.splitlines() if line.startswith("| run: ref | 10 |"))
+    assert "**-0.050 [-0.050, -0.050]**" in ref_row and ref_row.endswith("| yes, lower |")
+    assert "| run: better | 10 |" not in text  # the reference is no row of its own table
+    assert out.read_text() + "\n" == text
+
+
+def test_cli_reference_that_is_no_row_is_one_line_naming_flag_and_rows(tmp_path, capsys):
+    run = _run_dir(tmp_path, "run", {"ref": {"c1": [0.5] * 3}, "other": {"c1": [0.4] * 3}})
+    out = tmp_path / "never.md"
+    rc = main(["bench", "compare", str(run), "--reference", "ref", "--out", str(out)])
+    assert rc == 2 and not out.exists()
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert lines == [
+        (
+            "packlab bench: error: --reference 'ref': not a row of this comparison; "
+            "rows: 'run: ref', 'run: other'"
+        )
+    ]

@@ -13,7 +13,12 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from packlab.bench.compare import compare_markdown
+from packlab.bench.compare import (
+    compare_markdown,
+    differences_markdown,
+    load_summary,
+    merge_summaries,
+)
 from packlab.bench.config import (
     MAX_SEEDS,
     RunConfig,
@@ -33,6 +38,7 @@ from packlab.bench.html_report import (
 from packlab.bench.report import build_report
 from packlab.bench.runner import BenchOutcome, run_bench
 from packlab.bench.suites import resolve_cases
+from packlab.bench.table import render_markdown
 from packlab.cli.options import add_field, config_kwargs
 from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
 
@@ -266,6 +272,12 @@ def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--labels", help="comma-separated row labels (default: the directory names)")
     c.add_argument("--out", help="also write the Markdown to this file")
     c.add_argument(
+        "--reference",
+        metavar="NAME",
+        help="the row the paired differences are taken against, named as the table prints it "
+        "(e.g. 'runs-learned: Proposer (index 0)'); default: the first row",
+    )
+    c.add_argument(
         "--html",
         nargs="?",
         const="",
@@ -357,12 +369,28 @@ if __name__ == "__main__":  # pragma: no cover
     sys.exit(main(["bench", *sys.argv[1:]]))
 
 
+def compare_text(dirs: list[str], labels: list[str] | None, reference: str | None) -> str:
+    """The comparison's Markdown, its paired differences against ``reference`` (a row as the
+    table names it; None: the first row). A name that is no row is a ConfigError naming the
+    flag and the rows."""
+    if reference is None:
+        return compare_markdown(dirs, labels)
+    names = labels if labels else [Path(d).name for d in dirs]
+    merged = merge_summaries([load_summary(d) for d in dirs], names)
+    if reference not in merged.policies:
+        rows = ", ".join(repr(r) for r in merged.policies)
+        raise ConfigError(f"--reference {reference!r}: not a row of this comparison; rows: {rows}")
+    text = render_markdown(merged)
+    diffs = differences_markdown(merged, reference)
+    return f"{text}\n{diffs}" if diffs else text
+
+
 def run_compare(args: argparse.Namespace) -> int:
     labels = [x.strip() for x in args.labels.split(",")] if args.labels else None
     out = Path(args.out) if args.out else None
     if out is not None and out.is_dir():  # checked before the work, not after it
         raise ConfigError(f"out = {args.out!r}: is a directory; give the Markdown file to write")
-    text = compare_markdown(args.dirs, labels)
+    text = compare_text(args.dirs, labels, args.reference)
     html = None
     if args.html is not None:
         html = Path(args.html or (out.with_suffix(".html") if out is not None else COMPARE_HTML))
