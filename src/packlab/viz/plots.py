@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -133,53 +134,97 @@ def overall_distribution_figure(summary: RunSummary) -> Figure:
     return fig
 
 
-def average_overall_figure(summary: RunSummary) -> Figure:
+class IntervalBounds(Protocol):
+    """What the figure reads of a run's intervals (``packlab.bench.summary.RunIntervals``)."""
+
+    def bounds(self, policy: str, group: str, metric: str) -> tuple[float, float] | None: ...
+
+
+#: A run's bootstrap intervals: a ``RunIntervals`` or summary.json's ``intervals`` object.
+Intervals = IntervalBounds | Mapping[str, Any]
+
+
+def overall_bounds(
+    intervals: Intervals | None, policy: str, group: str
+) -> tuple[float, float] | None:
+    """The Overall interval of one method and group, or None (no intervals, none for that cell,
+    or a malformed entry)."""
+    if intervals is None:
+        return None
+    if isinstance(intervals, Mapping):
+        row = intervals.get("policies", {}).get(policy, {})
+        found = row.get("cells", {}).get(group, {}).get("overall") if row else None
+    else:
+        found = intervals.bounds(policy, group, "overall")
+    if found is None or len(found) != 2:
+        return None
+    low, high = float(found[0]), float(found[1])
+    return (low, high) if np.isfinite(low) and np.isfinite(high) and low <= high else None
+
+
+def _group_bars(
+    ax: Any, summary: RunSummary, intervals: Intervals | None, group: str, j: int, n: int
+) -> int:
+    """One group's bars (one per method) with their interval bars; returns how many methods
+    got an interval."""
+    policies = list(summary.policies)
+    width = 0.8 / n
+    offs = np.arange(len(policies)) - 0.4 + width * (j + 0.5)
+    means, bounds = [], []
+    for p in policies:
+        cells = summary.table[p].get(group)
+        cell = None if cells is None else cells.overall
+        means.append(np.nan if cell is None or cell.mean is None else cell.mean)
+        bounds.append(overall_bounds(intervals, p, group))
+    is_avg = group == AVERAGE or n == 1
+    ax.bar(
+        offs,
+        means,
+        width * 0.92,
+        color=[method_colour(p, policies) for p in policies],
+        alpha=1.0 if is_avg else _GROUP_ALPHA.get(j, 0.5),
+        edgecolor="#333333" if is_avg else "none",
+        linewidth=0.6,
+        label=group_title(group),
+    )
+    shown = [(i, b) for i, b in enumerate(bounds) if b is not None and not np.isnan(means[i])]
+    if shown:
+        ax.errorbar(
+            offs[[i for i, _ in shown]],
+            [means[i] for i, _ in shown],
+            yerr=[
+                [max(means[i] - low, 0.0) for i, (low, _) in shown],
+                [max(high - means[i], 0.0) for i, (_, high) in shown],
+            ],
+            fmt="none",
+            elinewidth=0.8,
+            capsize=2,
+            ecolor="#333333",
+        )
+    if is_avg:
+        for i, (m, b) in enumerate(zip(means, bounds)):
+            if not np.isnan(m):
+                top = m if b is None else max(m, b[1])
+                ax.text(offs[i], top + 0.02, f"{m:.3f}", ha="center", va="bottom", fontsize=8)
+    return len(shown)
+
+
+def average_overall_figure(summary: RunSummary, intervals: Intervals | None = None) -> Figure:
     """Bars of mean Overall per method: one per difficulty (light) and the average (solid).
 
-    Error bars are the sample standard deviation across run seeds; the average's value is
-    printed above its bar.
+    Error bars are the 95 % bootstrap interval over cases of each bar's mean (``intervals``: the
+    run's ``RunIntervals`` or summary.json's ``intervals`` object); a bar without an interval
+    (none given, or none for that cell) has no error bar: the spread over run seeds is not drawn,
+    since it says nothing about how sure a mean over cases is. The average's value is printed
+    above its bar.
     """
     policies, diffs = list(summary.policies), list(summary.difficulties)
     groups = [*diffs, AVERAGE] if len(diffs) > 1 else list(diffs)
     n = len(groups)
-    width = 0.8 / n
-    x = np.arange(len(policies))
     fig = Figure(figsize=(max(6.5, 1.15 * len(policies) + 1.5), 4.2))
     ax = fig.subplots()
-    for j, group in enumerate(groups):
-        means, stds = [], []
-        for p in policies:
-            cells = summary.table[p].get(group)
-            cell = None if cells is None else cells.overall
-            means.append(np.nan if cell is None or cell.mean is None else cell.mean)
-            stds.append(0.0 if cell is None or cell.std is None else cell.std)
-        colours = [method_colour(p, policies) for p in policies]
-        is_avg = group == AVERAGE or n == 1
-        offs = x - 0.4 + width * (j + 0.5)
-        bars = ax.bar(
-            offs,
-            means,
-            width * 0.92,
-            yerr=stds,
-            color=colours,
-            alpha=1.0 if is_avg else _GROUP_ALPHA.get(j, 0.5),
-            edgecolor="#333333" if is_avg else "none",
-            linewidth=0.6,
-            error_kw={"elinewidth": 0.8, "capsize": 2, "ecolor": "#333333"},
-            label=group_title(group),
-        )
-        if is_avg:
-            for bar, m in zip(bars, means):
-                if not np.isnan(m):
-                    ax.text(
-                        bar.get_x() + bar.get_width() / 2,
-                        m + 0.025,
-                        f"{m:.3f}",
-                        ha="center",
-                        va="bottom",
-                        fontsize=8,
-                    )
-    ax.set_xticks(x)
+    with_bars = sum(_group_bars(ax, summary, intervals, g, j, n) for j, g in enumerate(groups))
+    ax.set_xticks(np.arange(len(policies)))
     ax.set_xticklabels([display_name(p) for p in policies], fontsize=9)
     ax.set_ylim(0, 1.12)
     ax.set_ylabel("Overall (mean over cases and seeds)")
@@ -200,8 +245,9 @@ def average_overall_figure(summary: RunSummary) -> Figure:
         ]
         ax.legend(handles=handles, ncol=n, fontsize=8, frameon=False, loc="upper left")
     bars_are = "bars: difficulties, then average; " if n > 1 else ""
+    spread = "95 % bootstrap interval over cases" if with_bars else "no interval"
     suite = _run_field(summary, "suite", "bench")
-    ax.set_title(f"{suite}: mean Overall per method ({bars_are}± std across seeds)", fontsize=10)
+    ax.set_title(f"{suite}: mean Overall per method ({bars_are}{spread})", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -236,9 +282,12 @@ def plot_loss_curve(
 
 
 __all__ = [
+    "IntervalBounds",
+    "Intervals",
     "average_overall_figure",
     "loss_curve_figure",
     "method_colour",
+    "overall_bounds",
     "overall_distribution_figure",
     "plot_loss_curve",
     "save_figure",
