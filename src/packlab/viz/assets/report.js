@@ -90,7 +90,26 @@
   }
 
   // -- results and details tables ----------------------------------------------------------
+  // A cell is [mean, std] (summaries before intervals) or [mean, std, low, high]: the 95 %
+  // bootstrap interval over cases when both bounds are there, else the old "± sd" form.
+  function hasInterval(c) {
+    return !!c && c.length >= 4 && c[2] !== null && c[2] !== undefined &&
+      c[3] !== null && c[3] !== undefined;
+  }
+  function spread(c) {
+    if (hasInterval(c)) return el("span", { cls: "sd ci", text: " [" + fmt(c[2]) + ", " + fmt(c[3]) + "]" });
+    return el("span", { cls: "sd", text: " ± " + fmt(c[1] || 0) });
+  }
+  function resultsCaption() {
+    var caption = document.querySelector("#results > p.muted");
+    var any = D.methods.some(function (m) { return m.cells.some(hasInterval); });
+    if (!caption || !any) return; // old summaries keep the page's own "± sd" caption
+    caption.textContent = "Mean over seeds [95 % bootstrap interval over cases; \"± sd\": a cell " +
+      "without one shows the sample std across seeds]; bold: the best method of each column " +
+      "(the oracle aside). Click a column header to sort.";
+  }
   function renderResults() {
+    resultsCaption();
     var table = document.getElementById("results-table");
     var top = el("tr", {}, [el("th", { text: "" })]);
     var sub = el("tr", {}, [el("th", { text: "Method", "data-col": 0 })]);
@@ -117,7 +136,7 @@
         var mean = c ? c[0] : null;
         var cell = td(mean === null ? "-" : fmt(mean), mean === null ? -1 : mean,
           mean !== null && mean === best[i] && m.policy !== "oracle" ? "best" : "");
-        if (mean !== null) cell.appendChild(el("span", { cls: "sd", text: " ± " + fmt(c[1] || 0) }));
+        if (mean !== null) cell.appendChild(spread(c));
         row.appendChild(cell);
       });
       body.appendChild(row);
