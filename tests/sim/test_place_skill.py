@@ -83,8 +83,8 @@ def _perceiver(grasp=(0.0, 0.0, 0.0), hide=False, raise_mm=0):
 
 
 def _gap(distance_mm: float, sizes_mm: float) -> float:
-    """Gap (mm) between two boxes' true faces from their centres' distance and mean size; -1
-    when their collision boxes touch (0.5 mm inset per side)."""
+    """Gap (mm) between two boxes' true faces from their centres' distance and mean size (0:
+    touching; their collision boxes, 0.5 mm inset per side, are then 1 mm apart)."""
     return distance_mm - sizes_mm
 
 
@@ -102,9 +102,9 @@ def test_a_perceived_neighbour_is_pushed_toward_and_the_box_ends_flush():
     episode, x = _row_x(_perceiver(grasp=(-3.0, 0.0, 0.0)))
     assert [s.executed.offset_mm for s in episode.steps] == [(3.0, 0.0)] * 2
     assert [s.executed.seat_sides for s in episode.steps] == [(-1, -1), (-1, -1)]
-    # Flush: the collision boxes (0.5 mm inset per side) touch, not 3 mm apart.
-    assert x[0] == pytest.approx(49.5, abs=0.3)
-    assert _gap(x[1] - x[0], 100) == pytest.approx(-1.0, abs=0.3)
+    # Flush: the true faces touch (the skill backs off the collision insets), not 3 mm apart.
+    assert x[0] == pytest.approx(50.0, abs=0.3)
+    assert _gap(x[1] - x[0], 100) == pytest.approx(0.0, abs=0.3)
 
 
 def test_a_neighbour_missing_from_the_heightmap_is_not_pushed_toward():
@@ -112,8 +112,8 @@ def test_a_neighbour_missing_from_the_heightmap_is_not_pushed_toward():
     # box's -x side reads as open floor, so it is not pushed there, whatever the sim holds.
     episode, x = _row_x(_perceiver(grasp=(-3.0, 0.0, 0.0), hide=True))
     assert episode.steps[1].executed.seat_sides == (0, -1)
-    assert x[0] == pytest.approx(49.5, abs=0.3)  # the -x wall is known from the container
-    assert _gap(x[1] - x[0], 100) == pytest.approx(3.5, abs=0.3)  # the error stays
+    assert x[0] == pytest.approx(50.0, abs=0.3)  # the -x wall is known from the container
+    assert _gap(x[1] - x[0], 100) == pytest.approx(3.0, abs=0.3)  # the error stays
 
 
 def test_exact_observation_seats_on_the_exact_heightmap():
@@ -121,7 +121,7 @@ def test_exact_observation_seats_on_the_exact_heightmap():
     arm = ExecutionNoise(xy_sigma_mm=2.0, comply_mm=10.0, seat_mm=5.0)
     episode, x = _row_x(None, arm)
     assert episode.steps[1].executed.seat_sides == (-1, -1)
-    assert _gap(x[1] - x[0], 100) == pytest.approx(-1.0, abs=0.3)
+    assert _gap(x[1] - x[0], 100) == pytest.approx(0.0, abs=0.3)
 
 
 def test_the_release_height_follows_the_perceived_heightmap():
@@ -167,7 +167,7 @@ def _pushed(sides, yaw_deg=0.0, neighbour=(100, 100, 100), size=(100, 100, 100))
 
 
 def test_the_guarded_push_stops_on_contact_and_only_where_told():
-    assert _pushed((-1, 0))[0] == pytest.approx(-1.0, abs=0.3)
+    assert _pushed((-1, 0))[0] == pytest.approx(0.0, abs=0.3)
     # Not told: the sim's neighbour is not looked for.
     assert _pushed((0, 0))[0] == pytest.approx(3.0, abs=0.3)
     # Told +x, but nothing within 5 mm past the plan: back to where it started.
@@ -178,7 +178,7 @@ def test_a_heavy_box_pushed_against_a_light_one_is_not_lifted_onto_it():
     # 0.25 kg neighbour, 12 kg box: the light neighbour yields before the force threshold.
     gap, z, _ = _pushed((-1, 0), size=(300, 400, 400))
     assert z == pytest.approx(200.0, abs=1.0)
-    assert gap == pytest.approx(-1.0, abs=0.3)
+    assert gap == pytest.approx(0.0, abs=0.5)
 
 
 def test_a_turned_box_pushed_against_a_face_is_turned_flush_by_the_contact():
@@ -186,6 +186,6 @@ def test_a_turned_box_pushed_against_a_face_is_turned_flush_by_the_contact():
     # the contact's torque turns the box flush (no squaring to the planned yaw by fiat).
     gap, _, yaw = _pushed((-1, 0), yaw_deg=2.0, neighbour=(100, 300, 100), size=(100, 300, 100))
     assert abs(yaw) < 0.3
-    assert gap == pytest.approx(-1.0, abs=0.3)
+    assert gap == pytest.approx(0.0, abs=0.3)
     _, _, kept = _pushed((0, 0), yaw_deg=2.0, neighbour=(100, 300, 100), size=(100, 300, 100))
     assert kept == pytest.approx(2.0, abs=0.3)

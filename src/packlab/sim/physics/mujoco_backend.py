@@ -473,6 +473,7 @@ class MujocoBackend:
             if -side * force[axis] <= threshold:
                 moved += _SEAT_STEP_MM
                 continue
+            rest = data.qpos[address + axis] - side * self._touching_back(geom, axis)
             turned = self._flush_turn(geom, address, axis, torque, pivot) if turns_left else None
             data.qpos[address + axis] -= step  # back to the last pose under the threshold
             if turned is None:
@@ -483,7 +484,24 @@ class MujocoBackend:
                 data.qpos[pose] = backed  # the turn presses the other side (a wall seated on)
                 break
             turns_left -= 1
+        data.qpos[address + axis] = rest
         return True
+
+    def _touching_back(self, geom: int, axis: int) -> float:
+        """How far (m) a box pressed into what it met along ``axis`` must back off for its true
+        faces to touch: its deepest collision penetration across the axis plus the collision
+        insets between (``PhysicsConfig.collision_inset_mm``: one for a wall, two for a box).
+        The insets are a simulator device, so stopping at the collision boxes' contact would
+        leave every seated box that much too far (1 mm against a box), and rows seated one box
+        after another would creep into the room planned for later boxes."""
+        deepest, _ = self._deepest_across(geom, axis)
+        insets = 1
+        for c in self._data.contact[: self._data.ncon]:
+            if geom in (c.geom1, c.geom2) and abs(c.frame[axis]) > 0.5:
+                other = c.geom2 if c.geom1 == geom else c.geom1
+                if self._model.geom_bodyid[other] != 0:  # a box, not the floor or a wall
+                    insets = 2
+        return deepest + insets * self.config.collision_inset_mm * _MM
 
     def _back_off(self, geom: int, address: int, axis: int, side: int, threshold: float) -> bool:
         """Back a just-turned box (turned pressed into what it met) off along ``axis`` by
@@ -505,30 +523,46 @@ class MujocoBackend:
         across ``axis`` and letting it follow the contact (``pivot``, the centre of pressure)
         along it, up to where the torque reverses (the face is flush, bearing at both ends),
         found by bisection within ``_SEAT_MAX_YIELD_DEG``. None when it does not reverse there
-        (a corner against a corner: nothing flat to turn flush with) or the turn is under
+        (a corner against a corner: nothing flat to turn flush with), when the turn runs into
+        something other than what it met first (a neighbour bearing on part of the face only
+        would turn the box until its far end met a wall), or the turn is under
         ``_SEAT_MIN_TURN``. Leaves the box's pose as it was."""
         pose = self._data.qpos[address : address + 7]
         held = pose.copy()
         sense = math.copysign(1.0, torque)
+        met = self._touching(geom)
 
         def turned(angle: float) -> np.ndarray:
             out = _pivoted(held, pivot, angle)
             out[1 - axis] = held[1 - axis]
             return out
 
-        def reversed_at(angle: float) -> bool:
+        def stopped_at(angle: float) -> bool:
+            """The torque reversed, or the turn ran into something else."""
             pose[:] = turned(sense * angle)
-            return self._side_load(geom, address)[1] * sense < 0.0
+            reversed_ = self._side_load(geom, address)[1] * sense < 0.0
+            return reversed_ or not self._touching(geom) <= met
 
         low, high = 0.0, math.radians(_SEAT_MAX_YIELD_DEG)
-        if torque == 0.0 or not reversed_at(high):
+        if torque == 0.0 or not stopped_at(high):
             pose[:] = held
             return None
         for _ in range(_SEAT_TURN_BISECTIONS):
             mid = (low + high) / 2
-            low, high = (low, mid) if reversed_at(mid) else (mid, high)
+            low, high = (low, mid) if stopped_at(mid) else (mid, high)
+        stopped_by_other = not self._touching(geom) <= met  # at ``high``: past the stop
         pose[:] = held
-        return turned(sense * low) if low >= _SEAT_MIN_TURN else None
+        if low < _SEAT_MIN_TURN or stopped_by_other:
+            return None  # not turned flush with the face it met (a part face, a corner)
+        return turned(sense * low)
+
+    def _touching(self, geom: int) -> set[int]:
+        """The geoms ``geom`` touches across a side (horizontal normal), as last collided."""
+        return {
+            c.geom2 if c.geom1 == geom else c.geom1
+            for c in self._data.contact[: self._data.ncon]
+            if geom in (c.geom1, c.geom2) and abs(c.frame[2]) <= 0.5
+        }
 
     def _relax(self, geom: int, address: int, axis: int, limit_mm: float) -> None:
         """Back a seated box off along ``axis`` in ``_SEAT_STEP_MM`` steps (at most
