@@ -48,7 +48,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
 CLI_ONLY: dict[str, set[str]] = {
     "bench": {"--describe", "--no-figures", "--no-html"},
     "bench report": {"--case", "--seed", "--no-figures", "--html"},
-    "bench compare": {"--labels", "--out", "--html"},
+    "bench compare": {"--labels", "--out", "--html", "--reference"},
     "cases validate": set(),
     "cases export": {"--format", "--out"},
     "generate": set(),
