@@ -128,11 +128,14 @@ def write_figures(
     cases: Sequence[Case],
     case_id: str | None = None,
     seed: int | None = None,
+    intervals: RunIntervals | None = None,
 ) -> list[Path]:
-    """The distribution box plot, the average bar chart and one case's side-by-side packings."""
+    """The distribution box plot, the average bar chart (bootstrap intervals as error bars;
+    computed here when not given) and one case's side-by-side packings."""
+    intervals = run_intervals(summary) if intervals is None else intervals
     paths = [
         save_figure(overall_distribution_figure(summary), run_dir / FIGURE_BOX),
-        save_figure(average_overall_figure(summary), run_dir / FIGURE_BARS),
+        save_figure(average_overall_figure(summary, intervals), run_dir / FIGURE_BARS),
     ]
     case_id = case_id or pick_showcase_case(summary, cases)
     by_id = {c.episode_id: c for c in cases}
@@ -170,7 +173,7 @@ def write_outputs(
     _atomic_text(root / TABLE_FILE, table_md)
     paths = [root / SUMMARY_FILE, root / TABLE_FILE]
     if figures and any(isinstance(r, EpisodeOk) for r in records):
-        paths += write_figures(root, summary, records, cases, case_id, seed)
+        paths += write_figures(root, summary, records, cases, case_id, seed, intervals)
     return summary, table_md, paths
 
 
