@@ -49,7 +49,8 @@ class Perception:
     #: Per shown object, how far the estimated pose of the box on the buffer is from its true
     #: pose: (dx mm, dy mm, dyaw degrees), estimated minus true, world frame, yaw wrapped to the
     #: box's symmetry. A robot grasps and turns the box by its estimate, so this error travels
-    #: into the placement (``Episode`` adds it to the executed drop). Empty: no error (exact).
+    #: into the placement: the estimated pose is put at the plan, the true box lands off by the
+    #: error with its sign reversed (``execution.perturb_drop``). Empty: no error (exact).
     grasp_errors: tuple[tuple[float, float, float], ...] = ()
     #: Shown objects the perceiver could not find or split after a re-scan (positions in the
     #: scene's ``shown``): the episode sets them aside, as a robot cell would, and counts them.
