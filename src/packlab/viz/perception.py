@@ -45,7 +45,7 @@ def _buffer_panel(ax, state: PerceivedState) -> None:
     top = float(heights.max()) if heights.count() else 1.0
     window = (x0, x1, y0, y1)
     ax.imshow(heights.T, origin="lower", extent=window, cmap="Greys", vmin=0, vmax=top)
-    tint = np.ma.masked_less(labels % 10, 0)
+    tint = np.ma.masked_where(labels < 0, labels % 10)
     ax.imshow(tint.T, origin="lower", extent=window, cmap="tab10", alpha=0.35, vmin=0, vmax=9)
     for estimate in state.buffer.found:
         outline = _box_outline(estimate, estimate.size_mm[:2])
