@@ -10,7 +10,8 @@ LABEL=RUNS a run of the same suite, backend and seeds in another mode (e.g.
 with its 95 % bootstrap interval over cases (two-level over seeds for a policy whose scores vary
 with the seed; ``packlab.bench.intervals``), the paired loss exact minus the first mode with its
 paired interval (``*``: the interval excludes 0), objects perception missed per episode and
-re-plans per episode in that mode. Then, per mode, the perception errors over every estimate
+re-plans per episode in that mode; with more modes also each further mode minus the first
+(paired the same way). Then, per mode, the perception errors over every estimate
 (dims, yaw), every scan (heightmap MAE), with their counts, the missed-object rate and the share
 of scans that needed a re-scan.
 """
@@ -78,12 +79,15 @@ def _loss(exact, mode) -> str:
 def _table(exact: list[dict], modes: dict[str, list[dict]]) -> None:
     labels = list(modes)
     first = labels[0]
+    others = [f" {label} - {first} |" for label in labels[1:]]
     print(
         "| Method | exact | "
         + " | ".join(labels)
-        + f" | loss (exact - {first}) | missed / episode | re-plans / episode |"
+        + f" | loss (exact - {first}) |"
+        + "".join(others)
+        + " missed / episode | re-plans / episode |"
     )
-    print("|---|---|" + "---|" * len(labels) + "---|---|---|")
+    print("|---|---|" + "---|" * (len(labels) + len(others)) + "---|---|---|")
     policies = list(dict.fromkeys(r["policy"] for r in modes[first]))
     for policy in policies:
         base = _strata(exact, policy)
@@ -91,7 +95,9 @@ def _table(exact: list[dict], modes: dict[str, list[dict]]) -> None:
         print(
             f"| {display_name(policy)} | {_score(base)} | "
             + " | ".join(_score(s) for s in runs)
-            + f" | {_loss(base, runs[0])} | {_per_episode(modes[first], policy, 'missed')} "
+            + f" | {_loss(base, runs[0])} | "
+            + "".join(f"{_loss(other, runs[0])} | " for other in runs[1:])
+            + f"{_per_episode(modes[first], policy, 'missed')} "
             f"| {_per_episode(modes[first], policy, 'replans')} |"
         )
 
