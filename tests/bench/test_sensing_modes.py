@@ -121,8 +121,31 @@ def test_perceived_runs_record_replans_and_compare_refuses_unlike_runs(tiny_suit
     exact_records = (tmp_path / "exact" / "episodes.jsonl").read_text()
     assert "replan" not in exact_records
     summary = json.loads((tmp_path / "seen" / "summary.json").read_text())
-    assert summary["sensing"] == {"observation": "perceived", "execution": "exact", "noise": "none"}
+    assert summary["sensing"] == {
+        "observation": "perceived",
+        "execution": "exact",
+        "noise": "none",
+        "segmentation": "depth",
+    }
     assert "sensing" not in json.loads((tmp_path / "exact" / "summary.json").read_text())
     with pytest.raises(PacklabError, match="run 'seen' has sensing = .*perceived.*'exact'"):
         compare_markdown([tmp_path / "exact", tmp_path / "seen"])
     assert "seen2" in compare_markdown([tmp_path / "seen", tmp_path / "seen2"])
+
+
+def test_sides_named_longer_first_enter_the_identity(tiny_suite):
+    named = resolve(RunConfig(cases=str(tiny_suite), sides="longer-first"))
+    saved = named.to_json()
+    assert saved["sensing"] == {
+        "observation": "exact",
+        "execution": "exact",
+        "noise": "structured-light",
+        "sides": "longer-first",
+    }
+    assert named.episode_modes().sides == "longer-first"
+    assert named.out.name.endswith("-longer-first")
+    exact = resolve(RunConfig(cases=str(tiny_suite))).to_json()
+    with pytest.raises(ConfigError, match="'sensing' = None here"):
+        check_resumable(exact, saved, tiny_suite)
+    with pytest.raises(ConfigError, match="sides"):
+        resolve(RunConfig(cases=str(tiny_suite), observation="perceived", sides="longer-first"))

@@ -10,6 +10,7 @@ import pytest
 from layered_cases import make_layered_case
 
 from packlab.bench.task import run_task
+from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Action
 from packlab.policies import make_policy
@@ -197,3 +198,24 @@ def test_the_policys_rotation_refers_to_the_sides_it_was_shown():
     placed = episode.heightmap > 0
     xs, ys = np.nonzero(placed)
     assert (xs.max() + 1, ys.max() + 1) == policy_view[:2]
+
+
+def test_exact_observation_can_name_sides_longer_first():
+    """``sides="longer-first"``: the exact state with the names a camera would give; a perfect
+    sensor (truth masks) then replays it step for step, and rotation 0 lays the longer side
+    along x."""
+    case = make_layered_case(2, pieces=5)
+    assert any(b.size_mm[0] < b.size_mm[1] for b in case.objects)  # the names matter here
+    named = run_episode(case, make_policy("dblf"), 1, "geometric", sides="longer-first")
+    modes = episode_modes("perceived", "exact", "none", "truth")
+    seen = run_episode(case, make_policy("dblf"), 1, "geometric", perceiver=modes.perceiver)
+    assert _record(seen, drop_mode_keys=True) == _record(named)
+    episode = Episode("geometric", sides="longer-first")
+    observation = episode.reset(case, 0)
+    assert all(s.size_mm[0] >= s.size_mm[1] for s in observation.shown)
+    item = next(s for s in observation.shown if s.size_cells[0] != s.size_cells[1])
+    episode.step(Action(object_id=item.shown_index, rotation=0, x=0, y=0))
+    xs, ys = np.nonzero(episode.heightmap > 0)
+    assert (xs.max() + 1, ys.max() + 1) == item.size_cells[:2]
+    with pytest.raises(ConfigError, match="sides"):
+        Episode("geometric", sides="alphabetical")

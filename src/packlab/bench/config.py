@@ -26,6 +26,7 @@ from packlab.core.choices import (
     ObservationMode,
     PhysicsBackend,
     Segmentation,
+    SideNames,
     require_choice,
 )
 from packlab.core.errors import ConfigError
@@ -214,6 +215,10 @@ class RunConfig:
     #: a robot must) or by the simulator's masks (``truth``, an ablation). Part of the identity
     #: of perceived runs.
     segmentation: Segmentation = DEFAULT_SEGMENTATION
+    #: Exact observation: how a box's sides are named, as the catalogue does (the bench's
+    #: protocol) or longer side first (as perception does: no hint of the layout's orientation).
+    #: Part of the identity when not the catalogue's.
+    sides: SideNames = "catalogue"
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -273,6 +278,11 @@ def _check_sensing(config: RunConfig) -> None:
     require_choice(config.execution, ExecutionMode, "execution")
     require_choice(config.noise, NoisePreset, "noise")
     require_choice(config.segmentation, Segmentation, "segmentation")
+    require_choice(config.sides, SideNames, "sides")
+    if config.observation == "perceived" and config.sides != "catalogue":
+        raise ConfigError(
+            f"sides = {config.sides!r}: perceived observation always names sides longer first"
+        )
     if config.observation == "exact" and config.segmentation != DEFAULT_SEGMENTATION:
         raise ConfigError(
             f"segmentation = {config.segmentation!r}: only used with --observation perceived"
@@ -290,14 +300,21 @@ def _check_sensing(config: RunConfig) -> None:
 
 
 def sensing_identity(config: RunConfig) -> dict[str, str] | None:
-    """config.json's ``sensing`` entry: None (left out) when both modes are exact; with a
-    ``segmentation`` key in perceived runs."""
-    if config.observation == "exact" and config.execution == "exact":
+    """config.json's ``sensing`` entry: None (left out) when both modes are exact and the sides
+    the catalogue's; with a ``segmentation`` key in perceived runs, ``sides`` when not the
+    catalogue's."""
+    if (
+        config.observation == "exact"
+        and config.execution == "exact"
+        and config.sides == "catalogue"
+    ):
         return None
     identity = {"observation": config.observation, "execution": config.execution}
     identity["noise"] = config.noise
     if config.observation == "perceived":
         identity["segmentation"] = config.segmentation
+    if config.sides != "catalogue":
+        identity["sides"] = config.sides
     return identity
 
 
@@ -309,6 +326,8 @@ def default_out(label: str, config: RunConfig) -> Path:
     if sensing is None:
         return Path("runs") / f"bench-{label}"
     modes = [m for m in (sensing["observation"], sensing["execution"]) if m != "exact"]
+    if not modes:  # exact modes, sides named longer first
+        return Path("runs") / f"bench-{label}-{sensing['sides']}"
     ablation = ["truth-masks"] if sensing.get("segmentation") == "truth" else []
     return Path("runs") / "-".join(["bench", label, *modes, sensing["noise"], *ablation])
 
@@ -360,7 +379,7 @@ class ResolvedRun:
     def episode_modes(self) -> EpisodeModes:
         """The perceiver and execution noise episodes run with (both None when exact)."""
         c = self.config
-        return episode_modes(c.observation, c.execution, c.noise, c.segmentation)
+        return episode_modes(c.observation, c.execution, c.noise, c.segmentation, c.sides)
 
     def physics_config(self) -> Any:
         """The PhysicsConfig to build backends with (None for the geometric backend)."""

@@ -179,6 +179,7 @@ def run_task(
                 physics=physics,
                 perceiver=modes.perceiver,
                 execution=modes.execution,
+                sides=modes.sides,
             )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).

@@ -139,6 +139,15 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
         help="with --observation perceived: tell the buffer's boxes apart from the depth image "
         "(as a robot must) or by the simulator's masks (truth, an ablation); default {default}",
     )
+    add_field(
+        p,
+        RunConfig,
+        "sides",
+        "--sides",
+        help="exact observation: name a box's sides as the catalogue does (the bench's protocol; "
+        "the suites' generator names l after the side a box lies along x in its perfect layout) "
+        "or longer side first, as perception does; default {default}",
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

@@ -69,6 +69,10 @@ NoisePreset = Literal["none", "structured-light", "stereo"]
 #: How perceived buffer objects are segmented (``packlab.sim.sensing``): from the ground-truth
 #: per-pixel ids (the "SAM-perfect" setting) or by connected components above the table plane.
 Segmentation = Literal["truth", "depth"]
+#: How exact observations name a box's sides: as the case's catalogue does (the bench's frozen
+#: protocol; the suites' generator names l after the side a box lies along x in its perfect
+#: layout, a hint no robot has) or longer side first, as perception names them.
+SideNames = Literal["catalogue", "longer-first"]
 
 
 def choices(choice_type: object) -> tuple[str, ...]:

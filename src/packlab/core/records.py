@@ -328,6 +328,8 @@ class SensingModes(Struct, frozen=True):
     observation: str  # core.choices.ObservationMode
     execution: str  # core.choices.ExecutionMode
     noise: str  # core.choices.NoisePreset
+    segmentation: str | UnsetType = UNSET  # core.choices.Segmentation, perceived runs
+    sides: str | UnsetType = UNSET  # core.choices.SideNames, when not the catalogue's
 
 
 class RunSummary(Struct, frozen=True, kw_only=True):

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.choices import SideNames, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
@@ -161,7 +162,10 @@ class Episode:
         perceiver: Perceiver | None = None,
         execution: ExecutionNoise | None = None,
         replan: ReplanRule = DEFAULT_REPLAN,
+        sides: SideNames = "catalogue",
     ) -> None:
+        require_choice(sides, SideNames, "sides")
+        self._sides = sides
         self._backend_spec = backend
         self._physics = physics
         self._perceiver = perceiver
@@ -244,8 +248,12 @@ class Episode:
 
     def _turned(self, object_id: int, rotation: int) -> int:
         """The box's own rotation that does what the policy chose: the policy's rotation refers
-        to the sides it was shown, which perception lists longer first (``axis_swapped``)."""
-        if self._perceiver is None or not self._perception.axis_swapped:
+        to the sides it was shown, which perception lists longer first (``axis_swapped``), and
+        exact observation as ``sides`` says."""
+        if self._perceiver is None:
+            l, w, _ = self.case.objects[self._shown_indices[object_id]].size_mm
+            return rotation ^ int(self._sides == "longer-first" and l < w)
+        if not self._perception.axis_swapped:
             return rotation
         return rotation ^ int(self._perception.axis_swapped[object_id])
 
@@ -282,20 +290,26 @@ class Episode:
         window = visible_window(self._pending, self.case.buffer_size)
         self._shown_indices = shuffled_view(window, self._rng)
         c = self.case.container
+        sizes = [self._named(self.case.objects[idx].size_mm) for idx in self._shown_indices]
         self._shown = tuple(
             ShownItem(
                 shown_index=i,
                 internal_id=self.case.objects[idx].internal_id,
-                size_mm=self.case.objects[idx].size_mm,
+                size_mm=size,
                 size_cells=(
-                    _cells(self.case.objects[idx].size_mm[0], c.cell_xy_mm),
-                    _cells(self.case.objects[idx].size_mm[1], c.cell_xy_mm),
-                    _cells(self.case.objects[idx].size_mm[2], c.cell_z_mm),
+                    _cells(size[0], c.cell_xy_mm),
+                    _cells(size[1], c.cell_xy_mm),
+                    _cells(size[2], c.cell_z_mm),
                 ),
                 type_id=self.case.objects[idx].type_id,
             )
-            for i, idx in enumerate(self._shown_indices)
+            for (i, idx), size in zip(enumerate(self._shown_indices), sizes)
         )
+
+    def _named(self, size: tuple[int, int, int]) -> tuple[int, int, int]:
+        """A box's sides as exact observation names them (``sides``)."""
+        l, w, h = size
+        return (max(l, w), min(l, w), h) if self._sides == "longer-first" else (l, w, h)
 
     def observe(self) -> Observation:
         if self.case is None:
@@ -579,13 +593,14 @@ def run_episode(
     *,
     perceiver: Perceiver | None = None,
     execution: ExecutionNoise | None = None,
+    sides: SideNames = "catalogue",
 ) -> EpisodeResult:
     """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result.
 
     ``perceiver`` and ``execution`` select the opt-in modes (see ``Episode``;
     ``packlab.sim.modes.episode_modes`` builds them by name).
     """
-    episode = Episode(backend, physics, perceiver=perceiver, execution=execution)
+    episode = Episode(backend, physics, perceiver=perceiver, execution=execution, sides=sides)
     observation = episode.reset(case, seed)
     policy.reset(case, seed)
     policy_time = 0.0

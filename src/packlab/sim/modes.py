@@ -18,6 +18,7 @@ from packlab.core.choices import (
     NoisePreset,
     ObservationMode,
     Segmentation,
+    SideNames,
     require_choice,
 )
 from packlab.sim.execution import ExecutionNoise, execution_noise
@@ -72,6 +73,8 @@ class EpisodeModes:
 
     perceiver: Perceiver | None = None
     execution: ExecutionNoise | None = None
+    #: Exact observation: the sides' names (perceived mode always names them longer first).
+    sides: SideNames = "catalogue"
 
 
 #: Both modes exact: what every run uses unless asked otherwise.
@@ -83,16 +86,19 @@ def episode_modes(
     execution: ExecutionMode = "exact",
     noise: NoisePreset = DEFAULT_NOISE,
     segmentation: Segmentation = DEFAULT_SEGMENTATION,
+    sides: SideNames = "catalogue",
 ) -> EpisodeModes:
     """The modes by name (ConfigError naming the field for an unknown value)."""
     require_choice(observation, ObservationMode, "observation")
     require_choice(execution, ExecutionMode, "execution")
     require_choice(noise, NoisePreset, "noise")
     require_choice(segmentation, Segmentation, "segmentation")
+    require_choice(sides, SideNames, "sides")
     perceiver = SensingPerceiver(noise, segmentation) if observation == "perceived" else None
     return EpisodeModes(
         perceiver=perceiver,
         execution=execution_noise(noise) if execution == "noisy" else None,
+        sides=sides,
     )
 
 
