@@ -298,20 +298,6 @@ def _robust_span(values: np.ndarray, pixel_mm: float) -> tuple[float, float]:
     return start + (full[0] - 0.5) * pixel_mm, start + (full[-1] + 0.5) * pixel_mm
 
 
-def _edge_gap(side_mm: np.ndarray, angle: float, pixel_mm: float) -> np.ndarray:
-    """Expected distance (mm) from a straight side of these lengths to the nearest pixel centre.
-
-    Aligned with the pixel grid, the outermost pixel centres sit uniformly 0..1 pixel inside the
-    side: half a pixel on average. Tilted by phi, the side crosses n = side * sin(phi) / pixel
-    pixel rows whose offsets spread over the pixel, and the nearest is about pixel / (2 (1 + n))
-    inside. Adding twice this to the extent of the pixel centres removes the bias.
-    """
-    phi = angle % (np.pi / 2)
-    phi = min(phi, np.pi / 2 - phi)
-    crossings = np.asarray(side_mm) * np.sin(phi) / pixel_mm
-    return pixel_mm / (2.0 * (1.0 + crossings))
-
-
 def min_area_rect_angle(points: np.ndarray) -> float:
     """Angle (rad, in [0, pi/2)) of the minimum-area bounding rectangle of 2-D points (m, 2).
 
