@@ -220,6 +220,22 @@ def propose_from(
     return tuple(_candidate(cands, owner[i], i, n) for n, i in enumerate(picks))
 
 
+def candidate_for(cands: CandidateSet, action: Action, index: int) -> Candidate | None:
+    """``action`` as a listed placement numbered ``index`` (the geometry a listed line shows),
+    or None when it is not a floor-fitting placement of the candidate search. Used to list a
+    teacher's own pick that the proposer did not list, so a student can be shown it."""
+    for g in cands.groups:
+        if (g.object_index, g.rotation) != (action.object_id, action.rotation):
+            continue
+        nx, ny = g.z.shape
+        if not (0 <= action.x < nx and 0 <= action.y < ny):
+            return None
+        walls = walled(cands.heightmap, cands.container_height_mm)
+        shape = _Shape(g, np.zeros(0, dtype=np.int64), flush_grid(walls, g.fx, g.fy, g.z))
+        return _candidate(cands, shape, g.offset + action.x * ny + action.y, index)
+    return None
+
+
 def propose(
     observation: Observation, config: ProposerConfig = ProposerConfig()
 ) -> tuple[Candidate, ...]:

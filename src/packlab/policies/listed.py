@@ -4,8 +4,15 @@ Candidate-mode training labels each state with a teacher's pick among the K plac
 proposer listed (:mod:`packlab.policies.candidates`), so the label is a function of what the
 model is shown. Teachers (``TEACHERS``):
 
-- ``plan``: rolls out each listed placement as the first placement (the planner's search with
-  the listed set instead of its own proposals, default budget) and picks the cheapest;
+- ``plan``: the planner itself (``plan-fast``: completion, then lookahead) decides with its own
+  proposals; its pick is added to the list (as line K) when the proposer did not list it, so a
+  student can always be shown its teacher's action. When the pick comes from a tiling of the
+  lowest level, every listed placement that is a box of that tiling is an equally good first
+  placement: the label's soft target gives the pick half the mass and those boxes the other
+  half (:class:`TeacherLabel`);
+- ``plan-lookahead``: rolls out each listed placement as the first placement (the planner's
+  search with the listed set instead of its own proposals, default budget) and picks the
+  cheapest (the teacher before the completion stage);
 - ``sdf``, ``mta``: rank the listed placements by their own keys, then the shared tie-break
   (larger object first, then scan order);
 - ``oracle``: the case's own plan (hidden layout); its action is often not listed, then -1;
@@ -18,21 +25,41 @@ model is shown. Teachers (``TEACHERS``):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.candidates import Candidate
+from packlab.policies.candidates import Candidate, candidate_for
 from packlab.policies.heuristics.policy import SCORERS
 from packlab.policies.heuristics.select import object_rank
 from packlab.policies.oracle import OraclePolicy
+from packlab.policies.plan.cover import JOKER
 from packlab.policies.plan.evaluate import Weights
-from packlab.policies.plan.policy import observation_problem
+from packlab.policies.plan.policy import PlanDecision, make_plan_fast, observation_problem
 from packlab.policies.plan.search import Budget, search
 
-TEACHERS = ("plan", "sdf", "mta", "oracle", "oracle-canonical", "first")
+TEACHERS = ("plan", "plan-lookahead", "sdf", "mta", "oracle", "oracle-canonical", "first")
+
+#: The soft target's share for the teacher's own pick when other listed boxes of its tiling
+#: share the rest: the pick stays the single most likely answer.
+PICK_SHARE = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class TeacherLabel:
+    """A teacher's answer for one state: the listed placements it is given over (the proposer's
+    K, plus the teacher's own pick when it was missing: ``added``), the index it picks (-1: not
+    listed), its preference over the listed lines (``soft``, sums to 1; empty: all on
+    ``label``) and its own action (what to play when following the teacher)."""
+
+    listed: tuple[Candidate, ...]
+    label: int
+    action: Action
+    soft: tuple[float, ...] = ()
+    added: bool = False
 
 
 def flat_index(cands: CandidateSet, cand: Candidate) -> int:
@@ -76,6 +103,7 @@ class ListedTeacher:
             raise ConfigError(f"teacher = {teacher!r}: expected one of {', '.join(TEACHERS)}")
         self.teacher = teacher
         self._oracle = OraclePolicy()
+        self._plan = make_plan_fast()
 
     def reset(self, case: Case, seed: int) -> None:
         if self.teacher.startswith("oracle"):
@@ -92,6 +120,8 @@ class ListedTeacher:
         if self.teacher == "first":
             return 0
         if self.teacher == "plan":
+            return self.label(observation, cands, listed).label
+        if self.teacher == "plan-lookahead":
             return best_by_plan(observation, cands, listed)
         if self.teacher in SCORERS:
             return best_by_keys(cands, self.teacher, listed)
@@ -100,3 +130,64 @@ class ListedTeacher:
             return next((i for i, c in enumerate(listed) if c.action == action), -1)
         same = (action.object_id, action.rotation)
         return next((i for i, c in enumerate(listed) if (c.object_index, c.rotation) == same), -1)
+
+    def label(
+        self, observation: Observation, cands: CandidateSet, listed: Sequence[Candidate]
+    ) -> TeacherLabel:
+        """The teacher's full answer (:class:`TeacherLabel`); only ``plan`` adds its pick to the
+        list and gives a soft target, every other teacher labels the list as given."""
+        if self.teacher != "plan":
+            label = self.choose(observation, cands, listed)
+            own = listed[label].action if label >= 0 else self.own_action(observation)
+            return TeacherLabel(tuple(listed), label, own)
+        decision = self._plan.decide(observation)
+        shown = observation.shown
+        listed = list(listed)
+        label = next((i for i, c in enumerate(listed) if _same(c, decision.action, shown)), -1)
+        added = False
+        if label < 0:
+            extra = _listable(cands, decision.action, shown, len(listed))
+            if extra is not None:
+                listed.append(extra)
+                label, added = len(listed) - 1, True
+        soft = _tiling_soft(decision, listed, label, shown) if label >= 0 else ()
+        return TeacherLabel(tuple(listed), label, decision.action, soft, added)
+
+
+def _shape_at(c: Candidate, shown: Sequence) -> tuple[int, int, int, int, int]:
+    """What makes two placements the same: footprint, box height and position (boxes of
+    identical size are interchangeable; the proposer lists only one of them)."""
+    return (c.fx, c.fy, shown[c.object_index].size_mm[2], c.x, c.y)
+
+
+def _same(c: Candidate, action: Action, shown: Sequence) -> bool:
+    s = shown[action.object_id].size_cells
+    fx, fy = (s[0], s[1]) if action.rotation == 0 else (s[1], s[0])
+    return _shape_at(c, shown) == (fx, fy, shown[action.object_id].size_mm[2], action.x, action.y)
+
+
+def _listable(cands: CandidateSet, action: Action, shown: Sequence, index: int) -> Candidate | None:
+    """The teacher's action as a listed line (a square box's turn is its rotation 0)."""
+    found = candidate_for(cands, action, index)
+    size = shown[action.object_id].size_cells if 0 <= action.object_id < len(shown) else None
+    if found is None and size is not None and size[0] == size[1]:
+        turned = Action(action.object_id, 1 - action.rotation, action.x, action.y)
+        found = candidate_for(cands, turned, index)
+    return found
+
+
+def _tiling_soft(
+    decision: PlanDecision, listed: Sequence[Candidate], label: int, shown: Sequence
+) -> tuple[float, ...]:
+    """The soft target: the pick, and the listed boxes of its tiling (see PICK_SHARE)."""
+    tiling = decision.completion
+    if tiling is None:
+        return ()
+    boxes = {(s.fx, s.fy, tiling.height_mm, s.x, s.y) for s in tiling.slots if s.key != JOKER}
+    others = [i for i, c in enumerate(listed) if i != label and _shape_at(c, shown) in boxes]
+    if not others:
+        return ()
+    soft = np.zeros(len(listed))
+    soft[label] = PICK_SHARE
+    soft[others] = (1 - PICK_SHARE) / len(others)
+    return tuple(float(v) for v in soft)

@@ -27,7 +27,7 @@ from typing import Any
 from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.plan.complete import CompletionConfig, find_completion
+from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.search import Budget, Problem, search
 
@@ -43,6 +43,16 @@ def observation_problem(observation: Observation, weights: Weights) -> Problem:
         smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items]),
         weights,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class PlanDecision:
+    """One decision and where it came from: the tiling it commits the first box of (None when
+    the lookahead decided). A teacher reads the tiling's other boxes as equally good first
+    placements (every box of it rests on the same level)."""
+
+    action: Action
+    completion: Completion | None
 
 
 @dataclass
@@ -67,24 +77,18 @@ class PlanPolicy:
         """Nothing to prepare: the plan never reads the case (its future objects)."""
 
     def act(self, observation: Observation) -> Action:
+        return self.decide(observation).action
+
+    def decide(self, observation: Observation) -> PlanDecision:
+        """The action and, when a completion decided it, the tiling (see :class:`PlanDecision`)."""
         if self.complete:
-            seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
-            prior = -(-self.completion.smallest_side_mm // observation.container.cell_xy_mm)
-            smallest_side = min(prior, *(min(s.size_cells[:2]) for s in seen))
-            found = find_completion(
-                observation.heightmap,
-                observation.shown,
-                observation.container.height_mm,
-                observation.remaining - len(observation.shown),
-                smallest_side,
-                [s.size_mm[2] for s in {s.internal_id: s for s in seen}.values()],
-                self.completion,
-            )
+            found = self._completion(observation)
             if found is not None:
                 self.decisions += 1
                 self.completed += 1
                 slot = found.commit
-                return Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
+                action = Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
+                return PlanDecision(action, found)
         problem = observation_problem(observation, self.weights)
         outcome = search(
             observation.heightmap, problem, self.budget, check_support=self.stability == "support"
@@ -93,8 +97,23 @@ class PlanPolicy:
         self.fallbacks += int(outcome.fell_back)
         first = outcome.placement
         if first is None:  # nothing fits the floor: an out-of-bounds step sets object 0 aside
-            return Action(object_id=0, rotation=0, x=0, y=0)
-        return Action(object_id=first.object_index, rotation=first.rotation, x=first.x, y=first.y)
+            return PlanDecision(Action(object_id=0, rotation=0, x=0, y=0), None)
+        action = Action(first.object_index, first.rotation, first.x, first.y)
+        return PlanDecision(action, None)
+
+    def _completion(self, observation: Observation) -> Completion | None:
+        seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
+        prior = -(-self.completion.smallest_side_mm // observation.container.cell_xy_mm)
+        smallest_side = min(prior, *(min(s.size_cells[:2]) for s in seen))
+        return find_completion(
+            observation.heightmap,
+            observation.shown,
+            observation.container.height_mm,
+            observation.remaining - len(observation.shown),
+            smallest_side,
+            [s.size_mm[2] for s in {s.internal_id: s for s in seen}.values()],
+            self.completion,
+        )
 
 
 _BUDGET_KEYS = {f.name for f in fields(Budget)}

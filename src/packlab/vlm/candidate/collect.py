@@ -3,7 +3,8 @@
 Each case is played once in the geometric backend (fast, exact Eq. 2) by an *actor*: the
 teacher itself (round 0: the teacher's own trajectories) or the current student (rounds >= 1:
 the states the student reaches, which the teacher's trajectories never show). At every step the
-proposer lists its K placements and the teacher labels the state with its pick among them, so
+proposer lists its K placements and the teacher labels the state with its pick among them (the
+``plan`` teacher adds its own pick when the K missed it, and a soft target), so
 the data is always "what the teacher would do here", wherever "here" came from. Steps where
 nothing fits are not recorded (the policy falls back to SDF-Pack there).
 
@@ -60,17 +61,16 @@ class Labeller:
         listed = propose_from(cands, self.proposer)
         if not listed:  # nothing fits: any action ends the episode the same way
             return self._fallback.act(observation)
-        label = self.teacher.choose(observation, cands, listed)
+        told = self.teacher.label(observation, cands, listed)
         case, teacher = self._case, self.teacher.teacher
         state = make_state(
-            case.episode_id, case.difficulty, observation, listed, teacher, label, self.source
-        )
+            case.episode_id, case.difficulty, observation, told.listed, teacher, told.label,
+            self.source, told.soft, told.added,
+        )  # fmt: skip
         self.states.append(state)
         if self.actor is not None:
             return self.actor.act(observation)
-        if label >= 0:
-            return listed[label].action
-        return self.teacher.own_action(observation)
+        return told.action
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,13 @@ from it at training time (:mod:`.compose`), so the file grows linearly with the 
 no history is repeated and no prompt text is stored. The heightmap is stored as zlib-compressed
 little-endian int32 millimetres in base64 (a hard state is about 0.3 KB).
 
-``label`` is -1 when the teacher's action is not among the listed placements (only the raw
-oracle can do that); such states are kept for counting and skipped by the trainer.
+``label`` is -1 when the teacher's action is not among the listed placements (the raw oracle;
+the ``plan`` teacher adds its own pick to the list instead, ``teacher_added``); such states are
+kept for counting and skipped by the trainer. ``soft`` is the teacher's preference over the
+listed lines when it has one (:class:`packlab.policies.listed.TeacherLabel`), else empty.
+
+Format ``packlab-states-2`` added ``soft`` and ``teacher_added``; files of format 1 read as
+before (empty ``soft``, nothing added).
 """
 
 from __future__ import annotations
@@ -24,7 +29,9 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Container, Observation, ShownItem
 from packlab.policies.candidates import Candidate
 
-STATES_FORMAT = "packlab-states-1"
+STATES_FORMAT = "packlab-states-2"
+#: Formats this reader accepts (older ones lack fields that have defaults).
+READABLE_FORMATS = ("packlab-states-1", STATES_FORMAT)
 STATES_FILE = "states.jsonl"
 
 
@@ -68,6 +75,8 @@ class LabelledState(msgspec.Struct, frozen=True, kw_only=True):
     teacher: str
     label: int  # index into listed; -1: the teacher's action is not listed
     source: str  # "teacher" or "student-r<round>" (who chose the actions that led here)
+    soft: tuple[float, ...] = ()  # teacher's preference over listed (sums to 1); empty: label
+    teacher_added: bool = False  # the last listed line is the teacher's pick, added to the list
 
 
 def encode_heightmap(heightmap: np.ndarray) -> str:
@@ -88,6 +97,8 @@ def make_state(
     teacher: str,
     label: int,
     source: str,
+    soft: Iterable[float] = (),
+    teacher_added: bool = False,
 ) -> LabelledState:
     c = observation.container
     return LabelledState(
@@ -108,6 +119,8 @@ def make_state(
         teacher=teacher,
         label=label,
         source=source,
+        soft=tuple(float(v) for v in soft),
+        teacher_added=teacher_added,
     )
 
 
@@ -167,8 +180,13 @@ def read_states(path: Path) -> Iterator[LabelledState]:
             if n == len(lines):  # torn last line: the writer crashed mid-line
                 return
             raise ConfigError(f"{path}:{n}: not a JSON state ({exc})") from None
-        if state.format != STATES_FORMAT:
-            raise ConfigError(f"{path}:{n}: format = {state.format!r}: expected {STATES_FORMAT!r}")
+        if state.format not in READABLE_FORMATS:
+            expected = " or ".join(repr(f) for f in READABLE_FORMATS)
+            raise ConfigError(f"{path}:{n}: format = {state.format!r}: expected {expected}")
+        if state.soft and len(state.soft) != len(state.listed):
+            raise ConfigError(
+                f"{path}:{n}: soft has {len(state.soft)} values for {len(state.listed)} listed"
+            )
         yield state
 
 
@@ -183,4 +201,5 @@ def shuffled(state: LabelledState, seed: int = 0) -> LabelledState:
         msgspec.structs.replace(state.listed[int(o)], index=n) for n, o in enumerate(order)
     )
     label = int(np.flatnonzero(order == state.label)[0]) if state.label >= 0 else -1
-    return msgspec.structs.replace(state, listed=listed, label=label)
+    soft = tuple(state.soft[int(o)] for o in order) if state.soft else ()
+    return msgspec.structs.replace(state, listed=listed, label=label, soft=soft)
