@@ -1,0 +1,127 @@
+"""Level-fit features: how a placement leaves the level it rests on for the other shown boxes.
+
+A perfect packing closes each level without waste, so whether a placement is good depends less
+on the box itself than on what it leaves beside it: the strips of free floor at the box's
+resting level ``z`` on each side, and whether the other shown boxes of the same height can fill
+them. These are the facts the planner's exact-cover search weighs (:mod:`.plan.complete`); here
+they are read off one placement in closed form, cheaply enough for every listed line, so a
+learned policy can be shown them next to the placement's own geometry
+(:mod:`packlab.policies.features`). They read only the heightmap and the shown boxes, what a
+robot observes.
+
+For a placement (footprint ``fx`` x ``fy`` at minimum cell ``(x, y)``, resting at ``z``) the
+*level* is the set of cells whose top is within :data:`TOLERANCE_MM` of ``z`` or below it, less
+the footprint. Features (:data:`FEATURE_NAMES`, all floats, scaled to about [0, 1]):
+
+- ``run_*``: free cells in a straight line from the box's side outward on the level, along +x
+  from its two x-far corners, along +y from its two y-far corners, and along -x and -y from its
+  minimum corner (a run of 0: the box is flush there), in cells / :data:`RUN_SCALE`;
+- ``fits_*``: for the four far runs, 1 when the run is 0 or equals a side, or a sum of two
+  sides, of the other shown boxes of the same height (so the strip can be closed exactly);
+- ``region``: the free area of the level connected to the box, as a share of the floor;
+- ``same_area``: the other same-height shown boxes' footprint area over that region (capped at
+  :data:`AREA_CAP`);
+- ``closes``: 1 when that region is empty or some subset of the other same-height boxes has
+  exactly its area (a necessary condition for an exact tiling by them);
+- ``level_with``: the share of the box's ring of neighbour cells whose top equals the box's top
+  (the placement ends level with its surroundings);
+- ``same_count``: other shown boxes of the same height / :data:`COUNT_SCALE`;
+- ``lowest``: 1 when the box rests on the lowest level of the container.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from packlab.core.types import ShownItem
+from packlab.policies.candidates import Candidate
+
+#: Cells within this of a level count as that level (settled tops carry mm noise; box heights
+#: come in whole centimetres), as in the planner's completion.
+TOLERANCE_MM = 4
+RUN_SCALE = 32.0
+AREA_CAP = 3.0
+COUNT_SCALE = 10.0
+
+_FOUR = ndimage.generate_binary_structure(2, 1)
+
+FEATURE_NAMES = (
+    "run_x_near", "run_x_far", "run_y_near", "run_y_far", "run_x_back", "run_y_back",
+    "fits_x_near", "fits_x_far", "fits_y_near", "fits_y_far",
+    "region", "same_area", "closes", "level_with", "same_count", "lowest",
+)  # fmt: skip
+N_FEATURES = len(FEATURE_NAMES)
+
+
+def _run(free: np.ndarray, x: int, y: int, dx: int, dy: int) -> int:
+    nx, ny = free.shape
+    n = 0
+    while 0 <= x < nx and 0 <= y < ny and free[x, y]:
+        n += 1
+        x += dx
+        y += dy
+    return n
+
+
+def _subset_areas(areas: Sequence[int], limit: int) -> np.ndarray:
+    """Bool (limit + 1,): which totals up to ``limit`` some subset of ``areas`` makes."""
+    reach = np.zeros(limit + 1, dtype=bool)
+    reach[0] = True
+    for a in areas:
+        if a <= limit:
+            reach[a:] |= reach[: limit + 1 - a].copy()
+    return reach
+
+
+def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -> np.ndarray:
+    """(N_FEATURES,) float32 for one listed placement (module docstring)."""
+    hm = np.asarray(heightmap)
+    nx, ny = hm.shape
+    height = shown[c.object_index].size_mm[2]
+    footprint = np.zeros(hm.shape, dtype=bool)
+    footprint[c.x : c.x + c.fx, c.y : c.y + c.fy] = True
+    level = (hm <= c.z_mm + TOLERANCE_MM) & ~footprint
+    others = [s for s in shown if s.shown_index != c.object_index and s.size_mm[2] == height]
+    sides = {int(v) for s in others for v in s.size_cells[:2]}
+    closable = sides | {a + b for a in sides for b in sides} | {0}
+    x1, y1 = c.x + c.fx, c.y + c.fy
+    far = [
+        _run(level, x1, c.y, 1, 0),
+        _run(level, x1, y1 - 1, 1, 0),
+        _run(level, c.x, y1, 0, 1),
+        _run(level, x1 - 1, y1, 0, 1),
+    ]
+    back = [_run(level, c.x - 1, c.y, -1, 0), _run(level, c.x, c.y - 1, 0, -1)]
+    labels, _ = ndimage.label(level, structure=_FOUR)
+    ring = ndimage.binary_dilation(footprint, structure=_FOUR) & ~footprint
+    touching = np.setdiff1d(np.unique(labels[ring & level]), [0])
+    region = int(np.isin(labels, touching).sum()) if touching.size else 0
+    areas = [s.size_cells[0] * s.size_cells[1] for s in others]
+    closes = region == 0 or bool(_subset_areas(areas, region)[region])
+    tops = hm[ring]
+    level_with = np.mean(np.abs(tops - (c.z_mm + height)) <= TOLERANCE_MM) if tops.size else 0.0
+    row = [
+        *(r / RUN_SCALE for r in far[:2]),
+        *(r / RUN_SCALE for r in far[2:]),
+        *(r / RUN_SCALE for r in back),
+        *(float(r in closable) for r in far),
+        region / (nx * ny),
+        min(sum(areas) / max(region, 1), AREA_CAP),
+        float(closes),
+        float(level_with),
+        len(others) / COUNT_SCALE,
+        float(c.z_mm <= int(hm.min()) + TOLERANCE_MM),
+    ]
+    return np.asarray(row, dtype=np.float32)
+
+
+def level_fit_rows(
+    heightmap: np.ndarray, shown: Sequence[ShownItem], listed: Sequence[Candidate]
+) -> np.ndarray:
+    """(len(listed), N_FEATURES) float32: :func:`level_fit` of every listed placement."""
+    if not listed:
+        return np.zeros((0, N_FEATURES), dtype=np.float32)
+    return np.stack([level_fit(heightmap, shown, c) for c in listed])
