@@ -76,3 +76,18 @@ def test_rows_stack_per_listed_placement():
     assert rows.shape == (2, N_FEATURES) and rows.dtype == np.float32
     assert np.array_equal(rows[1], level_fit(hm, shown, listed[1]))
     assert level_fit_rows(hm, shown, []).shape == (0, N_FEATURES)
+
+
+def test_line_vectors_join_geometry_and_level_fit():
+    from packlab.core.types import Container, Observation
+    from packlab.policies.line_vector import LINE_VECTOR_SIZE, geometry, line_vectors
+
+    hm = np.zeros((6, 6), dtype=np.int32)
+    shown = _shown((3, 3, 100), (3, 6, 100))
+    obs = Observation(0, Container((150, 150, 500), 25, 2), hm, shown, remaining=2)
+    listed = [_at(shown, 0, 0, 0), _at(shown, 1, 3, 0)]
+    rows = line_vectors(obs, listed)
+    assert rows.shape == (2, LINE_VECTOR_SIZE)
+    assert np.array_equal(rows[1, : len(geometry(obs, listed[1]))], geometry(obs, listed[1]))
+    assert np.array_equal(rows[1, -N_FEATURES:], level_fit(hm, shown, listed[1]))
+    assert rows[1, 2] == pytest.approx(1.0)  # the second box reaches the far x wall
