@@ -35,6 +35,7 @@ def test_train_candidate_runs_both_rounds_and_resumes(tmp_path, capsys):
     assert (run / "r1" / "train" / "curves.png").is_file()
     card = json.loads((run / "final" / "packlab_model.json").read_text())
     assert card["teacher"] == "sdf" and card["dagger_round"] == 1 and card["trained_steps"] == 2
+    assert card["map"] == "image"  # the default: the heightmap through the vision tower
     before = (run / "final" / "pointer_head.safetensors").read_bytes()
     assert main(train) == 0  # everything done: nothing is collected or trained again
     assert len(list(read_states(run / "r1" / "states.jsonl"))) == len(r1)
@@ -42,3 +43,10 @@ def test_train_candidate_runs_both_rounds_and_resumes(tmp_path, capsys):
     case = resolve_cases(str(cases)).cases[0]
     result = run_episode(case, make_policy("vlm", model=str(run / "final")), 0, "geometric")
     assert len(result.steps) == len(case.objects)
+
+
+def test_train_candidate_refuses_an_unknown_map(tmp_path, capsys):
+    argv = ["train", "candidate", "--cases", str(tmp_path), "--out", str(tmp_path / "run")]
+    with pytest.raises(SystemExit):
+        main([*argv, "--map", "picture"])
+    assert "--map" in capsys.readouterr().err

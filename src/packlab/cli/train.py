@@ -168,6 +168,7 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
     field("round_steps", "--round-steps", help="each later round's updates; default {default}")
     field("model", "--model", help="tiny:<family>:<size> or a pointer directory; {default}")
     field("instructions", "--instructions", help="default {default}")
+    field("map", "--map", help="how the model sees the heightmap; default {default}")
     field("blank_map", "--blank-map", help="ablation: the map shows an empty container")
     field("pool", "--pool", choices=("last", "mean"), help="default {default}")
     field("batch", "--batch", help="default {default}")

@@ -46,6 +46,10 @@ ActionFormat = Literal["json", "candidate"]
 ProposerRule = Literal["lowest", "lowest+largest"]
 #: Candidate mode's system turn: the full legend or one line (``packlab.vlm.candidate.compose``).
 PromptInstructions = Literal["full", "short"]
+#: How the candidate-mode pointer model sees the heightmap (``packlab.vlm.candidate.image``): as
+#: an image through the vision tower, as the digit text map, both, or an all-zero image (the
+#: blank-image ablation).
+PointerMap = Literal["image", "text", "both", "blank"]
 
 #: The RL agents of ``packlab train rl``: IR-BPP-style (choose one of K proposed placements) and
 #: TAP-Net-style (choose which shown object; a fixed rule places it).

@@ -9,6 +9,12 @@ function builds the messages for both, so they cannot drift apart (a test checks
 legend of every field, about 250 tokens, for a pretrained model that reads instructions);
 ``"short"`` is one line with the container (about 20 tokens): a model trained from random
 weights learns the fields from data, and every step then costs only its state.
+
+``map`` (:data:`packlab.core.choices.PointerMap`): ``"text"`` writes the heightmap as the digit
+map; ``"image"`` and ``"blank"`` put one image entry (``{"type": "image"}``, which the chat
+template writes as ``<|vision_start|><|image_pad|><|vision_end|>``) before the user text and
+leave the digit map out; ``"both"`` shows the image and the digit map. The image itself is made
+by :mod:`.image` when the prompt is encoded (:mod:`.pointer`).
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from packlab.core.choices import PromptInstructions, choices
+from packlab.core.choices import PointerMap, PromptInstructions, choices
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container, Observation
 from packlab.policies.candidates import Candidate
@@ -36,6 +42,9 @@ INSTRUCTIONS: tuple[str, ...] = choices(PromptInstructions)
 #: format ablation: the same states and labels, only the answer's form changes).
 Answer = Literal["index", "json"]
 ANSWERS: tuple[str, ...] = ("index", "json")
+MAPS: tuple[str, ...] = choices(PointerMap)
+#: The map modes that show the heightmap as an image (``"blank"``: an all-zero one).
+IMAGE_MAPS = ("image", "both", "blank")
 DEFAULT_OPTIONS = CompactOptions()
 
 
@@ -50,21 +59,28 @@ def observation_messages(
     instructions: Instructions = "short",
     options: CompactOptions = DEFAULT_OPTIONS,
     blank_map: bool = False,
+    map: PointerMap = "text",
 ) -> list[dict[str, Any]]:
     """[system, user] messages of one step; ``blank_map`` shows an empty heightmap (ablation:
-    the model then sees the boxes and the listed placements but not the container's surface)."""
+    the model then sees the boxes and the listed placements but not the container's surface),
+    ``map`` how the heightmap is shown (module docstring)."""
     if instructions not in INSTRUCTIONS:
         raise ConfigError(f"instructions = {instructions!r}: expected one of {INSTRUCTIONS}")
+    if map not in MAPS:
+        raise ConfigError(f"map = {map!r}: expected one of {MAPS}")
     if blank_map:
         observation = replace(observation, heightmap=np.zeros_like(observation.heightmap))
     container = observation.container
     system = (
-        system_text(container, options) if instructions == "full" else short_system_text(container)
+        system_text(container, options, image_map=map in IMAGE_MAPS and map != "both")
+        if instructions == "full"
+        else short_system_text(container)
     )
-    user = state_text(observation, listed, options)
+    user = state_text(observation, listed, options, show_map=map in ("text", "both"))
+    image = [{"type": "image"}] if map in IMAGE_MAPS else []
     return [
         {"role": "system", "content": [{"type": "text", "text": system}]},
-        {"role": "user", "content": [{"type": "text", "text": user}]},
+        {"role": "user", "content": [*image, {"type": "text", "text": user}]},
     ]
 
 
@@ -73,10 +89,11 @@ def state_messages(
     instructions: Instructions = "short",
     options: CompactOptions = DEFAULT_OPTIONS,
     blank_map: bool = False,
+    map: PointerMap = "text",
 ) -> list[dict[str, Any]]:
     """:func:`observation_messages` of a stored state (what training and the export read)."""
     return observation_messages(
-        observation_of(state), listed_of(state), instructions, options, blank_map
+        observation_of(state), listed_of(state), instructions, options, blank_map, map
     )
 
 

@@ -33,6 +33,7 @@ def _round_config(cfg: DaggerConfig, r: int) -> PointerTrainConfig:
         model=cfg.model if r == 0 else str(out / f"r{r - 1}" / "train" / "final"),
         instructions=cfg.instructions,
         blank_map=cfg.blank_map,
+        map=cfg.map,
         pool=cfg.pool,
         steps=cfg.steps if r == 0 else cfg.round_steps,
         batch=cfg.batch,

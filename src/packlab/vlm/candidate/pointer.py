@@ -1,9 +1,14 @@
 """The pointer model: a Qwen-VL-family language model that scores the listed placements.
 
-The state's text (:mod:`.compose`) runs through the model's text stack once; each listed
-placement's line ends on a token whose last hidden state has read the whole context up to and
-including that line. A linear head maps each of those states to a score, and the pick is the
-highest score over the listed lines (a softmax over them in training). The answer is therefore
+The state's text (:mod:`.compose`) runs through the model once; each listed placement's line
+ends on a token whose last hidden state has read the whole context up to and including that
+line. With the digit text map only (``map`` = text) the text stack alone runs; with an image
+(``map`` = image, both, blank) the prompt's ``<|image_pad|>`` is repeated once per merged visual
+token (:mod:`.image`) and the whole Qwen-VL model runs: its vision tower encodes the heightmap
+image, the visual tokens take the pads' places, and M-RoPE gives them 2-D positions. A linear
+head maps each listed line's state to a score, and the pick is the highest score over the
+listed lines (a softmax over them in training, against the teacher's soft targets when a state
+has them, :func:`soft_loss`). The answer is therefore
 always one of the listed placements: nothing is decoded that could fail to parse or to fit.
 
 Why not train the index digit as a generated answer: from random weights, the loss on the digit
@@ -23,20 +28,56 @@ import numpy as np
 import torch
 from torch import nn
 
+from packlab.core.choices import PointerMap
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
 from packlab.vlm.candidate.compose import (
+    IMAGE_MAPS,
     Answer,
     Instructions,
     answer_text,
     observation_messages,
     state_messages,
 )
-from packlab.vlm.candidate.states import LabelledState, listed_of
+from packlab.vlm.candidate.image import (
+    blank_image,
+    heightmap_image,
+    image_side,
+    patchify,
+    visual_tokens,
+)
+from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.model.checkpoint import VLM
-from packlab.vlm.model.tokenizer import IM_END
+from packlab.vlm.model.tokenizer import IM_END, IMAGE_PAD
 from packlab.vlm.prompt.compact import candidate_line
 from packlab.vlm.prompt.parse import ACTION_KEYS
+
+
+@dataclass(frozen=True, slots=True)
+class ImageGrid:
+    """A vision tower's patch geometry (from its config): pixels per patch side, patches per
+    merged token side, frames per patch."""
+
+    patch: int = 16
+    merge: int = 2
+    temporal: int = 2
+
+    @classmethod
+    def of(cls, vlm: VLM) -> ImageGrid:
+        v = vlm.model.config.vision_config
+        return cls(int(v.patch_size), int(v.spatial_merge_size), int(v.temporal_patch_size))
+
+    @property
+    def side(self) -> int:
+        return image_side(self.patch, self.merge)
+
+    @property
+    def tokens(self) -> int:
+        return visual_tokens(self.side, self.patch, self.merge)
+
+
+#: Qwen3-VL's grid (the tiny models' too); :meth:`ImageGrid.of` reads a model's own.
+QWEN3_GRID = ImageGrid()
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,6 +92,12 @@ class Encoded:
     #: by the pointer) and the answer field each one belongs to.
     answer_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     answer_fields: tuple[str, ...] = ()
+    #: The teacher's preference over the listed lines (float32, sums to 1); empty: the label.
+    soft: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
+    #: The heightmap image (uint8 (side, side), :mod:`.image`) with its grid; None: text only.
+    image: np.ndarray | None = None
+    grid: ImageGrid | None = None
+    image_token: int = -1  # the id of <|image_pad|> (the visual tokens' places)
 
 
 def prompt_text(tokenizer: Any, messages: list[dict[str, Any]]) -> str:
@@ -101,19 +148,65 @@ def _encode_text(tokenizer: Any, text: str, listed: Sequence[Candidate], label: 
     return Encoded(np.asarray(enc["input_ids"], dtype=np.int64), ends, starts, label)
 
 
+def _encode_prompt(
+    tokenizer: Any,
+    messages: list[dict[str, Any]],
+    listed: Sequence[Candidate],
+    label: int,
+    image: np.ndarray | None,
+    grid: ImageGrid,
+) -> Encoded:
+    """:func:`_encode_text` of the messages' prompt; with an image, its one ``<|image_pad|>``
+    repeated once per merged visual token first."""
+    text = prompt_text(tokenizer, messages)
+    if image is None:
+        return _encode_text(tokenizer, text, listed, label)
+    if text.count(IMAGE_PAD) != 1:
+        raise ValueError(f"expected one image placeholder, found {text.count(IMAGE_PAD)}")
+    enc = _encode_text(tokenizer, text.replace(IMAGE_PAD, IMAGE_PAD * grid.tokens), listed, label)
+    pad_id = int(tokenizer.convert_tokens_to_ids(IMAGE_PAD))
+    pads = int((enc.ids == pad_id).sum())
+    if pads != grid.tokens:
+        raise ValueError(f"{pads} image tokens for an image of {grid.tokens} (split pads?)")
+    return replace(enc, image=image, grid=grid, image_token=pad_id)
+
+
+def map_image(
+    observation: Observation, map: PointerMap, grid: ImageGrid, blank_map: bool = False
+) -> np.ndarray | None:
+    """The image a step shows (:mod:`.image`), or None for the text map only."""
+    if map not in IMAGE_MAPS:
+        return None
+    if map == "blank":
+        return blank_image(grid.side)
+    hm = np.zeros_like(observation.heightmap) if blank_map else observation.heightmap
+    return heightmap_image(hm, observation.container, grid.side)
+
+
+def soft_of(state: LabelledState) -> np.ndarray:
+    """The state's soft target (empty: one-hot at its label); ``getattr`` so that states of a
+    packlab without the field still encode."""
+    return np.asarray(getattr(state, "soft", ()), dtype=np.float32)
+
+
 def encode(
     tokenizer: Any,
     state: LabelledState,
     instructions: Instructions,
     blank_map: bool = False,
     answer: Answer = "index",
+    map: PointerMap = "text",
+    grid: ImageGrid = QWEN3_GRID,
 ) -> Encoded:
-    """Tokens of a state's prompt (the same text as the export) and its listed lines' ends."""
-    text = prompt_text(tokenizer, state_messages(state, instructions, blank_map=blank_map))
+    """Tokens of a state's prompt (the same text as the export for ``map`` = text), its listed
+    lines' ends, its soft target and (``map`` with an image) its heightmap image."""
+    messages = state_messages(state, instructions, blank_map=blank_map, map=map)
+    image = map_image(observation_of(state), map, grid, blank_map)
     try:
-        enc = _encode_text(tokenizer, text, listed_of(state), state.label)
+        enc = _encode_prompt(tokenizer, messages, listed_of(state), state.label, image, grid)
     except ValueError as exc:
         raise ValueError(f"{state.case_id} step {state.step}: {exc}") from None
+    enc = replace(enc, soft=soft_of(state))
     if answer == "json" and state.label >= 0:
         answer_ids, fields = answer_tokens(tokenizer, answer_text(state, "json"))
         return replace(enc, answer_ids=answer_ids, answer_fields=fields)
@@ -126,20 +219,26 @@ def encode_observation(
     listed: Sequence[Candidate],
     instructions: Instructions,
     blank_map: bool = False,
+    map: PointerMap = "text",
+    grid: ImageGrid = QWEN3_GRID,
 ) -> Encoded:
-    """:func:`encode` of a live step (inference): the same text, unlabelled."""
-    messages = observation_messages(observation, listed, instructions, blank_map=blank_map)
-    return _encode_text(tokenizer, prompt_text(tokenizer, messages), listed, -1)
+    """:func:`encode` of a live step (inference): the same prompt, unlabelled."""
+    messages = observation_messages(observation, listed, instructions, blank_map=blank_map,
+                                    map=map)  # fmt: skip
+    image = map_image(observation, map, grid, blank_map)
+    return _encode_prompt(tokenizer, messages, listed, -1, image, grid)
 
 
 def text_stack(vlm: VLM) -> nn.Module:
-    """The language model inside a Qwen-VL-family model (its vision tower is not used)."""
+    """The language model inside a Qwen-VL-family model."""
     return vlm.model.model.language_model
 
 
 #: How a listed line becomes one vector: its last token's hidden state, or the mean over its
 #: tokens (every field's own state reaches the head in one step).
 POOLS = ("last", "mean")
+#: :func:`collate`'s image inputs, passed on to the Qwen-VL model as they are.
+IMAGE_KEYS = ("pixel_values", "image_grid_thw", "mm_token_type_ids")
 
 
 def _gather(hidden: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
@@ -158,8 +257,18 @@ class PointerModel(nn.Module):
         self.text = text_stack(vlm)
         self.head = nn.Linear(self.text.config.hidden_size, 1)
 
-    def forward(self, ids, mask, ends, valid, starts=None) -> torch.Tensor:
-        hidden = self.text(input_ids=ids, attention_mask=mask).last_hidden_state
+    def hidden(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Last hidden states (B, T, H): the text stack alone for text-only batches, the whole
+        Qwen-VL model (vision tower, visual tokens in place of the pads, M-RoPE) with images."""
+        ids, mask = batch["ids"], batch["mask"]
+        if "pixel_values" not in batch:
+            return self.text(input_ids=ids, attention_mask=mask).last_hidden_state
+        images = {k: batch[k] for k in IMAGE_KEYS}
+        return self.vlm.model.model(input_ids=ids, attention_mask=mask, **images).last_hidden_state
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        hidden = self.hidden(batch)
+        ends, starts, valid = batch["ends"], batch["starts"], batch["valid"]
         if self.pool == "mean":
             # Sum over [start, end] from a running sum: sum(0..end) - sum(0..start-1).
             total = torch.cumsum(hidden, dim=1)
@@ -173,7 +282,7 @@ class PointerModel(nn.Module):
         """Per-token NLL of the free-JSON answers (B, T-1; 0 outside them) and whether the greedy
         token is the target (True outside them): the language model's own head reads the hidden
         state before each answer token (teacher forcing)."""
-        hidden = self.text(input_ids=batch["ids"], attention_mask=batch["mask"]).last_hidden_state
+        hidden = self.hidden(batch)
         logits = self.vlm.model.lm_head(hidden[:, :-1]).float()
         target = batch["answer"][:, 1:]
         nll = torch.nn.functional.cross_entropy(
@@ -183,11 +292,49 @@ class PointerModel(nn.Module):
 
     def score(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Scores of a :func:`collate` batch."""
-        return self(batch["ids"], batch["mask"], batch["ends"], batch["valid"], batch["starts"])
+        return self(batch)
+
+
+def soft_loss(scores: torch.Tensor, targets: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Mean cross-entropy of the scores' softmax over the listed lines against target
+    distributions (B, K): ``-(target * log_softmax(scores)).sum()``; padded lines (-inf scores,
+    target 0) add nothing. Equals ``cross_entropy(scores, labels)`` for one-hot targets."""
+    logp = torch.log_softmax(scores, dim=-1).masked_fill(~valid, 0.0)
+    return -(targets * logp).sum(-1).mean()
+
+
+def _targets(batch: Sequence[Encoded], k: int) -> torch.Tensor:
+    """(B, K) target distributions: the soft target when a state has one, else one-hot at its
+    label (all zeros for an unlabelled state)."""
+    out = torch.zeros((len(batch), k), dtype=torch.float32)
+    for n, e in enumerate(batch):
+        if len(e.soft):
+            out[n, : len(e.soft)] = torch.from_numpy(e.soft)
+        elif e.label >= 0:
+            out[n, e.label] = 1.0
+    return out
+
+
+def _images(batch: Sequence[Encoded], ids: torch.Tensor, mask: torch.Tensor) -> dict:
+    """The Qwen-VL image inputs of a batch whose states all show an image (else none)."""
+    shown = [e.image is not None for e in batch]
+    if not any(shown):
+        return {}
+    grid = batch[0].grid
+    if not all(shown) or any(e.grid != grid for e in batch) or grid is None:
+        raise ValueError("a batch mixes states with and without (or with different) images")
+    images = np.stack([e.image for e in batch])  # type: ignore[misc]
+    pixels, thw = patchify(images, grid.patch, grid.merge, grid.temporal)
+    pads = torch.zeros_like(ids)
+    for n, e in enumerate(batch):
+        pads[n, : len(e.ids)] = torch.from_numpy(e.ids == e.image_token)
+    return {"pixel_values": torch.from_numpy(pixels), "image_grid_thw": torch.from_numpy(thw),
+            "mm_token_type_ids": pads * mask}  # fmt: skip
 
 
 def collate(batch: Sequence[Encoded], pad_id: int) -> dict[str, torch.Tensor]:
-    """Right-padded tensors for :meth:`PointerModel.forward` plus ``labels``."""
+    """Right-padded tensors for :meth:`PointerModel.forward` plus ``labels`` and ``targets``
+    (B, K; :func:`soft_loss`), and the image inputs when the states show an image."""
     t = max(len(e.ids) + len(e.answer_ids) for e in batch)
     k = max(len(e.ends) for e in batch)
     ids = torch.full((len(batch), t), pad_id, dtype=torch.long)
@@ -207,5 +354,6 @@ def collate(batch: Sequence[Encoded], pad_id: int) -> dict[str, torch.Tensor]:
     labels = torch.tensor([e.label for e in batch], dtype=torch.long)
     return {
         "ids": ids, "mask": mask, "ends": ends, "starts": starts, "valid": valid,
-        "labels": labels, "answer": answer,
+        "labels": labels, "targets": _targets(batch, k), "answer": answer,
+        **_images(batch, ids, mask),
     }  # fmt: skip

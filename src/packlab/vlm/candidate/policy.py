@@ -75,7 +75,10 @@ class CandidateVLMPolicy:
             )
         self._proposer = ProposerConfig(**meta["proposer"])
         self._settings = scoring.PromptSettings(
-            meta["instructions"], meta.get("blank_map", False), meta.get("answer", "index")
+            meta["instructions"],
+            meta.get("blank_map", False),
+            meta.get("answer", "index"),
+            meta.get("map", "text"),  # a model card written before maps: the text map
         )
         self._score = scoring.score_listed
         self._generate = scoring.generate_answer

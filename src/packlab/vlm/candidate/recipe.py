@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.policies.listed import TEACHERS
 from packlab.vlm.candidate.compose import Instructions
@@ -24,7 +25,10 @@ class DaggerConfig:
     round_steps: int = 1000  # updates of each later round (warm start)
     model: str = "tiny:qwen3_vl:mini"
     instructions: Instructions = "short"
-    blank_map: bool = False
+    blank_map: bool = False  # ablation: zero the heightmap in whatever form ``map`` shows it
+    #: How the model sees the heightmap: image (vision tower), text (digit map), both, or blank
+    #: (an all-zero image: the blank-image ablation).
+    map: PointerMap = "image"
     pool: str = "last"  # how a listed line becomes one vector: "last" token or "mean"
     batch: int = 16
     lr: float = 1e-3
@@ -39,5 +43,6 @@ class DaggerConfig:
         for name in ("cases_per_round", "steps", "round_steps", "batch", "workers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} = {getattr(self, name)}: must be >= 1")
+        require_choice(self.map, PointerMap, "map")
         if self.rounds < 0:
             raise ConfigError(f"rounds = {self.rounds}: must be >= 0")

@@ -3,7 +3,9 @@
 The directory is an ordinary checkpoint (:func:`packlab.vlm.model.checkpoint.save_model`) with
 ``pointer_head.safetensors`` beside it and ``packlab_model.json`` saying
 ``"action_format": "candidate"`` with the proposer, the instructions and the teacher it was
-trained with, so the policy rebuilds exactly the training-time prompt.
+trained with, so the policy rebuilds exactly the training-time prompt. Its ``map`` says how the
+model sees the heightmap (:data:`packlab.core.choices.PointerMap`); a directory written before
+that field existed holds a text-map model and loads with ``map`` = ``"text"``.
 Imports torch: only the vlm extra may import this module.
 """
 
@@ -19,6 +21,9 @@ from packlab.core.errors import ConfigError
 from packlab.vlm.candidate.files import CANDIDATE_FORMAT, HEAD_FILE, is_pointer_dir
 from packlab.vlm.candidate.pointer import PointerModel
 from packlab.vlm.model.checkpoint import PACKLAB_META, load_model, save_model
+
+#: The map of a pointer directory saved before ``map`` was recorded: the digit text map.
+LEGACY_MAP = "text"
 
 
 def save_pointer(model: PointerModel, path: Path, meta: dict[str, Any]) -> Path:
@@ -38,6 +43,7 @@ def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
             f"{path / PACKLAB_META}: action_format = {vlm.meta.get('action_format')!r}: "
             f"expected {CANDIDATE_FORMAT!r}"
         )
+    vlm.meta.setdefault("map", LEGACY_MAP)
     model = PointerModel(vlm, vlm.meta.get("pool", "last"))
     model.head.load_state_dict(load_file(str(path / HEAD_FILE)))
     return model.to(device).eval()

@@ -9,10 +9,18 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from packlab.core.choices import PointerMap
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
 from packlab.vlm.candidate.compose import Answer, Instructions
-from packlab.vlm.candidate.pointer import PointerModel, collate, encode_observation
+from packlab.vlm.candidate.pointer import (
+    IMAGE_KEYS,
+    Encoded,
+    ImageGrid,
+    PointerModel,
+    collate,
+    encode_observation,
+)
 from packlab.vlm.model.tokenizer import IM_END
 
 
@@ -23,6 +31,19 @@ class PromptSettings:
     instructions: Instructions = "short"
     blank_map: bool = False
     answer: Answer = "index"
+    map: PointerMap = "text"
+
+
+def _encode(
+    model: PointerModel,
+    observation: Observation,
+    listed: Sequence[Candidate],
+    settings: PromptSettings,
+) -> Encoded:
+    return encode_observation(
+        model.vlm.tokenizer, observation, listed, settings.instructions, settings.blank_map,
+        settings.map, ImageGrid.of(model.vlm),
+    )  # fmt: skip
 
 
 def score_listed(
@@ -32,9 +53,9 @@ def score_listed(
     settings: PromptSettings,
 ) -> np.ndarray:
     """One score per listed placement (higher is better)."""
-    tok = model.vlm.tokenizer
-    enc = encode_observation(tok, observation, listed, settings.instructions, settings.blank_map)
-    batch = collate([enc], model.vlm.tokenizer.pad_token_id)
+    batch = collate(
+        [_encode(model, observation, listed, settings)], model.vlm.tokenizer.pad_token_id
+    )
     with torch.inference_mode():
         scores = model.score(batch)
     return scores[0].float().numpy()
@@ -51,14 +72,17 @@ def generate_answer(
     settings: PromptSettings,
 ) -> str:
     """The model's greedy free-JSON answer text (the format ablation's policy)."""
-    tok = model.vlm.tokenizer
-    enc = encode_observation(tok, observation, listed, settings.instructions, settings.blank_map)
-    ids = torch.from_numpy(enc.ids)[None]
+    batch = collate(
+        [_encode(model, observation, listed, settings)], model.vlm.tokenizer.pad_token_id
+    )
+    ids = batch["ids"]
+    images = {k: batch[k] for k in IMAGE_KEYS if k in batch}
     end = model.vlm.tokenizer.convert_tokens_to_ids(IM_END)
     with torch.inference_mode():
         out = model.vlm.model.generate(
             input_ids=ids,
             attention_mask=torch.ones_like(ids),
+            **images,
             max_new_tokens=MAX_ANSWER_TOKENS,
             do_sample=False,
             eos_token_id=end,

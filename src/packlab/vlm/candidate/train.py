@@ -25,13 +25,22 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.policies.candidates import ProposerConfig
 from packlab.vlm.candidate.compose import Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
-from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate, encode
+from packlab.vlm.candidate.pointer import (
+    QWEN3_GRID,
+    Encoded,
+    ImageGrid,
+    PointerModel,
+    collate,
+    encode,
+    soft_loss,
+)
 from packlab.vlm.candidate.saved import load_pointer, save_pointer
 from packlab.vlm.candidate.states import read_states, shuffled
 from packlab.vlm.model.spec import make_model
@@ -46,7 +55,10 @@ class PointerTrainConfig:
     out: str
     model: str = "tiny:qwen3_vl:mini"  # a tiny spec, or a pointer directory to start from
     instructions: Instructions = "short"
-    blank_map: bool = False
+    blank_map: bool = False  # zero the heightmap in whatever form ``map`` shows it
+    #: How the heightmap is shown: image (vision tower), text (digit map), both, blank (an
+    #: all-zero image). A pointer directory in ``model`` must have been trained with this map.
+    map: PointerMap = "image"
     pool: str = "last"  # pointer.POOLS
     answer: str = "index"  # compose.ANSWERS: pointer over the listed lines, or free JSON tokens
     shuffle: bool = False  # list the placements in a random order per state (states.shuffled)
@@ -65,19 +77,25 @@ class PointerTrainConfig:
     stop_after: int | None = None
     meta: dict[str, Any] = field(default_factory=dict)  # recorded in the model card
 
+    def __post_init__(self) -> None:
+        require_choice(self.map, PointerMap, "map")
+
 
 def is_heldout(case_id: str, every: int) -> bool:
     return zlib.crc32(case_id.encode()) % every == 0
 
 
-def load_encoded(cfg: PointerTrainConfig, tokenizer: Any) -> tuple[list[Encoded], list[Encoded]]:
+def load_encoded(
+    cfg: PointerTrainConfig, tokenizer: Any, grid: ImageGrid = QWEN3_GRID
+) -> tuple[list[Encoded], list[Encoded]]:
+    """The labelled states encoded, split into (training, held-out)."""
     train, held = [], []
     for path in cfg.states:
         for s in read_states(Path(path)):
             if s.label < 0:
                 continue
             s = shuffled(s, cfg.seed) if cfg.shuffle else s
-            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer)
+            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, grid)
             (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
     if not train:
         raise ValueError(f"{', '.join(cfg.states)}: no labelled training states")
@@ -89,7 +107,13 @@ def _model(cfg: PointerTrainConfig) -> PointerModel:
     directory gets a fresh pointer head (seeded)."""
     torch.manual_seed(cfg.seed)
     if is_pointer_dir(cfg.model):
-        return load_pointer(cfg.model).train()
+        model = load_pointer(cfg.model)
+        if model.vlm.meta["map"] != cfg.map:
+            raise ConfigError(
+                f"model = {cfg.model!r} was trained with map = {model.vlm.meta['map']!r}, "
+                f"not {cfg.map!r}"
+            )
+        return model.train()
     if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
         raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
     return PointerModel(make_model(cfg.model, seed=cfg.seed), cfg.pool).train()
@@ -152,11 +176,12 @@ def _save(cfg: PointerTrainConfig, st: _State) -> None:
 
 
 def _loss(model: PointerModel, batch: dict, answer: str) -> torch.Tensor:
-    """Pointer: cross-entropy over the listed lines. Free JSON: mean NLL of the answer tokens."""
+    """Pointer: cross-entropy over the listed lines against the teacher's soft targets where a
+    state has them, else its label. Free JSON: mean NLL of the answer tokens."""
     if answer == "json":
         nll, _ = model.answer_nll(batch)
         return nll.sum() / (batch["answer"][:, 1:] >= 0).sum()
-    return torch.nn.functional.cross_entropy(model.score(batch), batch["labels"])
+    return soft_loss(model.score(batch), batch["targets"], batch["valid"])
 
 
 def _update(st: _State, batch: dict, answer: str) -> float:
@@ -196,6 +221,7 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
         "proposer": asdict(ProposerConfig()),
         "instructions": cfg.instructions,
         "blank_map": cfg.blank_map,
+        "map": cfg.map,
         "pool": cfg.pool,
         "answer": cfg.answer,
         "shuffle": cfg.shuffle,
@@ -212,7 +238,7 @@ def train_pointer(
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     st = _setup(cfg)
-    train, held_list = load_encoded(cfg, st.model.vlm.tokenizer)
+    train, held_list = load_encoded(cfg, st.model.vlm.tokenizer, ImageGrid.of(st.model.vlm))
     held = Heldout.of(held_list, train)
     pad = st.model.vlm.tokenizer.pad_token_id
     bar = tqdm(total=cfg.steps, initial=st.step, desc="train pointer", unit="step")

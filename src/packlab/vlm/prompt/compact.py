@@ -134,8 +134,11 @@ def candidate_line(c: Candidate) -> str:
     )
 
 
-def system_text(container: Container, options: CompactOptions = CompactOptions()) -> str:
-    """The fixed instructions for one container (the same every step: cacheable)."""
+def system_text(
+    container: Container, options: CompactOptions = CompactOptions(), image_map: bool = False
+) -> str:
+    """The fixed instructions for one container (the same every step: cacheable); with
+    ``image_map`` the map legend describes the heightmap image instead of the digit map."""
     nx, ny = container.cells
     block = block_size(container, options.map_side)
     task = (
@@ -150,6 +153,11 @@ def system_text(container: Container, options: CompactOptions = CompactOptions()
         f"Map: one line per {block}-cell band along y, one digit per {block}-cell block along x: "
         "its highest surface in ninths of the rim (0 floor, 9 rim)."
     )
+    if image_map:
+        map_legend = (
+            "Image: the heightmap seen from above, x to the right, y down; black is the floor, "
+            "white the rim height (and the walls)."
+        )
     boxes = "Boxes: index:l x w x h (l along x, w along y, in cells; h in cm)."
     places = (
         "Places: n: b box, r rotation (1 swaps l and w), x y its minimum cell, z resting height "
@@ -163,14 +171,16 @@ def state_text(
     observation: Observation,
     candidates: Sequence[Candidate],
     options: CompactOptions = CompactOptions(),
+    show_map: bool = True,
 ) -> str:
-    """The user turn of one step (module docstring)."""
+    """The user turn of one step (module docstring); without the map lines when ``show_map`` is
+    off (the heightmap is then shown as an image, :mod:`packlab.vlm.candidate.image`)."""
     block = block_size(observation.container, options.map_side)
     levels = height_levels(observation.heightmap, observation.container, block)
+    shown_map = [f"Map {block}:", *map_lines(levels, options.rle)] if show_map else []
     lines = [
         f"Step {observation.step_index + 1}, {observation.remaining} left.",
-        f"Map {block}:",
-        *map_lines(levels, options.rle),
+        *shown_map,
         boxes_line(observation.shown),
         "Places:" if candidates else "Places: none fits.",
         *(candidate_line(c) for c in candidates),

@@ -1,0 +1,84 @@
+"""The heightmap as an image for the pointer model's vision tower (``map`` = image, both, blank).
+
+:func:`heightmap_image` draws the heightmap (cells, int mm) as one small grayscale image: each
+cell's height in 255ths of the rim height (clipped at the rim), y down the rows and x along the
+columns as in the text map; every cell is a square of whole pixels, and the pixels outside the
+container (the padding of a non-square or small container) are rim-high walls, so no box could
+go there. A container with more cells per side than the image has pixels is max-pooled first.
+:func:`patchify` turns images into the Qwen-VL ``pixel_values`` and ``image_grid_thw``, exactly as
+transformers' Qwen2-VL image processor does after its resize (a test checks it), but without PIL
+or a resize, so that encoding a step costs well under a millisecond.
+
+Image side: :data:`TOKENS_PER_SIDE` merged tokens per side, each ``patch_size *
+spatial_merge_size`` pixels (16 * 2 = 32 for Qwen3-VL), so 4 -> a 128 x 128 image, 8 x 8 = 64
+patches merged to 16 visual tokens. Why 16: the bench's largest containers have about 57 cells
+per side, which then get 2 pixels per cell and about 7 x 7 cells per patch (8 x 8 patches,
+finer than the text map's 8 x 8 blocks), and the prompt gets shorter than with the digit map;
+64 tokens (256 px) measured about 30 % slower per training step on one CPU thread (1.36 s
+against 1.06 s, batch 16) and 40 ms against 35 ms per decision, near the 50 ms budget
+(docs/vlm.md). Torch-free (numpy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from packlab.core.types import Container
+
+#: Merged visual tokens per image side (module docstring): 4 x 4 = 16 tokens per image.
+TOKENS_PER_SIDE = 4
+#: Pixel values of the image (uint8): 0 is the floor, 255 the rim (and the walls outside).
+FULL = 255
+
+
+def image_side(patch_size: int, merge_size: int) -> int:
+    """Pixels per side of the fixed-size image for a vision tower."""
+    return TOKENS_PER_SIDE * patch_size * merge_size
+
+
+def visual_tokens(side: int, patch_size: int, merge_size: int) -> int:
+    """Number of ``<|image_pad|>`` tokens one ``side`` x ``side`` image becomes."""
+    per_side = side // (patch_size * merge_size)
+    return per_side * per_side
+
+
+def heightmap_image(heightmap: np.ndarray, container: Container, side: int) -> np.ndarray:
+    """(side, side) uint8: row = y, column = x, value = height / rim height * 255 (clipped),
+    rim-high outside the container."""
+    hm = np.asarray(heightmap, dtype=np.int64)
+    nx, ny = hm.shape
+    block = -(-max(nx, ny) // side)  # cells per pixel when the container is larger than the image
+    if block > 1:
+        bx, by = -(-nx // block), -(-ny // block)
+        padded = np.zeros((bx * block, by * block), dtype=np.int64)
+        padded[:nx, :ny] = hm
+        hm = padded.reshape(bx, block, by, block).max(axis=(1, 3))
+        nx, ny = bx, by
+    level = np.clip(hm * FULL // max(container.height_mm, 1), 0, FULL).astype(np.uint8)
+    scale = side // max(nx, ny)
+    cells = np.repeat(np.repeat(level.T, scale, axis=0), scale, axis=1)  # (y, x) pixels
+    out = np.full((side, side), FULL, dtype=np.uint8)
+    out[: cells.shape[0], : cells.shape[1]] = cells
+    return out
+
+
+def blank_image(side: int) -> np.ndarray:
+    """The blank-image ablation's input: all zeros, whatever the state."""
+    return np.zeros((side, side), dtype=np.uint8)
+
+
+def patchify(
+    images: np.ndarray, patch_size: int, merge_size: int, temporal_patch_size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(B, H, W) uint8 grayscale images -> ``pixel_values`` (B * gh * gw, 3 * T * P * P) float32,
+    normalised as the Qwen3-VL processor does ((v / 255 - 0.5) / 0.5, the same value in the 3
+    channels and the T temporal copies), and ``image_grid_thw`` (B, 3) int64 = (1, gh, gw)."""
+    b, h, w = images.shape
+    gh, gw, m, p = h // patch_size, w // patch_size, merge_size, patch_size
+    x = images.astype(np.float32) * (2.0 / 255.0) - 1.0
+    x = x.reshape(b, gh // m, m, p, gw // m, m, p).transpose(0, 1, 4, 2, 5, 3, 6)
+    x = x.reshape(b, gh * gw, 1, 1, p * p)  # patches in merge order, then (channel, time, pixel)
+    x = np.broadcast_to(x, (b, gh * gw, 3, temporal_patch_size, p * p))
+    pixels = np.ascontiguousarray(x).reshape(b * gh * gw, 3 * temporal_patch_size * p * p)
+    grid = np.tile(np.array([[1, gh, gw]], dtype=np.int64), (b, 1))
+    return pixels, grid
