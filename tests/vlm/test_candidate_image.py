@@ -209,3 +209,16 @@ def test_the_full_legend_describes_the_map_shown(states):
         system = state_messages(states[0], "full", map=map_)[0]["content"][0]["text"]
         assert ("Image: the heightmap" in system) == image
         assert ("Map: one line per" in system) == (not image)
+
+
+def test_the_loss_trains_the_vision_tower(states):
+    for map_, trained in (("image", True), ("text", False)):
+        torch.manual_seed(0)
+        model = PointerModel(build_tiny_model("qwen3_vl", "tiny"), map=map_).train()
+        tok = model.vlm.tokenizer
+        weight = model.vlm.model.model.visual.patch_embed.proj.weight
+        assert any(p is weight for p in model.parameters()) == trained, map_  # the optimizer's
+        b = collate([encode(tok, s, "short", map=map_) for s in states[:4]], tok.pad_token_id)
+        soft_loss(model.score(b), b["targets"], b["valid"]).backward()
+        assert (weight.grad is not None and float(weight.grad.abs().sum()) > 0) == trained, map_
+        assert any(k.startswith("visual.") for k in model.state_dict()) == trained, map_

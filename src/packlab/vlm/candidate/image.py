@@ -15,7 +15,7 @@ patches merged to 16 visual tokens. Why 16: the bench's largest containers have 
 per side, which then get 2 pixels per cell and about 7 x 7 cells per patch (8 x 8 patches,
 finer than the text map's 8 x 8 blocks), and the prompt gets shorter than with the digit map;
 64 tokens (256 px) measured about 30 % slower per training step on one CPU thread (1.36 s
-against 1.06 s, batch 16) and 40 ms against 35 ms per decision, near the 50 ms budget
+against 1.1 s, batch 16) and 40 ms against 36 ms per decision, near the 50 ms budget
 (docs/vlm.md). Torch-free (numpy).
 """
 

@@ -248,13 +248,17 @@ def _gather(hidden: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
 class PointerModel(nn.Module):
     """``scores = head(pooled hidden states of each listed line)``, -inf where padded."""
 
-    def __init__(self, vlm: VLM, pool: str = "last") -> None:
+    def __init__(self, vlm: VLM, pool: str = "last", map: PointerMap = "text") -> None:
         super().__init__()
         if pool not in POOLS:
             raise ValueError(f"pool = {pool!r}: expected one of {POOLS}")
         self.vlm = vlm
         self.pool = pool
         self.text = text_stack(vlm)
+        if map in IMAGE_MAPS:
+            # A submodule, so that the optimizer trains it and checkpoints hold it (``vlm`` is
+            # not a module); text-map models leave it out and keep their state dict's keys.
+            self.visual = vlm.model.model.visual
         self.head = nn.Linear(self.text.config.hidden_size, 1)
 
     def hidden(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:

@@ -116,7 +116,7 @@ def _model(cfg: PointerTrainConfig) -> PointerModel:
         return model.train()
     if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
         raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
-    return PointerModel(make_model(cfg.model, seed=cfg.seed), cfg.pool).train()
+    return PointerModel(make_model(cfg.model, seed=cfg.seed), cfg.pool, cfg.map).train()
 
 
 def _schedule(cfg: PointerTrainConfig):
