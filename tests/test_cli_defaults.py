@@ -28,6 +28,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "train sft": ["train", "sft", "--data", "data", "--out", "runs/sft"],
     "train candidate": ["train", "candidate", "--cases", "cases", "--out", "runs/cand"],
     "train rl": ["train", "rl"],
+    "train rl-imitate": ["train", "rl-imitate", "--states", "s.jsonl"],
     "serve": ["serve"],
     "viz episode": [
         "viz",
@@ -56,6 +57,7 @@ CLI_ONLY: dict[str, set[str]] = {
     "train sft": set(),
     "train candidate": {"--cases"},
     "train rl": {"--cases"},
+    "train rl-imitate": {"--states", "--cases"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
     # Live episodes take the bench's RunConfig; absent flags leave its defaults (stated there).

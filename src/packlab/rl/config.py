@@ -36,6 +36,7 @@ class RLTrainConfig:
     eval_cases_per_level: int = 10  # generated cases per level kept out of training
     seed: int = 0
     threads: int = 1  # torch threads of the learner
+    init: str = ""  # a model directory (e.g. ``packlab train rl-imitate``'s) to start from
 
     def __post_init__(self) -> None:
         require_choice(self.agent, RLAgent, "agent")
@@ -63,3 +64,28 @@ class RLTrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+@dataclass(frozen=True, slots=True)
+class ImitationConfig:
+    """One behaviour-cloning run (``packlab train rl-imitate``)."""
+
+    agent: RLAgent = "irbpp"
+    out: str = "runs/rl-imitate"
+    k: int = 8
+    width: int = 64
+    epochs: int = 20
+    batch: int = 256
+    lr: float = 1e-3
+    value_weight: float = 0.5  # weight of the value regression (samples with a value only)
+    seed: int = 0
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        require_choice(self.agent, RLAgent, "agent")
+        for name in ("k", "width", "epochs", "batch", "threads"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"{name} = {value!r}: must be a whole number >= 1")
+        if not 0 < self.lr <= 1 or self.value_weight < 0:
+            raise ConfigError(f"lr = {self.lr}, value_weight = {self.value_weight}: out of range")

@@ -175,17 +175,29 @@ def _listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
         picks = (rule_placement(cands, j) for j in range(min(cands.buffer_size, spec.n_items)))
         return [i for i in picks if i is not None]
     listed = propose_from(cands, ProposerConfig(k=spec.n_items))
-    flat = {(g.object_index, g.rotation): g for g in cands.groups}
-    out = []
-    for c in listed:
-        g = flat[(c.object_index, c.rotation)]
-        out.append(g.offset + c.x * (cands.heightmap.shape[1] - g.fy + 1) + c.y)
-    return out
+    out = [candidate_index(cands, c.object_index, c.rotation, c.x, c.y) for c in listed]
+    return [i for i in out if i is not None]
 
 
-def encode(observation: Observation, spec: FeatureSpec) -> Encoded:
-    """The arrays an agent sees for ``observation`` and the actions of its item rows."""
-    cands = observation_candidates(observation)
+def candidate_index(cands: CandidateSet, obj: int, rotation: int, x: int, y: int) -> int | None:
+    """The flat index in ``cands`` of placement (object, rotation, x, y); None when the set has
+    no such placement (the box fits nowhere at that rotation or the cell is out of range)."""
+    for g in cands.groups:
+        if (g.object_index, g.rotation) != (obj, rotation):
+            continue
+        nx, ny = cands.heightmap.shape
+        if not (0 <= x <= nx - g.fx and 0 <= y <= ny - g.fy):
+            return None
+        return int(g.offset + x * (ny - g.fy + 1) + y)
+    return None
+
+
+def encode(
+    observation: Observation, spec: FeatureSpec, cands: CandidateSet | None = None
+) -> Encoded:
+    """The arrays an agent sees for ``observation`` and the actions of its item rows
+    (``cands``: the observation's candidate set when the caller already has it)."""
+    cands = observation_candidates(observation) if cands is None else cands
     ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
     items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
     actions = []

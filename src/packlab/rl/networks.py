@@ -65,6 +65,12 @@ class PackFeatures(BaseFeaturesExtractor):
         return torch.cat([state, items.flatten(1), rows[..., 0]], dim=1)
 
 
+def masked_mean(items: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B, W): the mean of the real rows' encodings (``mask`` (B, R), 1 for a real row)."""
+    weights = mask.unsqueeze(-1)
+    return (items * weights).sum(1) / weights.sum(1).clamp(min=1.0)
+
+
 class ItemScores(nn.Module):
     """Action head: one logit per item from a shared MLP over [item; state]."""
 
@@ -75,10 +81,14 @@ class ItemScores(nn.Module):
         nn.init.orthogonal_(self.mlp[-1].weight, gain=0.01)  # near-uniform first policy
         nn.init.zeros_(self.mlp[-1].bias)
 
+    def score(self, state: torch.Tensor, items: torch.Tensor) -> torch.Tensor:
+        """(B, R) logits of any number R of encoded rows (imitation adds rows beyond N)."""
+        context = state.unsqueeze(1).expand(-1, items.shape[1], -1)
+        return self.mlp(torch.cat([items, context], dim=-1)).squeeze(-1)
+
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
         state, items, _ = _split(latent, self.width, self.n_items)
-        context = state.unsqueeze(1).expand(-1, self.n_items, -1)
-        return self.mlp(torch.cat([items, context], dim=-1)).squeeze(-1)
+        return self.score(state, items)
 
 
 class StateValue(nn.Module):
@@ -91,9 +101,7 @@ class StateValue(nn.Module):
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
         state, items, mask = _split(latent, self.width, self.n_items)
-        weights = mask.unsqueeze(-1)
-        pooled = (items * weights).sum(1) / weights.sum(1).clamp(min=1.0)
-        return self.mlp(torch.cat([state, pooled], dim=-1))
+        return self.mlp(torch.cat([state, masked_mean(items, mask)], dim=-1))
 
 
 class ItemPointerPolicy(MaskableActorCriticPolicy):

@@ -31,7 +31,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMoni
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
 from packlab.core.types import Case
-from packlab.rl.agent import MODEL_FILE, AgentCard, write_card
+from packlab.rl.agent import MODEL_FILE, AgentCard, read_card, write_card
 from packlab.rl.config import RLTrainConfig
 from packlab.rl.envs import ListedActionEnv
 from packlab.rl.evaluate import evaluate
@@ -217,6 +217,23 @@ def make_model(cfg: RLTrainConfig, venv, out: Path) -> MaskablePPO:
     )
 
 
+def load_init(model: MaskablePPO, directory: str | Path, spec: FeatureSpec) -> None:
+    """Copy the network weights of the model directory ``directory`` into ``model`` (a fresh
+    agent of the same action space and width): PPO then starts from, e.g., an imitation fit."""
+    directory = Path(directory)
+    card = read_card(directory)
+    if (card.agent, card.n_items) != (spec.agent, spec.n_items):
+        raise ConfigError(
+            f"init = {str(directory)!r} is a {card.agent!r} agent with {card.n_items} rows; "
+            f"this run trains {spec.agent!r} with {spec.n_items}"
+        )
+    source = MaskablePPO.load(directory / MODEL_FILE, device="cpu")
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as e:
+        raise ConfigError(f"init = {str(directory)!r}: another network shape ({e})") from None
+
+
 def train_rl(
     cfg: RLTrainConfig,
     cases: Sequence[Case],
@@ -244,6 +261,9 @@ def train_rl(
             print(f"[{cfg.agent}] resuming at {run.state['env_steps']:,} steps", flush=True)
         else:
             model = make_model(cfg, venv, out)
+            if cfg.init:
+                load_init(model, cfg.init, run.spec)
+                print(f"[{cfg.agent}] starting from {cfg.init}", flush=True)
             (out / "log.csv").unlink(missing_ok=True)  # rows of a start that never checkpointed
             run.log_untrained(model)
         callback = _Progress(run)
