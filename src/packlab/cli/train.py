@@ -170,6 +170,13 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
     field("instructions", "--instructions", help="default {default}")
     field("map", "--map", help="how the model sees the heightmap; default {default}")
     field("blank_map", "--blank-map", help="ablation: the map shows an empty container")
+    field(
+        "line_vectors",
+        "--no-line-vectors",
+        help="ablation: the head reads the lines' hidden states only, no line vectors",
+    )
+    field("k", "--k", help="placements listed per state; default {default}")
+    field("shuffle", "--no-shuffle", help="ablation: list placements in the proposer's order")
     field("pool", "--pool", choices=("last", "mean"), help="default {default}")
     field("batch", "--batch", help="default {default}")
     field("lr", "--lr", help="default {default}")

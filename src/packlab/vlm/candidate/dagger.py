@@ -18,6 +18,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from packlab.core.types import Case
+from packlab.policies.candidates import ProposerConfig
 from packlab.vlm.candidate.collect import collect
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.recipe import DaggerConfig
@@ -34,6 +35,9 @@ def _round_config(cfg: DaggerConfig, r: int) -> PointerTrainConfig:
         instructions=cfg.instructions,
         blank_map=cfg.blank_map,
         map=cfg.map,
+        line_vectors=cfg.line_vectors,
+        k=cfg.k,
+        shuffle=cfg.shuffle,
         pool=cfg.pool,
         steps=cfg.steps if r == 0 else cfg.round_steps,
         batch=cfg.batch,
@@ -57,7 +61,7 @@ def run_dagger(cfg: DaggerConfig, cases: Sequence[Case], on_log: OnLog | None = 
         actor = None if r == 0 else ("vlm", {"model": train_cfg.model, "threads": 1})
         source = "teacher" if r == 0 else f"student-r{r}"
         collect(round_cases, out / f"r{r}" / STATES_FILE, cfg.teacher, source, actor,
-                workers=cfg.workers)  # fmt: skip
+                ProposerConfig(k=cfg.k), workers=cfg.workers)  # fmt: skip
         final = Path(train_cfg.out) / "final"
         if not (final / "pointer_head.safetensors").is_file():
             final = train_pointer(train_cfg, evals, on_log)

@@ -31,6 +31,7 @@ from torch import nn
 from packlab.core.choices import PointerMap
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
+from packlab.policies.line_vector import LINE_VECTOR_SIZE, line_vectors
 from packlab.vlm.candidate.compose import (
     IMAGE_MAPS,
     Answer,
@@ -98,6 +99,11 @@ class Encoded:
     image: np.ndarray | None = None
     grid: ImageGrid | None = None
     image_token: int = -1  # the id of <|image_pad|> (the visual tokens' places)
+    #: Each listed line's numeric vector (float32 (K, LINE_VECTOR_SIZE),
+    #: :mod:`packlab.policies.line_vector`); empty: the head reads the hidden states alone.
+    vectors: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, LINE_VECTOR_SIZE), dtype=np.float32)
+    )
 
 
 def prompt_text(tokenizer: Any, messages: list[dict[str, Any]]) -> str:
@@ -197,16 +203,21 @@ def encode(
     answer: Answer = "index",
     map: PointerMap = "text",
     grid: ImageGrid = QWEN3_GRID,
+    lines: bool = False,
 ) -> Encoded:
     """Tokens of a state's prompt (the same text as the export for ``map`` = text), its listed
-    lines' ends, its soft target and (``map`` with an image) its heightmap image."""
+    lines' ends, its soft target, (``map`` with an image) its heightmap image and (``lines``)
+    each listed line's numeric vector."""
     messages = state_messages(state, instructions, blank_map=blank_map, map=map)
-    image = map_image(observation_of(state), map, grid, blank_map)
+    observation, listed = observation_of(state), listed_of(state)
+    image = map_image(observation, map, grid, blank_map)
     try:
-        enc = _encode_prompt(tokenizer, messages, listed_of(state), state.label, image, grid)
+        enc = _encode_prompt(tokenizer, messages, listed, state.label, image, grid)
     except ValueError as exc:
         raise ValueError(f"{state.case_id} step {state.step}: {exc}") from None
     enc = replace(enc, soft=soft_of(state))
+    if lines:
+        enc = replace(enc, vectors=line_vectors(observation, listed))
     if answer == "json" and state.label >= 0:
         answer_ids, fields = answer_tokens(tokenizer, answer_text(state, "json"))
         return replace(enc, answer_ids=answer_ids, answer_fields=fields)
@@ -221,12 +232,14 @@ def encode_observation(
     blank_map: bool = False,
     map: PointerMap = "text",
     grid: ImageGrid = QWEN3_GRID,
+    lines: bool = False,
 ) -> Encoded:
     """:func:`encode` of a live step (inference): the same prompt, unlabelled."""
     messages = observation_messages(observation, listed, instructions, blank_map=blank_map,
                                     map=map)  # fmt: skip
     image = map_image(observation, map, grid, blank_map)
-    return _encode_prompt(tokenizer, messages, listed, -1, image, grid)
+    enc = _encode_prompt(tokenizer, messages, listed, -1, image, grid)
+    return replace(enc, vectors=line_vectors(observation, listed)) if lines else enc
 
 
 def text_stack(vlm: VLM) -> nn.Module:
@@ -234,6 +247,8 @@ def text_stack(vlm: VLM) -> nn.Module:
     return vlm.model.model.language_model
 
 
+#: Hidden width of :class:`LineHead` (the probe that chose the line vector's columns used 128).
+LINE_HEAD_WIDTH = 128
 #: How a listed line becomes one vector: its last token's hidden state, or the mean over its
 #: tokens (every field's own state reaches the head in one step).
 POOLS = ("last", "mean")
@@ -245,10 +260,36 @@ def _gather(hidden: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
     return hidden.gather(1, at.unsqueeze(-1).expand(-1, -1, hidden.shape[-1]))
 
 
-class PointerModel(nn.Module):
-    """``scores = head(pooled hidden states of each listed line)``, -inf where padded."""
+class LineHead(nn.Module):
+    """The pointer head of a model that reads line vectors: an MLP over each line's pooled
+    hidden state, its numeric vector and the mean vector of the listed lines (what the others
+    offer), so a line's score can depend on how it compares with the rest of the list."""
 
-    def __init__(self, vlm: VLM, pool: str = "last", map: PointerMap = "text") -> None:
+    def __init__(self, hidden_size: int, width: int = LINE_HEAD_WIDTH) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(
+            nn.Linear(hidden_size + 2 * LINE_VECTOR_SIZE, width),
+            nn.ReLU(),
+            nn.Linear(width, width),
+            nn.ReLU(),
+            nn.Linear(width, 1),
+        )
+
+    def forward(
+        self, picked: torch.Tensor, vectors: torch.Tensor, valid: torch.Tensor
+    ) -> torch.Tensor:
+        weights = valid.unsqueeze(-1).float()
+        mean = (vectors * weights).sum(1, keepdim=True) / weights.sum(1, keepdim=True).clamp(min=1)
+        return self.mlp(torch.cat([picked, vectors, mean.expand_as(vectors)], -1))
+
+
+class PointerModel(nn.Module):
+    """``scores = head(pooled hidden states of each listed line)``, -inf where padded; with
+    ``lines`` the head also reads each line's numeric vector (:class:`LineHead`)."""
+
+    def __init__(
+        self, vlm: VLM, pool: str = "last", map: PointerMap = "text", lines: bool = False
+    ) -> None:
         super().__init__()
         if pool not in POOLS:
             raise ValueError(f"pool = {pool!r}: expected one of {POOLS}")
@@ -259,7 +300,9 @@ class PointerModel(nn.Module):
             # A submodule, so that the optimizer trains it and checkpoints hold it (``vlm`` is
             # not a module); text-map models leave it out and keep their state dict's keys.
             self.visual = vlm.model.model.visual
-        self.head = nn.Linear(self.text.config.hidden_size, 1)
+        self.lines = lines
+        hidden_size = self.text.config.hidden_size
+        self.head = LineHead(hidden_size) if lines else nn.Linear(hidden_size, 1)
 
     def hidden(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Last hidden states (B, T, H): the text stack alone for text-only batches, the whole
@@ -280,7 +323,11 @@ class PointerModel(nn.Module):
             picked = (_gather(total, ends) - before) / (ends - starts + 1).unsqueeze(-1)
         else:
             picked = _gather(hidden, ends)
-        return self.head(picked).squeeze(-1).masked_fill(~valid, float("-inf"))
+        if self.lines:
+            scores = self.head(picked, batch["vectors"], valid)
+        else:
+            scores = self.head(picked)
+        return scores.squeeze(-1).masked_fill(~valid, float("-inf"))
 
     def answer_nll(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-token NLL of the free-JSON answers (B, T-1; 0 outside them) and whether the greedy
@@ -359,5 +406,15 @@ def collate(batch: Sequence[Encoded], pad_id: int) -> dict[str, torch.Tensor]:
     return {
         "ids": ids, "mask": mask, "ends": ends, "starts": starts, "valid": valid,
         "labels": labels, "targets": _targets(batch, k), "answer": answer,
-        **_images(batch, ids, mask),
+        **_images(batch, ids, mask), **_vectors(batch, k),
     }  # fmt: skip
+
+
+def _vectors(batch: Sequence[Encoded], k: int) -> dict[str, torch.Tensor]:
+    """``vectors`` (B, K, LINE_VECTOR_SIZE), zero-padded, when the states carry line vectors."""
+    if not any(len(e.vectors) for e in batch):
+        return {}
+    out = torch.zeros((len(batch), k, LINE_VECTOR_SIZE), dtype=torch.float32)
+    for n, e in enumerate(batch):
+        out[n, : len(e.vectors)] = torch.from_numpy(e.vectors)
+    return {"vectors": out}

@@ -79,6 +79,7 @@ class CandidateVLMPolicy:
             meta.get("blank_map", False),
             meta.get("answer", "index"),
             meta.get("map", "text"),  # a model card written before maps: the text map
+            meta.get("line_vectors", False),  # a card written before line vectors: text only
         )
         self._score = scoring.score_listed
         self._generate = scoring.generate_answer

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
+from packlab.policies.candidates import STUDENT_K
 from packlab.policies.listed import TEACHERS
 from packlab.vlm.candidate.compose import Instructions
 
@@ -29,6 +30,12 @@ class DaggerConfig:
     #: How the model sees the heightmap: image (vision tower), text (digit map), both, or blank
     #: (an all-zero image: the blank-image ablation).
     map: PointerMap = "image"
+    #: The head also reads each listed line's numeric vector (level fit, geometry).
+    line_vectors: bool = True
+    #: Placements listed per state, in collection and at play time.
+    k: int = STUDENT_K
+    #: List the placements in a random order per state, so position says nothing.
+    shuffle: bool = True
     pool: str = "last"  # how a listed line becomes one vector: "last" token or "mean"
     batch: int = 16
     lr: float = 1e-3

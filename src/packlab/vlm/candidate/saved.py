@@ -44,6 +44,7 @@ def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
             f"expected {CANDIDATE_FORMAT!r}"
         )
     vlm.meta.setdefault("map", LEGACY_MAP)
-    model = PointerModel(vlm, vlm.meta.get("pool", "last"), vlm.meta["map"])
+    lines = bool(vlm.meta.get("line_vectors", False))  # a card before line vectors: text only
+    model = PointerModel(vlm, vlm.meta.get("pool", "last"), vlm.meta["map"], lines)
     model.head.load_state_dict(load_file(str(path / HEAD_FILE)))
     return model.to(device).eval()

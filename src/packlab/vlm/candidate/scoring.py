@@ -32,6 +32,7 @@ class PromptSettings:
     blank_map: bool = False
     answer: Answer = "index"
     map: PointerMap = "text"
+    line_vectors: bool = False
 
 
 def _encode(
@@ -42,7 +43,7 @@ def _encode(
 ) -> Encoded:
     return encode_observation(
         model.vlm.tokenizer, observation, listed, settings.instructions, settings.blank_map,
-        settings.map, ImageGrid.of(model.vlm),
+        settings.map, ImageGrid.of(model.vlm), settings.line_vectors,
     )  # fmt: skip
 
 

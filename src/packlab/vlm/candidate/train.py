@@ -28,7 +28,7 @@ from tqdm import tqdm
 from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
-from packlab.policies.candidates import ProposerConfig
+from packlab.policies.candidates import STUDENT_K, ProposerConfig
 from packlab.vlm.candidate.compose import Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
@@ -60,6 +60,10 @@ class PointerTrainConfig:
     #: all-zero image). A pointer directory in ``model`` must have been trained with this map.
     map: PointerMap = "image"
     pool: str = "last"  # pointer.POOLS
+    #: The head also reads each listed line's numeric vector (pointer.LineHead).
+    line_vectors: bool = True
+    #: Placements the states list (the proposer's K the policy will list at play time).
+    k: int = STUDENT_K
     answer: str = "index"  # compose.ANSWERS: pointer over the listed lines, or free JSON tokens
     shuffle: bool = False  # list the placements in a random order per state (states.shuffled)
     steps: int = 3000
@@ -95,7 +99,8 @@ def load_encoded(
             if s.label < 0:
                 continue
             s = shuffled(s, cfg.seed) if cfg.shuffle else s
-            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, grid)
+            e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, grid,
+                       cfg.line_vectors)  # fmt: skip
             (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
     if not train:
         raise ValueError(f"{', '.join(cfg.states)}: no labelled training states")
@@ -113,10 +118,16 @@ def _model(cfg: PointerTrainConfig) -> PointerModel:
                 f"model = {cfg.model!r} was trained with map = {model.vlm.meta['map']!r}, "
                 f"not {cfg.map!r}"
             )
+        if model.lines != cfg.line_vectors:
+            raise ConfigError(
+                f"model = {cfg.model!r} was trained with line_vectors = {model.lines}, "
+                f"not {cfg.line_vectors}"
+            )
         return model.train()
     if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
         raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
-    return PointerModel(make_model(cfg.model, seed=cfg.seed), cfg.pool, cfg.map).train()
+    vlm = make_model(cfg.model, seed=cfg.seed)
+    return PointerModel(vlm, cfg.pool, cfg.map, cfg.line_vectors).train()
 
 
 def _schedule(cfg: PointerTrainConfig):
@@ -218,7 +229,8 @@ def _evaluate(
 
 def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
     return {
-        "proposer": asdict(ProposerConfig()),
+        "proposer": asdict(ProposerConfig(k=cfg.k)),
+        "line_vectors": cfg.line_vectors,
         "instructions": cfg.instructions,
         "blank_map": cfg.blank_map,
         "map": cfg.map,
