@@ -20,7 +20,7 @@ from packlab.policies.heuristics.policy import make_dblf
 from packlab.rl import policy as rl_policy
 from packlab.rl.config import RLTrainConfig
 from packlab.rl.envs import CandidatePlacementEnv, ListedActionEnv, ObjectChoiceEnv
-from packlab.rl.features import FeatureSpec, encode, rule_placement
+from packlab.rl.features import N_ITEM_FEATURES, FeatureSpec, encode, rule_placement
 from packlab.rl.split import hold_out
 from packlab.sim.episode import Episode, run_episode
 
@@ -110,7 +110,7 @@ def test_candidate_rows_are_the_proposer_list(cases):
     observation = Episode("geometric").reset(cases[2], 0)
     encoded = encode(observation, FeatureSpec.default("irbpp", 6))
     assert encoded.actions == tuple(c.action for c in propose(observation, ProposerConfig(k=6)))
-    assert encoded.arrays["items"].shape == (6, 16)
+    assert encoded.arrays["items"].shape == (6, N_ITEM_FEATURES) and N_ITEM_FEATURES == 32
 
 
 def test_object_rows_place_each_object_by_dblf(cases):

@@ -21,7 +21,7 @@ from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
 from packlab.core.types import Action, Observation
 from packlab.rl.envs import SET_ASIDE
-from packlab.rl.features import Encoded, FeatureSpec, encode
+from packlab.rl.features import FEATURES_VERSION, Encoded, FeatureSpec, encode
 
 MODEL_FILE = "model.zip"
 CARD_FILE = "card.json"
@@ -42,6 +42,9 @@ class AgentCard:
     cases_sha256: str = ""
     held_out: dict[str, float] = field(default_factory=dict)  # level -> mean Overall, and avg
     format: str = CARD_FORMAT
+    #: What its item rows hold (:data:`packlab.rl.features.FEATURES_VERSION`); a card written
+    #: before the field existed is version 1.
+    features: int = FEATURES_VERSION
 
     @property
     def spec(self) -> FeatureSpec:
@@ -70,7 +73,14 @@ def read_card(directory: Path) -> AgentCard:
     if raw.get("format") != CARD_FORMAT:
         raise ConfigError(f"{path}: format = {raw.get('format')!r}, expected {CARD_FORMAT!r}")
     known = set(AgentCard.__dataclass_fields__)
-    return AgentCard(**{k: v for k, v in raw.items() if k in known})
+    card = AgentCard(**{"features": 1, **{k: v for k, v in raw.items() if k in known}})
+    if card.features != FEATURES_VERSION:
+        raise ConfigError(
+            f"{path}: features = {card.features}: this packlab's agents read item rows of version "
+            f"{FEATURES_VERSION} (placement geometry and level fit); retrain the agent "
+            "(packlab train rl-imitate, then packlab train rl --init)"
+        )
+    return card
 
 
 def load_agent(directory: str | Path) -> LoadedAgent:

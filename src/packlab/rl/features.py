@@ -31,7 +31,7 @@ import numpy as np
 from packlab.core.choices import RLAgent, require_choice
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
-from packlab.policies.candidates import ProposerConfig, propose_from
+from packlab.policies.candidates import Candidate, ProposerConfig, propose_from
 from packlab.policies.features import (
     flush_cells_at,
     side_cells,
@@ -40,11 +40,19 @@ from packlab.policies.features import (
     walled,
 )
 from packlab.policies.heuristics.select import object_rank
+from packlab.policies.level_fit import N_FEATURES as N_LEVEL_FIT
+from packlab.policies.level_fit import level_fit
 
 #: Side of the resampled heightmap.
 GRID = 32
-#: Columns of an item row (see :func:`placement_row`).
-N_ITEM_FEATURES = 16
+#: Columns of an item row: the placement's own geometry (:func:`placement_row`), then its level
+#: fit (:mod:`packlab.policies.level_fit`: how it leaves its level for the other shown boxes).
+N_PLACEMENT_FEATURES = 16
+N_ITEM_FEATURES = N_PLACEMENT_FEATURES + N_LEVEL_FIT
+#: What the item rows hold, recorded on every agent card: 1 = placement geometry only (agents
+#: trained before the level fit), 2 = geometry and level fit. An agent plays only the version it
+#: was trained on.
+FEATURES_VERSION = 2
 #: Entries of the globals row (see :func:`global_row`).
 N_GLOBALS = 8
 #: Scale for counts (steps, objects): the hard level has at most 32 objects.
@@ -157,6 +165,27 @@ def placement_row(cands: CandidateSet, walls: np.ndarray, index: int, rank: int)
     return np.clip(np.asarray(row, dtype=np.float32), 0.0, FEATURE_MAX)
 
 
+def item_row(
+    observation: Observation, cands: CandidateSet, walls: np.ndarray, index: int, rank: int
+) -> np.ndarray:
+    """(N_ITEM_FEATURES,) float32: the whole item row of candidate ``index`` (its geometry,
+    :func:`placement_row`, then its level fit, :func:`level_fit_at`)."""
+    return np.concatenate(
+        [placement_row(cands, walls, index, rank), level_fit_at(observation, cands, index)]
+    )
+
+
+def level_fit_at(observation: Observation, cands: CandidateSet, index: int) -> np.ndarray:
+    """(N_LEVEL_FIT,) float32: :func:`packlab.policies.level_fit.level_fit` of candidate
+    ``index`` (clipped like every column)."""
+    x, y, z = int(cands.x[index]), int(cands.y[index]), int(cands.z[index])
+    fx, fy, h = int(cands.fx[index]), int(cands.fy[index]), int(cands.h[index])
+    placement = Candidate(0, int(cands.obj[index]), int(cands.rotation[index]), x, y, fx, fy,
+                          z, z + h, 0, 0, 0)  # fmt: skip
+    row = level_fit(cands.heightmap, observation.shown, placement)
+    return np.clip(row, 0.0, FEATURE_MAX)
+
+
 def rule_placement(cands: CandidateSet, object_index: int) -> int | None:
     """DBLF's choice for one shown object: lowest z, then x, then y, rotation 0 before 1, among
     its placements within the rim (else its lowest-top ones); None when it fits nowhere."""
@@ -203,7 +232,7 @@ def encode(
     actions = []
     walls = walled(cands.heightmap, cands.container_height_mm)
     for row, i in enumerate(_listed_indices(cands, spec)):
-        items[row] = placement_row(cands, walls, i, int(ranks[int(cands.obj[i])]))
+        items[row] = item_row(observation, cands, walls, i, int(ranks[int(cands.obj[i])]))
         actions.append(
             Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
         )

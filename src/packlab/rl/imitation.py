@@ -27,7 +27,7 @@ from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
 from packlab.policies.features import walled
 from packlab.policies.heuristics.select import object_rank
-from packlab.rl.features import FeatureSpec, candidate_index, encode, placement_row
+from packlab.rl.features import FeatureSpec, candidate_index, encode, item_row
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +70,7 @@ def _extra_row(cands: CandidateSet, observation: Observation, action: Action) ->
         return None
     ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order)
     walls = walled(cands.heightmap, cands.container_height_mm)
-    return placement_row(cands, walls, i, int(ranks[int(cands.obj[i])]))
+    return item_row(observation, cands, walls, i, int(ranks[int(cands.obj[i])]))
 
 
 def _tapnet_weights(obs: Observation, actions, prefs) -> np.ndarray:
