@@ -61,15 +61,17 @@ def scores(net: torch.nn.Module, x: torch.Tensor, m: torch.Tensor) -> torch.Tens
     return net(torch.cat([x, ctx.expand_as(x)], -1)).squeeze(-1).masked_fill(~m, -1e9)
 
 
-def _arrays(files, level_fit):
+def _arrays(files, level_fit: bool, hard: bool):
     xs, ts, labels, held = [], [], [], []
     for f in files:
         for s in read_states(Path(f)):
             if s.label < 0:
                 continue
             t = np.zeros(len(s.listed), np.float32)
-            t[:] = s.soft if s.soft else 0
-            t[s.label] = t[s.label] if s.soft else 1
+            if s.soft and not hard:
+                t[:] = s.soft
+            else:
+                t[s.label] = 1
             xs.append(rows(observation_of(s), listed_of(s), level_fit))
             ts.append(t)
             labels.append(s.label)
@@ -83,8 +85,9 @@ def _arrays(files, level_fit):
     return torch.tensor(x), torch.tensor(t), torch.tensor(m), np.array(labels), np.array(held)
 
 
-def train(files, out: str, level_fit: bool, epochs: int = 60) -> None:
-    x, t, m, labels, held = _arrays(files, level_fit)
+def train(files, out: str, level_fit: bool, hard: bool = False, epochs: int = 60) -> None:
+    """Fit on the states' soft targets (``hard``: on the teacher's pick alone)."""
+    x, t, m, labels, held = _arrays(files, level_fit, hard)
     torch.manual_seed(0)
     net = make_net(level_fit)
     opt = torch.optim.Adam(net.parameters(), 1e-3)
@@ -171,10 +174,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=7412)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--no-level-fit", action="store_true")
+    p.add_argument("--hard", action="store_true", help="train on the pick alone, not soft targets")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     if a.command == "train":
-        train(a.paths[1:], a.paths[0], not a.no_level_fit)
+        train(a.paths[1:], a.paths[0], not a.no_level_fit, a.hard)
     elif a.command == "loop":
         loop(a.paths[0], a.k, a.per_level, a.seed)
     else:

@@ -88,3 +88,24 @@ def test_plan_teacher_states_carry_the_added_pick(states):
     added = [s for s in states if s.teacher_added]
     assert all(s.label == len(s.listed) - 1 for s in added)
     assert all(len(s.listed) <= PROPOSER.k + 1 for s in states)
+
+
+def test_blank_image_policy_shows_an_empty_container_only(model, states, tmp_path):
+    from packlab.core.errors import ConfigError
+    from packlab.policies.registry import make_policy
+    from packlab.vlm.candidate.scoring import score_listed
+
+    save_pointer(model, tmp_path / "m", {**CARD, "map": "image", "line_vectors": True})
+    seen, blank = (
+        make_policy("vlm", model=str(tmp_path / "m"), blank_image=b) for b in (False, True)
+    )
+    state = next(s for s in states if observation_of(s).heightmap.any())
+    obs, listed = observation_of(state), listed_of(state)
+    for p in (seen, blank):
+        p.load()
+    assert blank._settings.blank_map and not seen._settings.blank_map
+    a = score_listed(seen._model, obs, listed, seen._settings)
+    b = score_listed(blank._model, obs, listed, blank._settings)
+    assert not np.allclose(a, b)  # the image carried the heightmap; blanked, the scores move
+    with pytest.raises(ConfigError, match="blank_image = 'yes'"):
+        make_policy("vlm", model=str(tmp_path / "m"), blank_image="yes")

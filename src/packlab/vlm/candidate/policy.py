@@ -35,12 +35,24 @@ SAVED_MODULE = "packlab.vlm.candidate.saved"
 class CandidateVLMPolicy:
     """Picks the highest-scoring listed placement of a pointer model (``model`` = a directory)."""
 
-    def __init__(self, model: str | Path, threads: int | None = 1, name: str = "vlm") -> None:
+    def __init__(
+        self,
+        model: str | Path,
+        threads: int | None = 1,
+        name: str = "vlm",
+        blank_image: bool = False,
+    ) -> None:
+        """``blank_image`` (ablation, ``--policy-arg vlm:blank_image=true``): the model is shown
+        the map of an empty container at every step, in whatever form it reads the map (image
+        or digits); the listed lines and their vectors are unchanged."""
         if model != IN_MEMORY and not is_pointer_dir(model):
             raise ConfigError(f"model = {str(model)!r}: not a candidate-mode checkpoint directory")
         if threads is not None and threads < 1:
             raise ConfigError(f"threads = {threads}: must be >= 1")
+        if not isinstance(blank_image, bool):
+            raise ConfigError(f"blank_image = {blank_image!r}: must be true or false")
         self.model_spec, self.threads, self.name = str(model), threads, name
+        self.blank_image = blank_image
         self.fallbacks = 0
         self.decisions = 0
         self._model: Any = None
@@ -76,7 +88,7 @@ class CandidateVLMPolicy:
         self._proposer = ProposerConfig(**meta["proposer"])
         self._settings = scoring.PromptSettings(
             meta["instructions"],
-            meta.get("blank_map", False),
+            meta.get("blank_map", False) or self.blank_image,
             meta.get("answer", "index"),
             meta.get("map", "text"),  # a model card written before maps: the text map
             meta.get("line_vectors", False),  # a card written before line vectors: text only

@@ -241,11 +241,11 @@ def make_vlm(**kwargs: Any) -> VLMPolicy | CandidateVLMPolicy:
     """
     model = kwargs.get("model", SHIPPED_MODEL_DIR)
     if is_pointer_dir(model):
-        extra = sorted(set(kwargs) - {"model", "threads", "name"})
+        extra = sorted(set(kwargs) - {"model", "threads", "name", "blank_image"})
         if extra:
             raise ConfigError(
                 f"policy 'vlm': model {str(model)!r} is a candidate-mode checkpoint, which takes "
-                f"only model, threads, name; got {', '.join(extra)}"
+                f"only model, threads, name, blank_image; got {', '.join(extra)}"
             )
         return CandidateVLMPolicy(**{**kwargs, "model": str(model)})
     return VLMPolicy(**kwargs)
