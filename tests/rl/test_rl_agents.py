@@ -127,7 +127,7 @@ def test_save_then_load_gives_identical_actions(cases, tmp_path):
     venv = DummyVecEnv([lambda: ListedActionEnv("irbpp", cases)])
     model = make_model(cfg, venv, tmp_path)
     model.learn(128)
-    save_model_dir(model, tmp_path / "m", AgentCard("irbpp", 8, "overall"))
+    save_model_dir(model, tmp_path / "m", AgentCard("irbpp", cfg.k, "overall"))
     loaded = load_agent(tmp_path / "m")
     spec = loaded.card.spec
     assert _greedy_rows(loaded.model, spec, cases) == _greedy_rows(model, spec, cases)

@@ -12,6 +12,7 @@ import numpy as np
 from packlab.core.choices import RLAgent
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.candidates import STUDENT_K
 from packlab.rl.envs import SET_ASIDE
 from packlab.rl.features import FeatureSpec, encode
 from packlab.sim.buffer import episode_rng
@@ -23,7 +24,7 @@ RNG_OFFSET = 104_729
 class RandomRowPolicy:
     """A uniformly random allowed row of an agent's action space."""
 
-    def __init__(self, agent: RLAgent, k: int = 8) -> None:
+    def __init__(self, agent: RLAgent, k: int = STUDENT_K) -> None:
         self.spec = FeatureSpec.default(agent, k)
         self.name = f"{agent}-random"
         self._rng = np.random.default_rng(0)

@@ -9,6 +9,7 @@ from typing import Any
 
 from packlab.core.choices import RLAgent, RLReward, VecKind, require_choice
 from packlab.core.errors import ConfigError
+from packlab.policies.candidates import STUDENT_K
 
 
 @dataclass(frozen=True, slots=True)
@@ -22,7 +23,7 @@ class RLTrainConfig:
     envs: int = 2  # environment copies
     vec: VecKind = "subproc"
     reward: RLReward = "overall"
-    k: int = 8  # irbpp: placements listed per step (tapnet: one per buffer slot)
+    k: int = STUDENT_K  # irbpp: placements listed per step (tapnet: one per buffer slot)
     n_steps: int = 256  # steps per env per PPO rollout
     batch: int = 256
     epochs: int = 4
@@ -72,7 +73,7 @@ class ImitationConfig:
 
     agent: RLAgent = "irbpp"
     out: str = "runs/rl-imitate"
-    k: int = 8
+    k: int = STUDENT_K
     width: int = 64
     epochs: int = 20
     batch: int = 256

@@ -35,6 +35,7 @@ from gymnasium import spaces
 from packlab.cases import load_cases
 from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, RLAgent, RLReward
 from packlab.core.types import Action, Case
+from packlab.policies.candidates import STUDENT_K
 from packlab.rl.features import (
     FEATURE_MAX,
     GRID,
@@ -79,7 +80,7 @@ class ListedActionEnv(gym.Env):
         cases: str | os.PathLike[str] | Sequence[Case] | None = None,
         backend: str = "geometric",
         reward: RLReward = "overall",
-        k: int = 8,
+        k: int = STUDENT_K,
         physics: Any = None,
         observation: ObservationMode = "exact",
         execution: ExecutionMode = "exact",
@@ -175,7 +176,7 @@ class CandidatePlacementEnv(ListedActionEnv):
     """IR-BPP-style: the action picks one of the proposer's K listed placements."""
 
     def __init__(
-        self, cases=None, backend="geometric", reward="overall", k=8, physics=None, **modes
+        self, cases=None, backend="geometric", reward="overall", k=STUDENT_K, physics=None, **modes
     ):
         super().__init__("irbpp", cases, backend, reward, k, physics, **modes)
 

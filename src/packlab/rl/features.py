@@ -31,7 +31,7 @@ import numpy as np
 from packlab.core.choices import RLAgent, require_choice
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
-from packlab.policies.candidates import Candidate, ProposerConfig, propose_from
+from packlab.policies.candidates import STUDENT_K, Candidate, ProposerConfig, propose_from
 from packlab.policies.features import (
     flush_cells_at,
     side_cells,
@@ -79,7 +79,7 @@ class FeatureSpec:
             raise ValueError(f"FeatureSpec.n_items = {self.n_items!r}: must be an int >= 1")
 
     @classmethod
-    def default(cls, agent: RLAgent, k: int = 8) -> FeatureSpec:
+    def default(cls, agent: RLAgent, k: int = STUDENT_K) -> FeatureSpec:
         """irbpp: ``k`` listed placements; tapnet: one row per buffer slot of the largest level."""
         return cls(agent, k if agent == "irbpp" else MAX_BUFFER)
 
