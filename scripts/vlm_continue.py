@@ -1,0 +1,53 @@
+"""Continue a candidate-mode model on more labelled states (a DAgger round from states on disk).
+
+Usage:
+    python scripts/vlm_continue.py --model runs/student/vlm/r0/train/final \
+        --states runs/student/vlm/r0/states.jsonl runs/student/vlm/r1/states.jsonl \
+        --cases runs/student/train-cases.jsonl --out runs/student/vlm/r1/train \
+        --steps 700 --lr 5e-4 --minutes 18
+
+``packlab train candidate`` collects each DAgger round with the model itself acting. This script
+trains on states collected otherwise (here: the states the line-vector MLP student of
+``benchmarks/student_probe.py dagger`` reached, labelled by the planner), warm-starting from a
+pointer directory with its own settings (map, line vectors, K). The closed-loop evaluation uses
+the last five cases per level of ``--cases`` (as the recipe does). Resumable like any training.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from packlab.cases import load_cases
+from packlab.datagen.guard import require_training_cases
+from packlab.vlm.candidate.dagger_split import split_cases
+from packlab.vlm.candidate.saved import load_pointer
+from packlab.vlm.candidate.train import PointerTrainConfig, train_pointer
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", required=True)
+    p.add_argument("--states", nargs="+", required=True)
+    p.add_argument("--cases", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--steps", type=int, default=700)
+    p.add_argument("--lr", type=float, default=5e-4)
+    p.add_argument("--minutes", type=float, default=None)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--note", default="", help="recorded in the model card")
+    a = p.parse_args()
+    cases = require_training_cases(load_cases(a.cases), a.cases)
+    _, evals = split_cases(cases, 3, 0, 5)
+    meta = load_pointer(a.model).vlm.meta
+    cfg = PointerTrainConfig(
+        states=tuple(a.states), out=a.out, model=a.model, map=meta["map"],
+        line_vectors=bool(meta.get("line_vectors", False)), k=meta["proposer"]["k"],
+        shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr, warmup=20,
+        seed=a.seed, threads=1, minutes=a.minutes, eval_every=350,
+        meta={"teacher": meta.get("teacher", ""), "continued_from": a.model, "note": a.note},
+    )  # fmt: skip
+    print(train_pointer(cfg, evals))
+
+
+if __name__ == "__main__":
+    main()
