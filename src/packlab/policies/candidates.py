@@ -226,20 +226,39 @@ def propose_from(
     return tuple(_candidate(cands, owner[i], i, n) for n, i in enumerate(picks))
 
 
+def _group_at(
+    cands: CandidateSet, obj: int, rotation: int, x: int, y: int
+) -> tuple[Orientation, int] | None:
+    """The group of (object, rotation) and the flat index of its placement at (x, y); None when
+    the candidate search has no such placement."""
+    for g in cands.groups:
+        if (g.object_index, g.rotation) != (obj, rotation):
+            continue
+        nx, ny = g.z.shape  # minimum cells whose footprint fits the floor
+        if not (0 <= x < nx and 0 <= y < ny):
+            return None
+        return g, int(g.offset + x * ny + y)
+    return None
+
+
+def placement_index(cands: CandidateSet, obj: int, rotation: int, x: int, y: int) -> int | None:
+    """The flat index in ``cands`` of placement (object, rotation, x, y); None when the set has
+    no such placement (the box fits nowhere at that rotation or the cell is out of range)."""
+    found = _group_at(cands, obj, rotation, x, y)
+    return None if found is None else found[1]
+
+
 def candidate_for(cands: CandidateSet, action: Action, index: int) -> Candidate | None:
     """``action`` as a listed placement numbered ``index`` (the geometry a listed line shows),
     or None when it is not a floor-fitting placement of the candidate search. Used to list a
     teacher's own pick that the proposer did not list, so a student can be shown it."""
-    for g in cands.groups:
-        if (g.object_index, g.rotation) != (action.object_id, action.rotation):
-            continue
-        nx, ny = g.z.shape
-        if not (0 <= action.x < nx and 0 <= action.y < ny):
-            return None
-        walls = walled(cands.heightmap, cands.container_height_mm)
-        shape = _Shape(g, np.zeros(0, dtype=np.int64), flush_grid(walls, g.fx, g.fy, g.z))
-        return _candidate(cands, shape, g.offset + action.x * ny + action.y, index)
-    return None
+    found = _group_at(cands, action.object_id, action.rotation, action.x, action.y)
+    if found is None:
+        return None
+    g, i = found
+    walls = walled(cands.heightmap, cands.container_height_mm)
+    shape = _Shape(g, np.zeros(0, dtype=np.int64), flush_grid(walls, g.fx, g.fy, g.z))
+    return _candidate(cands, shape, i, index)
 
 
 def propose(

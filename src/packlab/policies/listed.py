@@ -32,7 +32,7 @@ import numpy as np
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.candidates import Candidate, candidate_for
+from packlab.policies.candidates import Candidate, candidate_for, placement_index
 from packlab.policies.heuristics.policy import SCORERS
 from packlab.policies.heuristics.select import object_rank
 from packlab.policies.oracle import OraclePolicy
@@ -64,10 +64,10 @@ class TeacherLabel:
 
 def flat_index(cands: CandidateSet, cand: Candidate) -> int:
     """The index of a listed placement in the candidate search it came from."""
-    for g in cands.groups:
-        if g.object_index == cand.object_index and g.rotation == cand.rotation:
-            return g.offset + cand.x * g.z.shape[1] + cand.y
-    raise KeyError(f"no group for object {cand.object_index} rotation {cand.rotation}")
+    i = placement_index(cands, cand.object_index, cand.rotation, cand.x, cand.y)
+    if i is None:
+        raise KeyError(f"no placement of object {cand.object_index} rotation {cand.rotation}")
+    return i
 
 
 def _listed_flat(cands: CandidateSet, listed: Sequence[Candidate]) -> np.ndarray:

@@ -31,7 +31,13 @@ import numpy as np
 from packlab.core.choices import RLAgent, require_choice
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
-from packlab.policies.candidates import STUDENT_K, Candidate, ProposerConfig, propose_from
+from packlab.policies.candidates import (
+    STUDENT_K,
+    Candidate,
+    ProposerConfig,
+    placement_index,
+    propose_from,
+)
 from packlab.policies.features import (
     flush_cells_at,
     side_cells,
@@ -204,21 +210,8 @@ def _listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
         picks = (rule_placement(cands, j) for j in range(min(cands.buffer_size, spec.n_items)))
         return [i for i in picks if i is not None]
     listed = propose_from(cands, ProposerConfig(k=spec.n_items))
-    out = [candidate_index(cands, c.object_index, c.rotation, c.x, c.y) for c in listed]
+    out = [placement_index(cands, c.object_index, c.rotation, c.x, c.y) for c in listed]
     return [i for i in out if i is not None]
-
-
-def candidate_index(cands: CandidateSet, obj: int, rotation: int, x: int, y: int) -> int | None:
-    """The flat index in ``cands`` of placement (object, rotation, x, y); None when the set has
-    no such placement (the box fits nowhere at that rotation or the cell is out of range)."""
-    for g in cands.groups:
-        if (g.object_index, g.rotation) != (obj, rotation):
-            continue
-        nx, ny = cands.heightmap.shape
-        if not (0 <= x <= nx - g.fx and 0 <= y <= ny - g.fy):
-            return None
-        return int(g.offset + x * (ny - g.fy + 1) + y)
-    return None
 
 
 def encode(

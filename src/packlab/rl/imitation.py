@@ -25,9 +25,10 @@ import numpy as np
 
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
+from packlab.policies.candidates import placement_index
 from packlab.policies.features import walled
 from packlab.policies.heuristics.select import object_rank
-from packlab.rl.features import FeatureSpec, candidate_index, encode, item_row
+from packlab.rl.features import FeatureSpec, encode, item_row
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +66,7 @@ def size_key(observation: Observation, object_index: int) -> tuple[int, ...]:
 
 def _extra_row(cands: CandidateSet, observation: Observation, action: Action) -> np.ndarray | None:
     """The item row of a placement the rows do not list (None: not a placement of the set)."""
-    i = candidate_index(cands, action.object_id, action.rotation, action.x, action.y)
+    i = placement_index(cands, action.object_id, action.rotation, action.x, action.y)
     if i is None:
         return None
     ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order)
