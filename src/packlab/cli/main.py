@@ -12,7 +12,7 @@ import importlib
 import sys
 
 #: Subcommand modules, in help order.
-COMMANDS = ("bench", "cases", "generate", "inspect_data", "train", "serve", "viz")
+COMMANDS = ("bench", "cases", "generate", "inspect_data", "train", "export", "serve", "viz")
 
 
 from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted

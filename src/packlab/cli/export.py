@@ -1,0 +1,89 @@
+"""``packlab export onnx RUN_DIR``: a trained learned policy's networks as ONNX graphs, so it
+plays on ONNX Runtime from the core install (no torch). Exporting needs the extra the model was
+trained with (torch); the directory kind is read from its files:
+
+- ``card.json`` (an RL agent, irbpp or tapnet): :mod:`packlab.rl.onnx_export` (rl extra);
+- ``packlab_model.json`` with ``action_format`` = candidate (the pointer VLM):
+  :mod:`packlab.vlm.candidate.onnx_export` (vlm extra).
+
+Both write ``<name>.onnx`` graphs and ``onnx.json`` into the directory itself
+(:mod:`packlab.policies.onnx_model`) and check, on generated states, that the ONNX graphs pick
+the same placements as torch before the card is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+from pathlib import Path
+
+from packlab.core.errors import ConfigError
+
+#: Directory marker file -> the module whose ``export_onnx(directory, check_states)`` exports it.
+EXPORTERS = (
+    ("card.json", "packlab.rl.onnx_export", "rl"),
+    ("packlab_model.json", "packlab.vlm.candidate.onnx_export", "vlm"),
+)
+#: Generated observations on which the export compares torch's and ONNX's decisions.
+DEFAULT_CHECK_STATES = 64
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="export a trained learned policy to ONNX (plays without torch)",
+        description="Write ONNX graphs and onnx.json beside a trained model's checkpoint "
+        "(an RL agent directory or a candidate-mode VLM directory), after checking that "
+        "ONNX Runtime picks the same placements as torch on generated states.",
+    )
+    sub = p.add_subparsers(dest="format", required=True)
+    onnx = sub.add_parser("onnx", help="ONNX Runtime graphs (docs/onnx.md)")
+    onnx.add_argument("model_dir", type=Path, help="a model directory (RUN/best, RUN/final, ...)")
+    onnx.add_argument(
+        "--check-states",
+        type=int,
+        default=DEFAULT_CHECK_STATES,
+        help="generated observations on which torch and ONNX must agree (0: skip the check)",
+    )
+    onnx.set_defaults(func=run_export)
+
+
+def exporter_for(directory: Path) -> tuple[str, str]:
+    """(module, extra) exporting ``directory``, or a ConfigError naming what is there."""
+    if not directory.is_dir():
+        raise ConfigError(f"model_dir = {str(directory)!r}: not a directory")
+    for marker, module, extra in EXPORTERS:
+        path = directory / marker
+        if not path.is_file():
+            continue
+        if marker == "packlab_model.json":
+            fmt = json.loads(path.read_text()).get("action_format")
+            if fmt != "candidate":
+                raise ConfigError(
+                    f"{path}: field 'action_format' = {fmt!r}: only candidate-mode (pointer) "
+                    f"models export to ONNX; text-answer VLMs play through transformers"
+                )
+        return module, extra
+    raise ConfigError(
+        f"model_dir = {str(directory)!r}: neither an RL agent (card.json) nor a "
+        f"candidate-mode VLM (packlab_model.json)"
+    )
+
+
+def run_export(args: argparse.Namespace) -> int:
+    if args.check_states < 0:
+        raise ConfigError(f"check-states = {args.check_states}: must be >= 0")
+    module_name, extra = exporter_for(args.model_dir)
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise ConfigError(
+            f"exporting {args.model_dir} needs the {extra} extra ({exc.name} missing): "
+            f"pip install torch==2.13.0, then pip install -e '.[{extra}]'"
+        ) from None
+    card = module.export_onnx(args.model_dir, check_states=args.check_states)
+    for name, spec in card.graphs.items():
+        print(f"{name}: {args.model_dir / spec.file}")
+    print(f"card: {args.model_dir / 'onnx.json'}")
+    return 0
