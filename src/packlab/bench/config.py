@@ -73,15 +73,22 @@ IDENTITY_KEYS = (
 )
 
 
-def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
-    """Every registered heuristic, the planner at its fast budget (``plan-fast``), then random and
-    the oracle (when every case has a plan).
+#: The shipped learned policies in the default table, in the paper's Table 2 order. They play
+#: their ONNX graphs on ONNX Runtime (core install); a user's own models are named with
+#: ``--policies`` and ``--policy-arg NAME:model=DIR``.
+LEARNED_DEFAULTS = ("vlm", "irbpp", "tapnet")
 
-    VLM policies are registered too but never run unless named: they need models and hardware.
+
+def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
+    """Every registered heuristic, the planner at its fast budget (``plan-fast``), the shipped
+    learned policies (:data:`LEARNED_DEFAULTS`), then random and the oracle (when every case has a
+    plan).
+
     ``plan`` at its default budget is left to ``--policies``: it would take the default run past
-    five minutes on two cores.
+    five minutes on two cores; so are the other registered policies (the text-answer ``vlm-small``,
+    ``endpoint``, the proposer, the RL random floors).
     """
-    names = (*SCORERS, "plan-fast", "random")
+    names = (*SCORERS, "plan-fast", *LEARNED_DEFAULTS, "random")
     if all(c.gt_plan is not None for c in cases):
         names += ("oracle",)
     return names
