@@ -268,7 +268,10 @@ def test_without_plotly_bench_skips_the_html_with_one_note(
     assert main(_bench_argv(tiny_suite, tmp_path / "a")) == EXIT_OK
     err = capsys.readouterr().err
     notes = [line for line in err.splitlines() if "report.html" in line]
-    note = "report.html skipped: the HTML report needs plotly: pip install 'packlab[report]'"
+    note = (
+        "report.html skipped: the HTML report needs plotly, a core dependency that is missing "
+        "here: pip install plotly"
+    )
     assert notes == [f"packlab bench: note: {note}"]
     assert not (tmp_path / "a" / REPORT_HTML).exists() and (tmp_path / "a" / "table.md").exists()
     # Asked for explicitly, it is an error instead.

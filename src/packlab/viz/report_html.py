@@ -1,7 +1,7 @@
 """The interactive bench report as one self-contained HTML file (plotly.js inlined, no network).
 
 The page is a fixed template (``assets/report.html``), a stylesheet and a script (``assets/``),
-plotly.js from the installed ``plotly`` package (the ``report`` extra) inlined once, and the
+plotly.js from the installed ``plotly`` package (a core dependency) inlined once, and the
 report's data (``packlab.viz.report_data``) embedded once as JSON; the script builds every
 table, plot and 3D replay in the browser from that data. The output is a function of the data,
 packlab's and plotly's versions alone, except for the one ``packlab-generated`` line carrying
@@ -25,16 +25,17 @@ _PLOTLY_VERSION = re.compile(r"plotly\.js v(\d[\w.\-]*)")
 
 
 class ReportUnavailable(PacklabError):
-    """The HTML report needs the ``report`` extra (plotly), which is not installed."""
+    """plotly, a core dependency the HTML report inlines, is missing (a broken install)."""
 
 
 def plotly_js() -> str:
     """plotly.js as shipped in the installed plotly package (its minified bundle)."""
     try:
-        from plotly.offline import get_plotlyjs  # optional dependency (the report extra)
+        # Imported when a page is built: plotly.js is about 4 MB.
+        from plotly.offline import get_plotlyjs
     except ImportError:
         raise ReportUnavailable(
-            "the HTML report needs plotly: pip install 'packlab[report]'"
+            "the HTML report needs plotly, a core dependency that is missing here: pip install plotly"
         ) from None
     return get_plotlyjs()
 
