@@ -36,6 +36,7 @@ from packlab.cases import load_cases
 from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, RLAgent, RLReward
 from packlab.core.types import Action, Case
 from packlab.policies.candidates import STUDENT_K
+from packlab.rl.decision import SET_ASIDE  # the envs set a box aside as the agents do
 from packlab.rl.features import (
     FEATURE_MAX,
     GRID,
@@ -52,10 +53,6 @@ from packlab.sim.modes import DEFAULT_NOISE, episode_modes
 
 CANDIDATES_ENV_ID = "packlab/PackCandidates-v0"
 OBJECTS_ENV_ID = "packlab/PackObjects-v0"
-
-#: What is done when nothing can be chosen: shown object 0 at the origin, which is out of
-#: bounds exactly when the object fits nowhere (the episode records it invalid, sets it aside).
-SET_ASIDE = Action(object_id=0, rotation=0, x=0, y=0)
 
 
 def observation_space(spec: FeatureSpec) -> spaces.Dict:

@@ -5,7 +5,7 @@
 logits and the samples' targets (soft or one-hot, over a variable number of rows) and, where the
 samples carry one, its value head to the episode's final Overall (squared error), then saves a
 model directory :func:`packlab.rl.agent.load_agent` reads and ``packlab train rl --init`` starts
-PPO from.
+PPO from, with its ONNX export (the bench plays it without torch).
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from packlab.core.errors import ConfigError
-from packlab.rl.agent import AgentCard
+from packlab.rl.card import AgentCard
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.rl.envs import ListedActionEnv
 from packlab.rl.features import FeatureSpec
 from packlab.rl.imitation import Sample
-from packlab.rl.train import make_model, save_model_dir
+from packlab.rl.train import export_model_dirs, make_model, save_model_dir
 
 #: Logit given to padded rows (masked out of the softmax).
 MASKED = -1e9
@@ -151,6 +151,7 @@ def imitate(samples: Sequence[Sample], cfg: ImitationConfig, source: str = "") -
         cases=f"imitation:{source}" if source else "imitation",
     )
     save_model_dir(model, out, card)
+    export_model_dirs(out)
     record = {"config": asdict(cfg), "source": source, "n_samples": result.n_samples}
     record |= {"losses": result.losses, "accuracy": result.accuracy}
     (out / "imitation.json").write_text(json.dumps(record, indent=1) + "\n")

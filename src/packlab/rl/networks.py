@@ -18,6 +18,7 @@ from __future__ import annotations
 import gymnasium as gym
 import torch
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+from stable_baselines3.common.policies import BaseModel
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
@@ -120,3 +121,27 @@ class ItemPointerPolicy(MaskableActorCriticPolicy):
         self.optimizer = self.optimizer_class(
             self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
+
+
+class ActorLogits(nn.Module):
+    """A MaskablePPO policy's greedy path as a plain module: (heightmap (B, 1, G, G), globals
+    (B, N_GLOBALS), items (B, N, F)) -> raw row logits (B, N), masking left to
+    :func:`packlab.rl.decision.pick_row`. It calls the policy's own steps (SB3's observation
+    preprocessing, the features extractor, the actor's MLP extractor and the action head) in
+    MaskablePPO's order, so the torch runtime and the ONNX export compute one function."""
+
+    def __init__(self, policy: MaskableActorCriticPolicy) -> None:
+        super().__init__()
+        self.policy = policy
+        self.train(False)  # greedy play: evaluation mode, as MaskablePPO.predict sets it
+
+    def forward(
+        self, heightmap: torch.Tensor, globals_: torch.Tensor, items: torch.Tensor
+    ) -> torch.Tensor:
+        observation = {"heightmap": heightmap, "globals": globals_, "items": items}
+        # BaseModel's, as MaskableActorCriticPolicy.get_distribution calls it: the actor's
+        # extractor whether or not the critic shares it.
+        features = BaseModel.extract_features(
+            self.policy, observation, self.policy.pi_features_extractor
+        )
+        return self.policy.action_net(self.policy.mlp_extractor.forward_actor(features))

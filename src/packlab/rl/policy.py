@@ -1,76 +1,139 @@
-"""Policies ``irbpp`` and ``tapnet``: a trained RL agent as a bench policy (rl extra).
+"""Policies ``irbpp`` and ``tapnet``: a trained RL agent as a bench policy.
 
 ``packlab bench --policies irbpp,tapnet`` plays the agents shipped in the package
 (``packlab/data/models/<name>``); ``--policy-arg irbpp:model=RUN/best`` plays another. Each
 decision encodes the observation exactly as the training env did
-(:func:`packlab.rl.features.encode`) and takes the agent's greedy row; when no shown box fits
-anywhere, the box is set aside as the heuristics do. The stable-baselines3 stack is imported
-when the model is loaded (on the first ``reset``), so listing or skipping these policies needs
-no extra.
+(:func:`packlab.rl.features.encode`), asks the network for its row logits and takes the greedy
+row (:func:`packlab.rl.decision.decide`); when no shown box fits anywhere, the box is set aside
+as the heuristics do.
+
+Option ``runtime``: ``onnx`` (default) runs the directory's ONNX export on ONNX Runtime
+(:mod:`packlab.rl.onnx_agent`) and imports neither torch nor stable-baselines3, so the core
+install plays it; ``torch`` loads ``model.zip`` with sb3-contrib (rl extra). The two differ only
+in who computes the logits. The model is loaded on the first ``reset``, so listing or skipping
+these policies needs nothing.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
+from packlab.rl.card import CARD_FILE, AgentCard, read_card
+from packlab.rl.decision import RowLogits, decide
 from packlab.rl.extra import RLExtraMissing, import_rl
+from packlab.rl.features import FeatureSpec, encode
+from packlab.rl.onnx_agent import load_onnx_agent
 
 #: Where the package ships its trained agents, one directory per policy name.
 SHIPPED_MODELS = Path(__file__).resolve().parents[1] / "data" / "models"
 AGENT_MODULE = "packlab.rl.agent"
-OPTIONS = ("model", "threads")
+#: Who computes the network's logits: ONNX Runtime (core install) or torch (rl extra).
+RUNTIMES = ("onnx", "torch")
+OPTIONS = ("model", "threads", "runtime")
+
+
+@dataclass(frozen=True, slots=True)
+class _Playing:
+    """A loaded agent: what it encodes and who computes its logits."""
+
+    spec: FeatureSpec
+    row_logits: RowLogits
+
+
+#: Agents loaded in this process. The bench makes a fresh policy per episode; one ONNX session
+#: (or torch model) per policy name, directory, runtime and thread count serves them all. The
+#: key holds the directory's file stamps, so a re-export or retraining in between is loaded (and
+#: checked) anew.
+_LOADED: dict[tuple[object, ...], _Playing] = {}
+
+
+def _stamps(directory: Path) -> tuple[tuple[str, int, int], ...]:
+    """(name, mtime ns, size) of each file in ``directory`` (empty when it does not exist)."""
+    if not directory.is_dir():
+        return ()
+    stats = ((p.name, p.stat()) for p in directory.iterdir() if p.is_file())
+    return tuple(sorted((name, st.st_mtime_ns, st.st_size) for name, st in stats))
 
 
 class RLAgentPolicy:
     """A trained agent over its action space (module docstring)."""
 
-    def __init__(self, name: str, model: str | None = None, threads: int = 1) -> None:
+    def __init__(
+        self, name: str, model: str | None = None, threads: int = 1, runtime: str = "onnx"
+    ) -> None:
         self.name = name
         self.model_dir = Path(model) if model else SHIPPED_MODELS / name
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ConfigError(f"policy-arg {name}:threads = {threads!r}: must be an int >= 1")
+        if runtime not in RUNTIMES:
+            raise ConfigError(
+                f"policy-arg {name}:runtime = {runtime!r}: must be one of {', '.join(RUNTIMES)} "
+                "(onnx: ONNX Runtime, core install; torch: the rl extra)"
+            )
         self.threads = threads
-        self._loaded: Any = None
+        self.runtime = runtime
+        self._playing: _Playing | None = None
 
-    def _load(self) -> Any:
-        try:
-            agent = import_rl(AGENT_MODULE)
-        except RLExtraMissing as e:
-            raise ConfigError(f"policy {self.name!r}: {e}") from None
-        agent.set_threads(self.threads)
+    def _card(self) -> AgentCard:
         if not self.shipped_present():
             raise ConfigError(
                 f"policy {self.name!r}: no agent is shipped in this install ({self.model_dir}); "
                 f"train one (docs/rl.md): packlab train rl --agent {self.name} --out RUN, then "
                 f"--policy-arg {self.name}:model=RUN/best"
             )
-        loaded = agent.load_agent(self.model_dir)
-        if loaded.card.agent != self.name:
+        card = read_card(self.model_dir)
+        if card.agent != self.name:
             raise ConfigError(
                 f"policy {self.name!r}: model = {str(self.model_dir)!r} is a "
-                f"{loaded.card.agent!r} agent (card.json)"
+                f"{card.agent!r} agent ({CARD_FILE})"
             )
-        self._greedy = agent.greedy_action
-        return loaded
+        return card
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Configuration only: a clone loads (or reuses) the agent in its own process.
+        return {**self.__dict__, "_playing": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
+    def _load(self) -> _Playing:
+        where = self.model_dir.resolve()
+        key = (self.name, where, self.runtime, self.threads, _stamps(self.model_dir))
+        if key not in _LOADED:
+            _LOADED[key] = self._load_now()
+        return _LOADED[key]
+
+    def _load_now(self) -> _Playing:
+        card = self._card()
+        if self.runtime == "onnx":
+            return _Playing(card.spec, load_onnx_agent(self.model_dir, self.threads).row_logits)
+        try:
+            agent = import_rl(AGENT_MODULE)
+        except RLExtraMissing as e:
+            raise ConfigError(f"policy {self.name!r} (runtime = torch): {e}") from None
+        agent.set_threads(self.threads)
+        model = agent.load_agent(self.model_dir).model
+        return _Playing(card.spec, lambda arrays: agent.row_logits(model, arrays))
 
     def shipped_present(self) -> bool:
         """False only when the shipped agent is asked for and this install has none."""
         return (
-            self.model_dir != SHIPPED_MODELS / self.name or (self.model_dir / "card.json").is_file()
+            self.model_dir != SHIPPED_MODELS / self.name or (self.model_dir / CARD_FILE).is_file()
         )
 
     def reset(self, case: Case, seed: int) -> None:
         """Load the agent once; it keeps no state between steps."""
-        if self._loaded is None:
-            self._loaded = self._load()
+        if self._playing is None:
+            self._playing = self._load()
 
     def act(self, observation: Observation) -> Action:
-        if self._loaded is None:
-            self._loaded = self._load()
-        return self._greedy(self._loaded.model, self._loaded.card.spec, observation)
+        if self._playing is None:
+            self._playing = self._load()
+        return decide(encode(observation, self._playing.spec), self._playing.row_logits)
 
 
 def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:
@@ -80,7 +143,8 @@ def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:
             f"policy-arg {name}:{unknown[0]}: unknown option; known: {', '.join(OPTIONS)}"
         )
     threads = options.get("threads", 1)
-    return RLAgentPolicy(name, options.get("model"), int(threads) if threads else 1)
+    runtime = options.get("runtime", "onnx")
+    return RLAgentPolicy(name, options.get("model"), int(threads) if threads else 1, runtime)
 
 
 def make_irbpp(**options: Any) -> RLAgentPolicy:

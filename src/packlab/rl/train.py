@@ -4,9 +4,10 @@ A run directory holds ``config.json`` (the resolved :class:`RLTrainConfig` and t
 source), ``checkpoint.zip`` + ``state.json`` (written together at every evaluation: rerunning
 the same command resumes from them after a crash or a stop), ``log.csv`` (one row per
 evaluation), ``best/`` (the checkpoint with the best held-out score so far) and ``final/`` (the
-last), each a model directory :func:`packlab.rl.agent.load_agent` reads, and ``tb/`` when
-TensorBoard is installed. Training runs on the geometric backend (exact Eq. 2, fast); the bench
-scores the agents under MuJoCo.
+last), each a model directory :func:`packlab.rl.agent.load_agent` reads and, once the run
+ends, exported to ONNX (:mod:`packlab.rl.onnx_export`: the bench's default runtime plays it
+without torch), and ``tb/`` when TensorBoard is installed. Training runs on the geometric
+backend (exact Eq. 2, fast); the bench scores the agents under MuJoCo.
 """
 
 from __future__ import annotations
@@ -31,18 +32,21 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMoni
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
 from packlab.core.types import Case
-from packlab.rl.agent import MODEL_FILE, AgentCard, read_card, write_card
+from packlab.rl.card import MODEL_FILE, AgentCard, read_card, write_card
 from packlab.rl.config import RLTrainConfig
 from packlab.rl.envs import ListedActionEnv
 from packlab.rl.evaluate import evaluate
 from packlab.rl.features import FeatureSpec
 from packlab.rl.networks import ItemPointerPolicy
+from packlab.rl.onnx_export import export_onnx
 from packlab.rl.split import hold_out
 
 LOG_FIELDS = ("env_steps", "wall_s", "steps_per_s", "train_return", "easy", "medium", "hard", "avg")
 #: Config fields a resumed run must share with the run it continues (the rest may change,
 #: e.g. a larger ``steps`` to train on).
 FIXED_ON_RESUME = ("agent", "reward", "k", "width", "seed")
+#: States on which a run's ONNX export must pick torch's rows (as ``packlab export onnx``).
+EXPORT_CHECK_STATES = 64
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,6 +110,16 @@ def save_model_dir(model: Any, directory: Path, card: AgentCard) -> None:
     # A kill mid-write must not leave half a model where best/ or final/ had a whole one.
     write_atomically(directory / MODEL_FILE, model.save)
     write_card(directory, card)
+
+
+def export_model_dirs(*directories: Path) -> None:
+    """The ONNX export of each model directory a run wrote (``packlab export onnx``), so the
+    agent plays under the policies' default runtime without torch. Done once at the end, not
+    at every new best: a killed run's best/ is then refused as stale until exported."""
+    for directory in directories:
+        if (directory / MODEL_FILE).is_file():
+            export_onnx(directory, check_states=EXPORT_CHECK_STATES)
+            print(f"ONNX export: {directory / 'policy.onnx'}", flush=True)
 
 
 class _Progress(BaseCallback):
@@ -277,4 +291,5 @@ def train_rl(
         save_model_dir(model, out / "final", run.card(int(model.num_timesteps), wall, final))
     finally:
         venv.close()
+    export_model_dirs(out / "best", out / "final")
     return RLRunResult(out, int(model.num_timesteps), wall, run.state["best"], final)

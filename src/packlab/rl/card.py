@@ -1,0 +1,69 @@
+"""An agent's ``card.json`` (torch-free): what a model directory holds besides its weights.
+
+One implementation for everyone who reads or writes the card: the trainer and the imitation fit
+(rl extra), the torch loader (:mod:`packlab.rl.agent`) and the ONNX player
+(:mod:`packlab.rl.onnx_agent`, core install).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from packlab.core.errors import ConfigError
+from packlab.core.fileio import write_atomically
+from packlab.rl.features import FEATURES_VERSION, FeatureSpec
+
+MODEL_FILE = "model.zip"
+CARD_FILE = "card.json"
+CARD_FORMAT = "packlab-rl-card-1"
+
+
+@dataclass(frozen=True, slots=True)
+class AgentCard:
+    """What a model directory holds besides its weights."""
+
+    agent: str
+    n_items: int
+    reward: str
+    env_steps: int = 0
+    wall_time_s: float = 0.0
+    cores: int = 0
+    cases: str = ""  # the training cases' source
+    cases_sha256: str = ""
+    held_out: dict[str, float] = field(default_factory=dict)  # level -> mean Overall, and avg
+    format: str = CARD_FORMAT
+    #: What its item rows hold (:data:`packlab.rl.features.FEATURES_VERSION`); a card written
+    #: before the field existed is version 1.
+    features: int = FEATURES_VERSION
+
+    @property
+    def spec(self) -> FeatureSpec:
+        return FeatureSpec(self.agent, self.n_items)  # type: ignore[arg-type]
+
+
+def write_card(directory: Path, card: AgentCard) -> None:
+    text = (json.dumps(asdict(card), indent=1, sort_keys=True) + "\n").encode()
+    write_atomically(directory / CARD_FILE, lambda f: f.write(text))
+
+
+def read_card(directory: Path) -> AgentCard:
+    path = directory / CARD_FILE
+    if not path.is_file():
+        raise ConfigError(f"model = {str(directory)!r}: no {CARD_FILE} (not an RL model directory)")
+    try:
+        raw = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"{path}: not JSON ({e})") from None
+    if raw.get("format") != CARD_FORMAT:
+        raise ConfigError(f"{path}: format = {raw.get('format')!r}, expected {CARD_FORMAT!r}")
+    known = set(AgentCard.__dataclass_fields__)
+    card = AgentCard(**{"features": 1, **{k: v for k, v in raw.items() if k in known}})
+    if card.features != FEATURES_VERSION:
+        raise ConfigError(
+            f"{path}: features = {card.features}: this packlab's agents read item rows of version "
+            f"{FEATURES_VERSION} (placement geometry and level fit); retrain the agent "
+            "(packlab train rl-imitate, then packlab train rl --init)"
+        )
+    return card
