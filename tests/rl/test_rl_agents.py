@@ -145,7 +145,8 @@ def test_train_rl_evaluates_checkpoints_and_resumes(cases, tmp_path):
     first = train_rl(cfg, cases, source)
     assert first.env_steps == 128
     assert [int(r["env_steps"]) for r in _rows(tmp_path / "run" / "log.csv")] == [0, 64, 128]
-    for name in ("checkpoint.zip", "state.json", "best/model.zip", "final/card.json"):
+    names = ("checkpoint.zip", "state.json", "best/model.zip", "final/card.json")
+    for name in (*names, "best/onnx.json", "final/policy.onnx"):  # exported: plays without torch
         assert (tmp_path / "run" / name).is_file(), name
     more = train_rl(replace(cfg, steps=192), cases, source)  # the same run, trained further
     assert more.env_steps == 192

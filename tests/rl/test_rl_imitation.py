@@ -128,6 +128,11 @@ def test_short_imitation_lowers_the_loss_and_saves_a_playable_agent(hard_case, t
     assert result.losses[-1] < result.losses[0] - 0.2, result.losses
     loaded = load_agent(tmp_path / "m")
     assert loaded.card.agent == "irbpp" and loaded.card.n_items == spec.n_items
+    # exported to ONNX, so the default runtime plays it (the same actions as torch)
+    onnx = make_policy("irbpp", model=str(tmp_path / "m"))
+    torch_ = make_policy("irbpp", model=str(tmp_path / "m"), runtime="torch")
+    observations = [o for o, _ in _observations(hard_case, steps=12)]
+    assert [onnx.act(o) for o in observations] == [torch_.act(o) for o in observations]
     assert 0.0 < play(loaded.model, loaded.card.spec, hard_case).overall <= 1.0
     # the saved network scores the rows as the fitted one did (extra rows included)
     with torch.no_grad():
