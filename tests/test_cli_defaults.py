@@ -29,6 +29,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "train candidate": ["train", "candidate", "--cases", "cases", "--out", "runs/cand"],
     "train rl": ["train", "rl"],
     "train rl-imitate": ["train", "rl-imitate", "--states", "s.jsonl"],
+    "export onnx": ["export", "onnx", "runs/rl/best"],
     "serve": ["serve"],
     "viz episode": [
         "viz",
@@ -58,6 +59,7 @@ CLI_ONLY: dict[str, set[str]] = {
     "train candidate": {"--cases"},
     "train rl": {"--cases"},
     "train rl-imitate": {"--states", "--cases"},
+    "export onnx": {"--check-states"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
     # Live episodes take the bench's RunConfig; absent flags leave its defaults (stated there).

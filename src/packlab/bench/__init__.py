@@ -11,17 +11,47 @@
 - :mod:`.replay`: recorded actions -> step heightmaps (for ``packlab viz episode``).
 """
 
-from packlab.bench.config import ResolvedRun, RunConfig, resolve
-from packlab.bench.report import build_report
-from packlab.bench.runner import BenchOutcome, run_bench
-from packlab.bench.suites import (
-    DEFAULT_SUITE,
-    SUITES,
-    SuiteIntegrityError,
-    load_suite,
-    resolve_cases,
-)
-from packlab.bench.summary import summarize
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from packlab.bench.config import ResolvedRun, RunConfig, resolve
+    from packlab.bench.report import build_report
+    from packlab.bench.runner import BenchOutcome, run_bench
+    from packlab.bench.suites import (
+        DEFAULT_SUITE,
+        SUITES,
+        SuiteIntegrityError,
+        load_suite,
+        resolve_cases,
+    )
+    from packlab.bench.summary import summarize
+
+#: Where each name below lives. They are imported on first use (PEP 562), so importing one light
+#: submodule (``packlab.bench.options``, for ``packlab bench --help``) loads no engine.
+_HOMES = {
+    "DEFAULT_SUITE": "packlab.bench.options",
+    "SUITES": "packlab.bench.suites",
+    "BenchOutcome": "packlab.bench.runner",
+    "ResolvedRun": "packlab.bench.config",
+    "RunConfig": "packlab.bench.options",
+    "SuiteIntegrityError": "packlab.bench.suites",
+    "build_report": "packlab.bench.report",
+    "load_suite": "packlab.bench.suites",
+    "resolve": "packlab.bench.config",
+    "resolve_cases": "packlab.bench.suites",
+    "run_bench": "packlab.bench.runner",
+    "summarize": "packlab.bench.summary",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_HOMES[name]), name)
+
 
 __all__ = [
     "DEFAULT_SUITE",

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from packlab.bench.compare import merge_summaries, paired_differences
+from packlab.bench.options import COMPARE_HTML, REPORT_HTML
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
@@ -34,8 +35,6 @@ from packlab.viz.labels import display_name, group_title
 from packlab.viz.report_data import Method, ReportRun, method_name, report_data, row_colours
 from packlab.viz.report_html import ReportUnavailable, render_report_html
 
-REPORT_HTML = "report.html"
-COMPARE_HTML = "compare.html"
 NO_CASES = "The run directory has no cases.jsonl: episodes are scored but cannot be replayed."
 
 

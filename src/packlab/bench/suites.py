@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from packlab.bench.options import DEFAULT_SUITE
 from packlab.cases import cases_sha256, load_cases, save_cases
 from packlab.core.choices import ArrivalOrder, require_choice
 from packlab.core.errors import ConfigError, PacklabError
@@ -88,8 +89,6 @@ SUITES: dict[str, SuiteSpec] = {
         ),
     ),
 }
-
-DEFAULT_SUITE = "packlab-bench-v1"
 
 
 def suite_spec(name: str) -> SuiteSpec:

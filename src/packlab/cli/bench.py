@@ -4,22 +4,20 @@ Exit codes (packlab.core.errors): 0 every planned episode has an ok record; 1 th
 some episodes of this configuration ended in error (the count is on the last line of stderr);
 2 bad input, nothing run; 3 the run stopped early (circuit breaker, --deadline), records kept
 and the table written for what finished; 130 interrupted.
+
+This module holds the flags only (light: ``packlab bench --help`` loads no engine); what the
+commands do is :mod:`packlab.cli.bench_run`, imported when one runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from functools import partial
-from pathlib import Path
 
-from packlab.bench.compare import (
-    compare_markdown,
-    differences_markdown,
-    load_summary,
-    merge_summaries,
-)
-from packlab.bench.config import (
+from packlab.bench.options import (
+    COMPARE_HTML,
     MAX_SEEDS,
     RunConfig,
     parse_names,
@@ -28,29 +26,16 @@ from packlab.bench.config import (
     parse_seeds,
     time_limit_arg,
 )
-from packlab.bench.describe import describe_cases, format_description
-from packlab.bench.html_report import (
-    COMPARE_HTML,
-    REPORT_HTML,
-    build_html_report,
-    write_compare_html,
-)
-from packlab.bench.report import build_report
-from packlab.bench.runner import BenchOutcome, run_bench
-from packlab.bench.suites import resolve_cases
-from packlab.bench.table import render_markdown
 from packlab.cli.options import add_field, config_kwargs
-from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
+
+#: What the commands do (runner, reports, comparisons), imported when one of them runs.
+RUN_MODULE = "packlab.cli.bench_run"
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "bench",
-        help="run PackLab-Bench (or any case file) and print a Table-2-style table",
-        description=(
-            "Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
-            "write summary.json, table.md and figures. Rerun the same command to resume."
-        ),
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Run every (case, policy, seed) episode, append records to OUT/episodes.jsonl and "
+        "write summary.json, table.md and figures. Rerun the same command to resume."
     )
     _add_case_options(p)
     _add_run_options(p)
@@ -302,112 +287,22 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
     return RunConfig(**config_kwargs(args, "bench", RunConfig))
 
 
-def describe(cases: str) -> int:
-    source = resolve_cases(cases)
-    print(
-        format_description(
-            f"{source.label} ({source.origin}, sha256 {source.sha256[:12]}...)",
-            describe_cases(source.cases),
-        )
-    )
-    return 0
-
-
 def run(args: argparse.Namespace) -> int:
-    if args.describe:
-        return describe(args.cases)
-    config = config_from_args(args)  # every flag checked before anything is loaded or written
-    outcome = run_bench(config, figures=not args.no_figures, html=not args.no_html)
-    print(outcome.table_md)
-    # The report's path and any note first: the run's line and the exit reason stay the last.
-    for path in outcome.outputs:
-        if path.name == REPORT_HTML:
-            print(f"interactive report: {path}", file=sys.stderr)
-    for note in outcome.notes:
-        print(f"packlab bench: note: {note}", file=sys.stderr)
-    resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
-    failed = f", {outcome.failed} failed" if outcome.failed else ""
-    print(
-        f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s"
-        f"{resumed}{failed}; "
-        f"{len(outcome.outputs)} outputs written",
-        file=sys.stderr,
-    )
-    code, last_line = exit_status(outcome)
-    if last_line:
-        print(last_line, file=sys.stderr)
-    return code
-
-
-def exit_status(outcome: BenchOutcome) -> tuple[int, str]:
-    """The exit code of a finished bench invocation and the line that explains it ("" for 0)."""
-    episodes = outcome.run_dir / "episodes.jsonl"
-    if outcome.aborted:
-        return EXIT_ABORTED, (
-            f"packlab bench: error: {outcome.aborted}; {outcome.recorded} of {outcome.planned} "
-            f"episodes recorded (kept in {episodes}); rerun the same command to resume"
-        )
-    if outcome.recorded < outcome.planned:  # cannot happen unless an executor stopped silently
-        return EXIT_ABORTED, (
-            f"packlab bench: error: {outcome.planned - outcome.recorded} of {outcome.planned} "
-            f"episodes have no record; rerun the same command to resume"
-        )
-    if outcome.errors:
-        return EXIT_EPISODE_ERRORS, (
-            f"packlab bench: {outcome.errors} of {outcome.planned} episodes ended in error "
-            f"(see {episodes}; rerun with --retry-errors)"
-        )
-    return EXIT_OK, ""
+    """``packlab bench``: run (or ``--describe``) the cases; the exit code says how it ended."""
+    return int(importlib.import_module(RUN_MODULE).run(args))
 
 
 def run_report(args: argparse.Namespace) -> int:
-    _, table_md, paths = build_report(
-        args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed
-    )
-    if args.html:
-        paths.append(build_html_report(args.dir))
-    print(table_md)
-    for path in paths:
-        print(f"wrote {path}", file=sys.stderr)
-    return 0
+    """``packlab bench report DIR``."""
+    return int(importlib.import_module(RUN_MODULE).run_report(args))
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    """``packlab bench compare DIR...``."""
+    return int(importlib.import_module(RUN_MODULE).run_compare(args))
 
 
 if __name__ == "__main__":  # pragma: no cover
     from packlab.cli.main import main
 
     sys.exit(main(["bench", *sys.argv[1:]]))
-
-
-def compare_text(dirs: list[str], labels: list[str] | None, reference: str | None) -> str:
-    """The comparison's Markdown, its paired differences against ``reference`` (a row as the
-    table names it; None: the first row). A name that is no row is a ConfigError naming the
-    flag and the rows."""
-    if reference is None:
-        return compare_markdown(dirs, labels)
-    names = labels if labels else [Path(d).name for d in dirs]
-    merged = merge_summaries([load_summary(d) for d in dirs], names)
-    if reference not in merged.policies:
-        rows = ", ".join(repr(r) for r in merged.policies)
-        raise ConfigError(f"--reference {reference!r}: not a row of this comparison; rows: {rows}")
-    text = render_markdown(merged)
-    diffs = differences_markdown(merged, reference)
-    return f"{text}\n{diffs}" if diffs else text
-
-
-def run_compare(args: argparse.Namespace) -> int:
-    labels = [x.strip() for x in args.labels.split(",")] if args.labels else None
-    out = Path(args.out) if args.out else None
-    if out is not None and out.is_dir():  # checked before the work, not after it
-        raise ConfigError(f"out = {args.out!r}: is a directory; give the Markdown file to write")
-    text = compare_text(args.dirs, labels, args.reference)
-    html = None
-    if args.html is not None:
-        html = Path(args.html or (out.with_suffix(".html") if out is not None else COMPARE_HTML))
-        html = write_compare_html(args.dirs, html, labels)
-    print(text)
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text, encoding="utf-8")
-    if html is not None:
-        print(f"wrote {html}", file=sys.stderr)
-    return 0

@@ -21,12 +21,8 @@ _SOURCE_HELP = (
 )
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "cases",
-        help="validate case files, or export them to the reference layout or JSONL",
-        description="Check a case source, or write its cases in another layout.",
-    )
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = "Check a case source, or write its cases in another layout."
     sub = p.add_subparsers(dest="cases_command", required=True, metavar="{validate,export}")
     v = sub.add_parser(
         "validate",

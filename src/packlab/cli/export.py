@@ -29,13 +29,11 @@ EXPORTERS = (
 DEFAULT_CHECK_STATES = 64
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "export",
-        help="export a trained learned policy to ONNX (plays without torch)",
-        description="Write ONNX graphs and onnx.json beside a trained model's checkpoint "
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Write ONNX graphs and onnx.json beside a trained model's checkpoint "
         "(an RL agent directory or a candidate-mode VLM directory), after checking that "
-        "ONNX Runtime picks the same placements as torch on generated states.",
+        "ONNX Runtime picks the same placements as torch on generated states."
     )
     sub = p.add_subparsers(dest="format", required=True)
     onnx = sub.add_parser("onnx", help="ONNX Runtime graphs (docs/onnx.md)")

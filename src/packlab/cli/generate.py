@@ -30,12 +30,10 @@ def _counts(text: str) -> tuple[int, ...]:
         ) from None
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "generate",
-        help="generate a PackData dataset",
-        description="Generate validated packing trajectories into a dataset directory. Rerun the "
-        "same command to resume an interrupted run.",
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Generate validated packing trajectories into a dataset directory. Rerun the "
+        "same command to resume an interrupted run."
     )
     _add_dataset_options(p)
     _add_case_options(p)

@@ -12,8 +12,7 @@ from packlab.datagen.format import read_info
 from packlab.datagen.stats import collect, dataset_cases, format_report, save_histograms
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("inspect-data", help="summarise a PackData dataset directory")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", help="dataset directory (holds meta/info.json)")
     p.add_argument("--plots", metavar="DIR", help="also write PNG histograms into DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

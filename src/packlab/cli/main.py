@@ -1,37 +1,88 @@
 """packlab: simulate, generate data for, benchmark and train closed-loop bin-packing policies.
 
-One subcommand per module in ``packlab.cli``.
-Each subcommand module exposes ``register(subparsers)``, which adds its parser and sets
-``func`` (called with the parsed namespace, returning an exit code).
+One subcommand per module in ``packlab.cli`` (:data:`COMMANDS`). Each module exposes
+``add_arguments(parser)``, which fills the command's parser (description, options) and sets
+``func`` (called with the parsed namespace, returning an exit code). A command's module is
+imported only when the command is chosen, so ``packlab --help`` loads none of them; a module
+keeps to argument definitions and imports the modules that do the work when ``func`` runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
-
-#: Subcommand modules, in help order.
-COMMANDS = ("bench", "cases", "generate", "inspect_data", "train", "export", "serve", "viz")
-
+from typing import Any
 
 from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
 
+#: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "bench": ("bench", "run PackLab-Bench (or any case file) and print a Table-2-style table"),
+    "cases": ("cases", "validate case files, or export them to the reference layout or JSONL"),
+    "generate": ("generate", "generate a PackData dataset"),
+    "inspect-data": ("inspect_data", "summarise a PackData dataset directory"),
+    "train": ("train", "train models (sft: supervised fine-tuning of the VLM)"),
+    "export": ("export", "export a trained learned policy to ONNX (plays without torch)"),
+    "serve": ("serve", "serve a packing VLM over an OpenAI-compatible API (test server)"),
+    "viz": ("viz", "draw recorded episodes, or view them in Rerun"),
+}
+
+
+class _CommandParsers(dict[str, argparse.ArgumentParser]):
+    """Command name -> parser, the parser filled by its module the first time it is looked up.
+
+    argparse looks up only the chosen command (the command list in ``--help`` and the check of
+    a name read names and help lines), so ``packlab bench ...`` imports bench's module alone;
+    ``items()`` and ``values()`` fill every parser (tests walk the whole tree).
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pending: dict[str, str] = {}  # command -> module that has not filled it yet
+
+    def __getitem__(self, name: str) -> argparse.ArgumentParser:
+        parser = super().__getitem__(name)
+        if name in self.pending:
+            importlib.import_module(self.pending[name]).add_arguments(parser)
+            del self.pending[name]
+        return parser
+
+    def get(self, name: str, default: Any = None) -> Any:  # type: ignore[override]
+        try:
+            return self[name]
+        except KeyError:
+            return default
+
+    def values(self) -> list[argparse.ArgumentParser]:  # type: ignore[override]
+        return [self[name] for name in self]
+
+    def items(self) -> list[tuple[str, argparse.ArgumentParser]]:  # type: ignore[override]
+        return [(name, self[name]) for name in self]
+
+
+class _LazySubParsers(argparse._SubParsersAction):
+    """``add_subparsers`` whose parsers get their options when chosen (:class:`_CommandParsers`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._name_parser_map = self.choices = _CommandParsers()
+
+    def add_command(self, name: str, module: str, help: str) -> None:
+        self.add_parser(name, help=help)
+        self._name_parser_map.pending[name] = module
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="packlab", description=__doc__.splitlines()[0]
-    )  # the first line
-    sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMANDS:
-        module_name = f"packlab.cli.{name}"
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:  # a command not built yet; anything else is a bug
-            if exc.name == module_name:
-                continue
-            raise
-        module.register(sub)
+    """The ``packlab`` parser; a command's options are added when it is parsed (or looked up)."""
+    parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, action=_LazySubParsers)
+    for name, (module, help) in COMMANDS.items():
+        module_name = f"packlab.cli.{module}"
+        if importlib.util.find_spec(module_name) is None:  # a command not built yet
+            continue
+        sub.add_command(name, module_name, help)
     return parser
 
 

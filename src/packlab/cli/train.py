@@ -34,8 +34,7 @@ def _template_kwargs(text: str) -> dict[str, Any]:
         raise PacklabError(f"--template-kwargs is not JSON: {e}") from None
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("train", help="train models (sft: supervised fine-tuning of the VLM)")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="train_command", required=True)
     s = sub.add_parser(
         "sft",

@@ -50,8 +50,7 @@ MAX_STEPS = inspect.signature(episode_figure).parameters["max_steps"].default
 LIVE_RRD_DIR = Path("runs") / "rerun"
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("viz", help="draw recorded episodes, or view them in Rerun")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="viz_command", required=True)
     _add_episode_parser(sub)
     _add_rerun_parser(sub)

@@ -78,6 +78,11 @@ Segmentation = Literal["truth", "depth"]
 #: layout, a hint no robot has) or longer side first, as perception names them.
 SideNames = Literal["catalogue", "longer-first"]
 
+#: The noise preset when none is named: the structured-light camera the issue targets.
+DEFAULT_NOISE: NoisePreset = "structured-light"
+#: How perceived mode tells the buffer's boxes apart unless told: from depth, as a robot must.
+DEFAULT_SEGMENTATION: Segmentation = "depth"
+
 
 def choices(choice_type: object) -> tuple[str, ...]:
     """The allowed values of a ``Literal`` choice type, in declaration order."""

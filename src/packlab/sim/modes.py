@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from packlab.core.choices import (
+    DEFAULT_NOISE,
+    DEFAULT_SEGMENTATION,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
@@ -24,11 +26,6 @@ from packlab.core.choices import (
 from packlab.sim.execution import ExecutionNoise, execution_noise
 from packlab.sim.replan import Perceiver, Perception, Scene
 from packlab.sim.sensing import perceive_state
-
-#: The noise preset when none is named: the structured-light camera the issue targets.
-DEFAULT_NOISE: NoisePreset = "structured-light"
-#: How perceived mode tells the buffer's boxes apart unless told: from depth, as a robot must.
-DEFAULT_SEGMENTATION: Segmentation = "depth"
 
 
 @dataclass(frozen=True, slots=True)
