@@ -168,7 +168,7 @@ def test_an_image_model_round_trips_and_plays(pointer, states, cases, tmp_path):
     obs, listed = observation_of(state), listed_of(state)
     before = _scores(pointer, obs, listed, "image")
     np.testing.assert_allclose(_scores(back, obs, listed, "image"), before, rtol=0, atol=1e-6)
-    policy = make_policy("vlm", model=str(path))
+    policy = make_policy("vlm", model=str(path), runtime="torch")  # saved, not exported
     policy.reset(cases[0], 0)
     assert policy._settings.map == "image"
     assert policy.act(obs) == listed[int(np.argmax(before))].action
@@ -179,7 +179,7 @@ def test_a_directory_saved_before_maps_loads_as_text(pointer, states, cases, tmp
     meta = json.loads((path / "packlab_model.json").read_text())
     assert "map" not in meta  # what an older packlab wrote
     assert load_pointer(path).vlm.meta["map"] == "text"
-    policy = make_policy("vlm", model=str(path))
+    policy = make_policy("vlm", model=str(path), runtime="torch")
     policy.reset(cases[0], 0)
     assert policy._settings.map == "text"
     obs, listed = observation_of(states[0]), listed_of(states[0])

@@ -174,7 +174,7 @@ def test_save_load_round_trip_and_the_vlm_policy(pointer, states, cases, tmp_pat
     assert before.shape == (len(listed),) and np.isfinite(before).all()
     np.testing.assert_allclose(after, before, rtol=0, atol=1e-6)
 
-    policy = make_policy("vlm", model=str(path))
+    policy = make_policy("vlm", model=str(path), runtime="torch")  # saved, not exported
     assert isinstance(policy, CandidateVLMPolicy)
     policy.reset(next(c for c in cases if c.episode_id == state.case_id), 0)
     assert policy.act(obs) == listed[int(np.argmax(before))].action  # the card's prompt
@@ -287,6 +287,6 @@ def test_free_json_mode_trains_and_plays_without_raising(states, cases, tmp_path
     with open(tmp_path / "run" / LOG) as f:
         row = list(csv.DictReader(f))[-1]
     assert {"nll_object_id", "nll_rotation", "nll_x", "nll_y"} <= set(row)
-    policy = make_policy("vlm", model=str(final))
+    policy = make_policy("vlm", model=str(final), runtime="torch")  # free JSON: torch only
     result = run_episode(cases[0], policy, seed=0, backend="geometric")
     assert len(result.steps) == len(cases[0].objects)  # unparsable answers are recorded, not raised

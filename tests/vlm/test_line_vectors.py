@@ -97,7 +97,8 @@ def test_blank_image_policy_shows_an_empty_container_only(model, states, tmp_pat
 
     save_pointer(model, tmp_path / "m", {**CARD, "map": "image", "line_vectors": True})
     seen, blank = (
-        make_policy("vlm", model=str(tmp_path / "m"), blank_image=b) for b in (False, True)
+        make_policy("vlm", model=str(tmp_path / "m"), blank_image=b, runtime="torch")
+        for b in (False, True)
     )
     state = next(s for s in states if observation_of(s).heightmap.any())
     obs, listed = observation_of(state), listed_of(state)

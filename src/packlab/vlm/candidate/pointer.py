@@ -1,15 +1,16 @@
 """The pointer model: a Qwen-VL-family language model that scores the listed placements.
 
-The state's text (:mod:`.compose`) runs through the model once; each listed placement's line
-ends on a token whose last hidden state has read the whole context up to and including that
-line. With the digit text map only (``map`` = text) the text stack alone runs; with an image
-(``map`` = image, both, blank) the prompt's ``<|image_pad|>`` is repeated once per merged visual
-token (:mod:`.image`) and the whole Qwen-VL model runs: its vision tower encodes the heightmap
-image, the visual tokens take the pads' places, and M-RoPE gives them 2-D positions. A linear
-head maps each listed line's state to a score, and the pick is the highest score over the
-listed lines (a softmax over them in training, against the teacher's soft targets when a state
-has them, :func:`soft_loss`). The answer is therefore
+The state's text (:mod:`.compose`, encoded by :mod:`.encoding`) runs through the model once;
+each listed placement's line ends on a token whose last hidden state has read the whole context
+up to and including that line. With the digit text map only (``map`` = text) the text stack
+alone runs; with an image (``map`` = image, both, blank) the prompt's ``<|image_pad|>`` is
+repeated once per merged visual token (:mod:`.image`) and the whole Qwen-VL model runs: its
+vision tower encodes the heightmap image, the visual tokens take the pads' places, and M-RoPE
+gives them 2-D positions. A linear head maps each listed line's state to a score, and the pick
+is the highest score over the listed lines (a softmax over them in training, against the
+teacher's soft targets when a state has them, :func:`soft_loss`). The answer is therefore
 always one of the listed placements: nothing is decoded that could fail to parse or to fit.
+The same model also plays as ONNX graphs without torch (:mod:`.onnx_graphs`).
 
 Why not train the index digit as a generated answer: from random weights, the loss on the digit
 alone stays at chance for hundreds of steps (issue 12's prototype), while the pointer loss reads
@@ -19,227 +20,29 @@ Imports torch: only the vlm extra may import this module.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from packlab.core.choices import PointerMap
-from packlab.core.types import Observation
-from packlab.policies.candidates import Candidate
-from packlab.policies.line_vector import LINE_VECTOR_SIZE, line_vectors
-from packlab.vlm.candidate.compose import (
-    IMAGE_MAPS,
-    Answer,
-    Instructions,
-    answer_text,
-    observation_messages,
-    state_messages,
+from packlab.policies.line_vector import LINE_VECTOR_SIZE
+from packlab.vlm.candidate.compose import IMAGE_MAPS
+from packlab.vlm.candidate.encoding import (  # noqa: F401 (the encoding's names, as before)
+    QWEN3_GRID,
+    Encoded,
+    ImageGrid,
+    answer_tokens,
+    encode,
+    encode_observation,
+    line_chars,
+    map_image,
+    prompt_text,
+    soft_of,
 )
-from packlab.vlm.candidate.image import (
-    blank_image,
-    heightmap_image,
-    image_side,
-    patchify,
-    visual_tokens,
-)
-from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
+from packlab.vlm.candidate.image import patchify
 from packlab.vlm.model.checkpoint import VLM
-from packlab.vlm.model.tokenizer import IM_END, IMAGE_PAD
-from packlab.vlm.prompt.compact import candidate_line
-from packlab.vlm.prompt.parse import ACTION_KEYS
-
-
-@dataclass(frozen=True, slots=True)
-class ImageGrid:
-    """A vision tower's patch geometry (from its config): pixels per patch side, patches per
-    merged token side, frames per patch."""
-
-    patch: int = 16
-    merge: int = 2
-    temporal: int = 2
-
-    @classmethod
-    def of(cls, vlm: VLM) -> ImageGrid:
-        v = vlm.model.config.vision_config
-        return cls(int(v.patch_size), int(v.spatial_merge_size), int(v.temporal_patch_size))
-
-    @property
-    def side(self) -> int:
-        return image_side(self.patch, self.merge)
-
-    @property
-    def tokens(self) -> int:
-        return visual_tokens(self.side, self.patch, self.merge)
-
-
-#: Qwen3-VL's grid (the tiny models' too); :meth:`ImageGrid.of` reads a model's own.
-QWEN3_GRID = ImageGrid()
-
-
-@dataclass(frozen=True, slots=True)
-class Encoded:
-    """One state as token ids, the token ending each listed line, and the label (-1: none)."""
-
-    ids: np.ndarray  # int64 (T,)
-    ends: np.ndarray  # int64 (K,)
-    starts: np.ndarray  # int64 (K,): the token holding each listed line's first character
-    label: int
-    #: The answer's tokens (free-JSON answers only; empty for the index answer, which is scored
-    #: by the pointer) and the answer field each one belongs to.
-    answer_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    answer_fields: tuple[str, ...] = ()
-    #: The teacher's preference over the listed lines (float32, sums to 1); empty: the label.
-    soft: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
-    #: The heightmap image (uint8 (side, side), :mod:`.image`) with its grid; None: text only.
-    image: np.ndarray | None = None
-    grid: ImageGrid | None = None
-    image_token: int = -1  # the id of <|image_pad|> (the visual tokens' places)
-    #: Each listed line's numeric vector (float32 (K, LINE_VECTOR_SIZE),
-    #: :mod:`packlab.policies.line_vector`); empty: the head reads the hidden states alone.
-    vectors: np.ndarray = field(
-        default_factory=lambda: np.zeros((0, LINE_VECTOR_SIZE), dtype=np.float32)
-    )
-
-
-def prompt_text(tokenizer: Any, messages: list[dict[str, Any]]) -> str:
-    return tokenizer.apply_chat_template(messages, tokenize=False, add_generation_prompt=True)
-
-
-def line_chars(text: str, lines: Sequence[str]) -> tuple[list[int], list[int]]:
-    """(first, last) character index of each line, found in order after the user turn's
-    ``Places:`` header (so a map row can never be taken for a placement)."""
-    pos = text.rindex("Places:")
-    firsts, lasts = [], []
-    for line in lines:
-        pos = text.index("\n" + line, pos) + 1
-        firsts.append(pos)
-        lasts.append(pos + len(line) - 1)
-    return firsts, lasts
-
-
-_KEY = re.compile(r'"(\w+)"\s*:')
-
-
-def answer_tokens(tokenizer: Any, text: str) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Token ids of an answer followed by the end-of-turn token, and for each token the JSON key
-    whose value it writes (``"syntax"`` for braces, keys and separators, ``"end"`` for the
-    end-of-turn token), for per-field NLL."""
-    enc = tokenizer(text, add_special_tokens=False, return_offsets_mapping=True)
-    fields = []
-    for a, b in enc["offset_mapping"]:
-        keys = _KEY.findall(text[:a])
-        is_value = bool(keys) and text[a:b].strip().lstrip("-").isdigit()
-        fields.append(keys[-1] if is_value and keys[-1] in ACTION_KEYS else "syntax")
-    ids = [*enc["input_ids"], tokenizer.convert_tokens_to_ids(IM_END)]
-    return np.asarray(ids, dtype=np.int64), (*fields, "end")
-
-
-def _encode_text(tokenizer: Any, text: str, listed: Sequence[Candidate], label: int) -> Encoded:
-    """Token ids of a prompt text and the tokens holding each listed line's first and last
-    character."""
-    enc = tokenizer(text, add_special_tokens=False, return_offsets_mapping=True)
-    owner = np.full(len(text), -1, dtype=np.int64)
-    for t, (a, b) in enumerate(enc["offset_mapping"]):
-        owner[a:b] = t
-    firsts, lasts = line_chars(text, [candidate_line(c) for c in listed])
-    ends = owner[np.array(lasts, dtype=np.int64)]
-    starts = owner[np.array(firsts, dtype=np.int64)]
-    if (ends < 0).any() or (starts < 0).any():
-        raise ValueError("a placement line has no token")
-    return Encoded(np.asarray(enc["input_ids"], dtype=np.int64), ends, starts, label)
-
-
-def _encode_prompt(
-    tokenizer: Any,
-    messages: list[dict[str, Any]],
-    listed: Sequence[Candidate],
-    label: int,
-    image: np.ndarray | None,
-    grid: ImageGrid,
-) -> Encoded:
-    """:func:`_encode_text` of the messages' prompt; with an image, its one ``<|image_pad|>``
-    repeated once per merged visual token first."""
-    text = prompt_text(tokenizer, messages)
-    if image is None:
-        return _encode_text(tokenizer, text, listed, label)
-    if text.count(IMAGE_PAD) != 1:
-        raise ValueError(f"expected one image placeholder, found {text.count(IMAGE_PAD)}")
-    enc = _encode_text(tokenizer, text.replace(IMAGE_PAD, IMAGE_PAD * grid.tokens), listed, label)
-    pad_id = int(tokenizer.convert_tokens_to_ids(IMAGE_PAD))
-    pads = int((enc.ids == pad_id).sum())
-    if pads != grid.tokens:
-        raise ValueError(f"{pads} image tokens for an image of {grid.tokens} (split pads?)")
-    return replace(enc, image=image, grid=grid, image_token=pad_id)
-
-
-def map_image(
-    observation: Observation, map: PointerMap, grid: ImageGrid, blank_map: bool = False
-) -> np.ndarray | None:
-    """The image a step shows (:mod:`.image`), or None for the text map only."""
-    if map not in IMAGE_MAPS:
-        return None
-    if map == "blank":
-        return blank_image(grid.side)
-    hm = np.zeros_like(observation.heightmap) if blank_map else observation.heightmap
-    return heightmap_image(hm, observation.container, grid.side)
-
-
-def soft_of(state: LabelledState) -> np.ndarray:
-    """The state's soft target (empty: one-hot at its label); ``getattr`` so that states of a
-    packlab without the field still encode."""
-    return np.asarray(getattr(state, "soft", ()), dtype=np.float32)
-
-
-def encode(
-    tokenizer: Any,
-    state: LabelledState,
-    instructions: Instructions,
-    blank_map: bool = False,
-    answer: Answer = "index",
-    map: PointerMap = "text",
-    grid: ImageGrid = QWEN3_GRID,
-    lines: bool = False,
-) -> Encoded:
-    """Tokens of a state's prompt (the same text as the export for ``map`` = text), its listed
-    lines' ends, its soft target, (``map`` with an image) its heightmap image and (``lines``)
-    each listed line's numeric vector."""
-    messages = state_messages(state, instructions, blank_map=blank_map, map=map)
-    observation, listed = observation_of(state), listed_of(state)
-    image = map_image(observation, map, grid, blank_map)
-    try:
-        enc = _encode_prompt(tokenizer, messages, listed, state.label, image, grid)
-    except ValueError as exc:
-        raise ValueError(f"{state.case_id} step {state.step}: {exc}") from None
-    enc = replace(enc, soft=soft_of(state))
-    if lines:
-        enc = replace(enc, vectors=line_vectors(observation, listed))
-    if answer == "json" and state.label >= 0:
-        answer_ids, fields = answer_tokens(tokenizer, answer_text(state, "json"))
-        return replace(enc, answer_ids=answer_ids, answer_fields=fields)
-    return enc
-
-
-def encode_observation(
-    tokenizer: Any,
-    observation: Observation,
-    listed: Sequence[Candidate],
-    instructions: Instructions,
-    blank_map: bool = False,
-    map: PointerMap = "text",
-    grid: ImageGrid = QWEN3_GRID,
-    lines: bool = False,
-) -> Encoded:
-    """:func:`encode` of a live step (inference): the same prompt, unlabelled."""
-    messages = observation_messages(observation, listed, instructions, blank_map=blank_map,
-                                    map=map)  # fmt: skip
-    image = map_image(observation, map, grid, blank_map)
-    enc = _encode_prompt(tokenizer, messages, listed, -1, image, grid)
-    return replace(enc, vectors=line_vectors(observation, listed)) if lines else enc
 
 
 def text_stack(vlm: VLM) -> nn.Module:

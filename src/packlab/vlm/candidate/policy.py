@@ -8,10 +8,18 @@ set-aside decision any policy would; such steps are counted in ``fallbacks``.
 A scorer whose scores are not one number per listed placement, or none of them finite, names no
 listed placement: that step is an :class:`Unparsable` (invalid, ``unparsable``), never a crash
 or a silent pick of placement 0 (:func:`pick_listed`).
+
+``runtime`` picks how the model plays: ``"onnx"`` (default) runs the directory's ONNX graphs on
+ONNX Runtime (:mod:`.onnx_scoring`, core install, no torch; ``packlab export onnx DIR`` writes
+them), ``"torch"`` the checkpoint itself through transformers (:mod:`.scoring`, vlm extra). Both
+score the same inputs, built by one code (:mod:`.encoding`). The free-JSON answer ablation
+generates text and plays under torch only; a model handed over in memory
+(:meth:`CandidateVLMPolicy.use_model`, during training) plays under torch.
 """
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +29,7 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose
 from packlab.policies.registry import make_policy
+from packlab.vlm.candidate.encoding import PromptSettings
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
 from packlab.vlm.prompt.parse import parse_or_unparsable
@@ -30,6 +39,9 @@ from packlab.vlm.prompt.render import PROMPT_VERSION
 IN_MEMORY = "<in memory>"
 SCORING_MODULE = "packlab.vlm.candidate.scoring"
 SAVED_MODULE = "packlab.vlm.candidate.saved"
+ONNX_SCORING_MODULE = "packlab.vlm.candidate.onnx_scoring"
+#: How a candidate-mode model plays (module docstring); the RL agents take the same names.
+RUNTIMES = ("onnx", "torch")
 
 
 class CandidateVLMPolicy:
@@ -41,17 +53,22 @@ class CandidateVLMPolicy:
         threads: int | None = 1,
         name: str = "vlm",
         blank_image: bool = False,
+        runtime: str = "onnx",
     ) -> None:
         """``blank_image`` (ablation, ``--policy-arg vlm:blank_image=true``): the model is shown
         the map of an empty container at every step, in whatever form it reads the map (image
-        or digits); the listed lines and their vectors are unchanged."""
+        or digits); the listed lines and their vectors are unchanged. ``runtime``: ``"onnx"`` or
+        ``"torch"`` (module docstring)."""
         if model != IN_MEMORY and not is_pointer_dir(model):
             raise ConfigError(f"model = {str(model)!r}: not a candidate-mode checkpoint directory")
         if threads is not None and threads < 1:
             raise ConfigError(f"threads = {threads}: must be >= 1")
         if not isinstance(blank_image, bool):
             raise ConfigError(f"blank_image = {blank_image!r}: must be true or false")
+        if runtime not in RUNTIMES:
+            raise ConfigError(f"runtime = {runtime!r}: expected one of {', '.join(RUNTIMES)}")
         self.model_spec, self.threads, self.name = str(model), threads, name
+        self.runtime = runtime
         self.blank_image = blank_image
         self.fallbacks = 0
         self.decisions = 0
@@ -66,35 +83,58 @@ class CandidateVLMPolicy:
     def load(self) -> None:
         if self._model is not None:
             return
+        if self.runtime == "onnx":
+            self._load_onnx()
+            return
         try:
             scoring = import_torch_side(SCORING_MODULE)
             saved = import_torch_side(SAVED_MODULE)
         except ModuleNotFoundError as exc:
-            raise ConfigError(f"policy {self.name!r}: {VLM_EXTRA_HINT} ({exc.name} missing)")
+            raise ConfigError(
+                f"policy {self.name!r} (runtime=torch): {VLM_EXTRA_HINT} ({exc.name} missing); "
+                f"runtime=onnx plays without torch"
+            ) from None
         scoring.set_threads(self.threads)
         self.use_model(saved.load_pointer(self.model_spec))
 
-    def use_model(self, model: Any, meta: dict[str, Any] | None = None) -> None:
-        """Play with an already loaded pointer model; ``meta`` replaces its model card (for a
-        model still in training)."""
-        scoring = import_torch_side(SCORING_MODULE)
+    def _load_onnx(self) -> None:
+        """The directory's ONNX graphs (:mod:`.onnx_scoring`; torch-free)."""
+        onnx_scoring = importlib.import_module(ONNX_SCORING_MODULE)
+        meta = onnx_scoring.read_meta(Path(self.model_spec))
+        if meta.get("answer", "index") == "json":
+            raise ConfigError(
+                f"policy {self.name!r}: model {self.model_spec!r} answers in free JSON (the "
+                f"format ablation), which generates text and plays with runtime=torch only"
+            )
+        try:
+            model = onnx_scoring.load_onnx_pointer(self.model_spec, self.threads)
+        except ConfigError as exc:
+            raise ConfigError(
+                f"policy {self.name!r} (runtime=onnx): {exc}; or play it with runtime=torch"
+            ) from None
+        self._configure(model.meta)
         self._model = model
-        meta = model.vlm.meta if meta is None else meta
+        self._score = onnx_scoring.score_listed
+
+    def use_model(self, model: Any, meta: dict[str, Any] | None = None) -> None:
+        """Play with an already loaded pointer model (torch); ``meta`` replaces its model card
+        (for a model still in training)."""
+        scoring = import_torch_side(SCORING_MODULE)
+        self._configure(model.vlm.meta if meta is None else meta)
+        self._model = model
+        self.runtime = "torch"
+        self._score = scoring.score_listed
+        self._generate = scoring.generate_answer
+
+    def _configure(self, meta: dict[str, Any]) -> None:
+        """The proposer and prompt settings of a model card, after checking its prompt."""
         if meta.get("prompt_version") != PROMPT_VERSION:
             raise ConfigError(
                 f"model = {self.model_spec!r}: trained with prompt {meta.get('prompt_version')!r}"
                 f", this packlab renders {PROMPT_VERSION!r}; retrain it"
             )
         self._proposer = ProposerConfig(**meta["proposer"])
-        self._settings = scoring.PromptSettings(
-            meta["instructions"],
-            meta.get("blank_map", False) or self.blank_image,
-            meta.get("answer", "index"),
-            meta.get("map", "text"),  # a model card written before maps: the text map
-            meta.get("line_vectors", False),  # a card written before line vectors: text only
-        )
-        self._score = scoring.score_listed
-        self._generate = scoring.generate_answer
+        self._settings = PromptSettings.of(meta, blank_map=self.blank_image)
 
     def reset(self, case: Case, seed: int) -> None:
         self.load()

@@ -1,18 +1,17 @@
-"""Scoring one observation's listed placements with a pointer model (inference, no grad).
-Imports torch: only the vlm extra may import this module."""
+"""Scoring one observation's listed placements with a pointer model (inference, no grad); the
+ONNX runtime's twin is :mod:`.onnx_scoring`. Imports torch: only the vlm extra may import this
+module."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from packlab.core.choices import PointerMap
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
-from packlab.vlm.candidate.compose import Answer, Instructions
+from packlab.vlm.candidate.encoding import PromptSettings
 from packlab.vlm.candidate.pointer import (
     IMAGE_KEYS,
     Encoded,
@@ -21,18 +20,7 @@ from packlab.vlm.candidate.pointer import (
     collate,
     encode_observation,
 )
-from packlab.vlm.model.tokenizer import IM_END
-
-
-@dataclass(frozen=True, slots=True)
-class PromptSettings:
-    """How the model was trained to read a state (from its ``packlab_model.json``)."""
-
-    instructions: Instructions = "short"
-    blank_map: bool = False
-    answer: Answer = "index"
-    map: PointerMap = "text"
-    line_vectors: bool = False
+from packlab.vlm.model.chatml import IM_END
 
 
 def _encode(

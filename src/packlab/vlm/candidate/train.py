@@ -32,6 +32,7 @@ from packlab.policies.candidates import STUDENT_K, ProposerConfig
 from packlab.vlm.candidate.compose import Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
+from packlab.vlm.candidate.onnx_export import export_onnx
 from packlab.vlm.candidate.pointer import (
     QWEN3_GRID,
     Encoded,
@@ -83,6 +84,10 @@ class PointerTrainConfig:
 
     def __post_init__(self) -> None:
         require_choice(self.map, PointerMap, "map")
+
+
+#: Observations on which a trained model's ONNX export is checked against torch.
+TRAIN_CHECK_STATES = 16
 
 
 def is_heldout(case_id: str, every: int) -> bool:
@@ -245,7 +250,8 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
 def train_pointer(
     cfg: PointerTrainConfig, eval_cases: Sequence[Case] = (), on_log: OnLog | None = None
 ) -> Path:
-    """Train (or resume) and write ``out/final``; returns that directory."""
+    """Train (or resume) and write ``out/final`` with its ONNX export (index answers; the
+    free-JSON ablation plays under torch only); returns that directory."""
     torch.set_num_threads(cfg.threads) if cfg.threads else None
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -273,4 +279,7 @@ def train_pointer(
     st.model.eval()
     card = {**_card(cfg), "trained_steps": st.step, "train_seconds": round(st.seconds, 1),
             "train_states": len(train), "heldout_states": len(held_list)}  # fmt: skip
-    return save_pointer(st.model, out / "final", card)
+    final = save_pointer(st.model, out / "final", card)
+    if cfg.answer == "index":  # so that the model plays under the default runtime (ONNX)
+        export_onnx(final, check_states=TRAIN_CHECK_STATES)
+    return final

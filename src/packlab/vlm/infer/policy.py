@@ -40,6 +40,8 @@ SHIPPED_MODEL_DIR = Path(__file__).resolve().parents[2] / "data" / "models" / "v
 #: The policy's torch side (vlm extra), imported on the first load.
 
 RUNTIME_MODULE = "packlab.vlm.infer.runtime"
+#: The options of a candidate-mode checkpoint (:class:`CandidateVLMPolicy`).
+CANDIDATE_ARGS = ("model", "threads", "name", "blank_image", "runtime")
 
 
 def _check_settings(
@@ -236,16 +238,17 @@ def make_vlm(**kwargs: Any) -> VLMPolicy | CandidateVLMPolicy:
     """``vlm``: a local checkpoint (``model=DIR``) or a random tiny model (``model=tiny:F:S``).
 
     A candidate-mode checkpoint (a pointer head beside the model) plays in candidate mode
-    (:mod:`packlab.vlm.candidate.policy`); without ``model`` the shipped model plays
-    (``packlab/data/models/vlm-small``, candidate mode), else a random tiny model.
+    (:mod:`packlab.vlm.candidate.policy`), on ONNX Runtime by default (``runtime=torch``: through
+    transformers); without ``model`` the shipped model plays (``packlab/data/models/vlm-small``,
+    candidate mode), else a random tiny model.
     """
     model = kwargs.get("model", SHIPPED_MODEL_DIR)
     if is_pointer_dir(model):
-        extra = sorted(set(kwargs) - {"model", "threads", "name", "blank_image"})
+        extra = sorted(set(kwargs) - set(CANDIDATE_ARGS))
         if extra:
             raise ConfigError(
                 f"policy 'vlm': model {str(model)!r} is a candidate-mode checkpoint, which takes "
-                f"only model, threads, name, blank_image; got {', '.join(extra)}"
+                f"only {', '.join(CANDIDATE_ARGS)}; got {', '.join(extra)}"
             )
         return CandidateVLMPolicy(**{**kwargs, "model": str(model)})
     return VLMPolicy(**kwargs)

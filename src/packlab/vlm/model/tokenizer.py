@@ -9,7 +9,7 @@ puts every digit in its own token, then byte-level), so coordinates are spelled 
 in the real models, and transformers' Qwen3_5Tokenizer, which rebuilds that pipeline around a
 saved vocabulary, tokenizes exactly as this one does. It carries the ChatML special tokens and
 the Qwen vision tokens that the Qwen-VL models and :mod:`packlab.vlm.data.encoding` expect, and a
-ChatML chat template.
+ChatML chat template (:mod:`.chatml`, torch-free).
 
 Imports ``tokenizers``/``transformers``: only the vlm extra may import this module.
 """
@@ -21,12 +21,19 @@ from tokenizers import Regex, Tokenizer, decoders, models, normalizers, pre_toke
 from transformers import PreTrainedTokenizerFast
 
 from packlab.core.types import Action, Container, ShownItem
+from packlab.vlm.model.chatml import (
+    CHAT_TEMPLATE,
+    IM_END,
+    IM_START,
+    IMAGE_PAD,
+    PAD_TOKEN,
+    VIDEO_PAD,
+    VISION_END,
+    VISION_PAD,
+    VISION_START,
+)
 from packlab.vlm.prompt.render import PromptOptions, TurnState, action_text, render_messages
 
-PAD_TOKEN = "<|endoftext|>"
-IM_START, IM_END = "<|im_start|>", "<|im_end|>"
-VISION_START, VISION_END = "<|vision_start|>", "<|vision_end|>"
-IMAGE_PAD, VIDEO_PAD, VISION_PAD = "<|image_pad|>", "<|video_pad|>", "<|vision_pad|>"
 #: Special tokens in id order right after the byte alphabet; never split, skipped on decode.
 SPECIAL_TOKENS: tuple[str, ...] = (
     PAD_TOKEN,
@@ -47,21 +54,6 @@ TOKENIZER_NAME = "packlab-bpe-v1"
 _QWEN_SPLIT = (
     r"(?i:'s|'t|'re|'ve|'m|'ll|'d)|[^\r\n\p{L}\p{N}]?[\p{L}\p{M}]+|\p{N}"
     r"| ?[^\s\p{L}\p{M}\p{N}]+[\r\n]*|\s*[\r\n]+|\s+(?!\S)|\s+"
-)
-
-# ChatML as the Qwen models use it. Images become <|vision_start|><|image_pad|><|vision_end|>;
-# the processor then repeats <|image_pad|> once per merged visual token.
-CHAT_TEMPLATE = (
-    "{%- for message in messages -%}"
-    "{{- '<|im_start|>' + message['role'] + '\\n' -}}"
-    "{%- if message['content'] is string -%}{{- message['content'] -}}"
-    "{%- else -%}{%- for item in message['content'] -%}"
-    "{%- if item['type'] == 'image' -%}{{- '<|vision_start|><|image_pad|><|vision_end|>' -}}"
-    "{%- elif item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
-    "{%- endfor -%}{%- endif -%}"
-    "{{- '<|im_end|>\\n' -}}"
-    "{%- endfor -%}"
-    "{%- if add_generation_prompt -%}{{- '<|im_start|>assistant\\n' -}}{%- endif -%}"
 )
 
 
