@@ -20,6 +20,7 @@ from packlab.metrics import box_inside
 from packlab.sim.heightmap import quat_to_matrix
 from packlab.sim.raster import height_colour, heightmap_to_rgb
 from packlab.viz.labels import display_name
+from packlab.viz.options import EPISODE_MAX_STEPS
 
 #: Type colours (type_id modulo the list): soft, distinguishable, legible with black edges.
 TYPE_COLOURS = [
@@ -235,7 +236,10 @@ def _height_scale(ax: Any, container: Container) -> None:
 
 
 def episode_figure(
-    case: Case, record: EpisodeOk, heightmaps: Sequence[np.ndarray], max_steps: int = 40
+    case: Case,
+    record: EpisodeOk,
+    heightmaps: Sequence[np.ndarray],
+    max_steps: int = EPISODE_MAX_STEPS,
 ) -> Figure:
     """One episode: the final packing (left) and the heightmap after each step (right grid).
 

@@ -24,6 +24,7 @@ from packlab.core.records import EpisodeOk
 from packlab.core.types import Case, Container
 from packlab.metrics import EpisodeMetrics
 from packlab.viz.episode_frames import Frame, live_frames, replay_frames
+from packlab.viz.options import DEFAULT_VIEWER_URL
 from packlab.viz.rerun_log import (
     EpisodeInfo,
     EpisodeLogger,
@@ -38,8 +39,6 @@ if TYPE_CHECKING:
 
 #: The application id recordings are filed under in the viewer.
 APPLICATION_ID = "packlab"
-#: Where a viewer started with ``rerun`` (or ``--spawn``) listens by default.
-DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
 DEFAULT_VIEWER_PORT = 9876
 #: Seconds to wait for a viewer's port: a running one answers at once, a spawned one needs a
 #: moment to start.

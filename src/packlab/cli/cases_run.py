@@ -1,0 +1,50 @@
+"""What ``packlab cases validate`` and ``cases export`` do (:mod:`packlab.cli.cases` defines
+their flags and imports this module when one runs)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+from packlab.bench.suites import resolve_cases
+from packlab.cases import save_cases, write_reference
+from packlab.core.errors import ConfigError
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    source = resolve_cases(args.src)
+    cases = source.cases
+    levels = Counter(c.difficulty or "(none)" for c in cases)
+    objects = [len(c.objects) for c in cases]
+    id_types = sorted({type(c.objects[0].internal_id).__name__ for c in cases})
+    print(
+        f"{source.origin}: {len(cases)} cases OK "
+        f"({', '.join(f'{lvl} {n}' for lvl, n in levels.items())}); "
+        f"objects {min(objects)}-{max(objects)}, {sum(objects)} in all; "
+        f"gt_plan in {sum(c.gt_plan is not None for c in cases)}; "
+        f"internal_id {'/'.join(id_types)}; "
+        f"sha256 {source.sha256}"
+    )
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if (
+        out.exists() or out.is_symlink()
+    ):  # checked before loading: no work wasted on a refused target
+        raise ConfigError(f"--out {out}: already exists; remove it or choose another path")
+    source = resolve_cases(args.src)
+    if args.format == "reference":
+        written = write_reference(source.cases, out)
+    else:
+        written = [save_cases(source.cases, out)]
+    for path in written:
+        print(f"wrote {path}", file=sys.stderr)
+    print(
+        f"{len(source.cases)} cases from {source.origin} -> {out} ({args.format}); "
+        f"sha256 {source.sha256}"
+    )
+    return 0
