@@ -256,3 +256,10 @@ def test_shipped_agents_carry_their_onnx_export():
         directory = SHIPPED_MODELS / agent
         onnx = load_onnx_agent(directory)  # not stale, right format, graph present
         assert onnx.card.agent == agent and onnx.onnx.extra["n_items"] == onnx.card.n_items
+
+
+def test_policies_of_one_directory_share_one_loaded_agent_in_a_process(irbpp_copy):
+    """The bench makes a policy per episode: the session is opened once per process."""
+    first, second = _reset(irbpp_copy), _reset(irbpp_copy)
+    assert first._playing is second._playing
+    assert _reset(irbpp_copy, threads=2)._playing is not first._playing
