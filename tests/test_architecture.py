@@ -38,6 +38,8 @@ LAZY_IMPORTS_ALLOWED = frozenset(
         "jinja2",
         "rerun",
         "plotly",
+        # Core, but ~0.1 s to import: opened when a learned policy loads its graphs.
+        "onnxruntime",
     }
 )
 MAX_FUNCTION_LINES = 80
