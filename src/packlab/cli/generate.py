@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
 from packlab.cli.options import add_field, config_kwargs
@@ -12,9 +13,12 @@ from packlab.datagen.config import (
     AnchorConfig,
     CaseConfig,
     DatasetConfig,
+    RunOptions,
     ValidationConfig,
 )
-from packlab.datagen.engine import RunOptions, generate_dataset
+
+#: What the command does (the data engine), imported when it runs.
+RUN_MODULE = "packlab.cli.generate_run"
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -203,21 +207,8 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args)
-    if not args.out.strip():
-        raise ConfigError("out = '': give a dataset directory")
-    options = options_from_args(args)
-    info = generate_dataset(cfg, options)
-    counts = info.counts
-    print(f"{args.out}: {counts.episodes} episodes, {counts.steps} steps")
-    for name, d in counts.by_difficulty.items():
-        rej = ", ".join(f"{k}={v}" for k, v in d.rejections.items()) or "none"
-        failed = f", {len(d.failed_slots)} slots failed" if d.failed_slots else ""
-        print(
-            f"  {name:<7} {d.episodes}/{d.requested} episodes, {d.steps} steps, "
-            f"rejections: {rej}{failed}"
-        )
-    return 0 if not any(d.failed_slots for d in counts.by_difficulty.values()) else 1
+    """``packlab generate``: exit code 1 when some episode slots failed."""
+    return int(importlib.import_module(RUN_MODULE).run(args))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,30 +1,32 @@
-"""``packlab train sft``: supervised fine-tuning of a packing VLM (needs the vlm extra)."""
+"""``packlab train``: ``sft`` (supervised fine-tuning of a packing VLM, vlm extra), ``candidate``
+(a pointer model: teacher rollouts, then DAgger), ``rl`` and ``rl-imitate`` (the RL baselines,
+rl extra).
+
+This module holds their flags; what they do is :mod:`packlab.cli.train_run` (sft, candidate) and
+:mod:`packlab.cli.train_rl` (rl, rl-imitate), imported when one runs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 from functools import partial
-from pathlib import Path
 from typing import Any
 
-from packlab.bench.suites import resolve_cases
 from packlab.cli.options import add_field, config_kwargs
-from packlab.cli.train_rl import register_rl
 from packlab.core.errors import PacklabError
-from packlab.datagen.format import INFO_FILE
-from packlab.datagen.guard import require_training_cases
-from packlab.datagen.stats import dataset_cases
 from packlab.policies.listed import TEACHERS
-from packlab.viz.plots import plot_loss_curve
-from packlab.viz.pointer_curves import write_curves
-from packlab.vlm.candidate.recipe import DAGGER_MODULE, DaggerConfig
+from packlab.rl.config import ImitationConfig, RLTrainConfig
+from packlab.vlm.candidate.recipe import DaggerConfig
 from packlab.vlm.data.sft_examples import RECIPES
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side, missing_extra
 from packlab.vlm.train.config import LR_PRETRAINED, LR_TINY, SFTConfig
 
-#: The trainer's module (vlm extra), imported when the command runs.
-TRAINER_MODULE = "packlab.vlm.train.sft"
+#: What ``train sft`` and ``train candidate`` do (data checks, curves), and what ``train rl``
+#: and ``train rl-imitate`` do: imported when one runs.
+RUN_MODULE = "packlab.cli.train_run"
+RL_RUN_MODULE = "packlab.cli.train_rl"
 
 
 def _template_kwargs(text: str) -> dict[str, Any]:
@@ -119,36 +121,6 @@ def config_from_args(args: argparse.Namespace) -> SFTConfig:
     return SFTConfig(**config_kwargs(args, "train sft", SFTConfig))
 
 
-def check_sft_data(data: str) -> None:
-    """Refuse SFT data whose episodes are bench cases, by the cases' seeds: the episodes of the
-    PackData directory at or above ``data`` (``meta/info.json``). A loose JSONL outside any
-    dataset carries no case seeds and is not checked (``packlab generate`` writes every SFT
-    export inside its dataset, in the train seed domain)."""
-    p = Path(data)
-    start = p if p.is_dir() else p.parent
-    root = next((d for d in (start, *start.parents) if (d / INFO_FILE).is_file()), None)
-    if root is not None:
-        require_training_cases(dataset_cases(root), f"dataset {str(root)!r}")
-
-
-def run_sft(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args)
-    check_sft_data(cfg.data)
-    trainer = _torch_side(TRAINER_MODULE)
-    res = trainer.train_sft(cfg)
-    if not res.is_main_process:
-        return 0  # under accelerate/torchrun only rank 0 reports
-    if res.losses:
-        title = f"SFT {cfg.model} ({res.n_examples} examples)"
-        plot_loss_curve(res.loss_log, res.out / "loss_curve.png", title=title)
-    print(
-        f"trained {res.optimizer_steps} steps on {res.n_examples} examples "
-        f"in {res.wall_time_s:.0f} s; "
-        f"loss {res.losses[0]:.4f} -> {res.losses[-1]:.4f}; final model: {res.final_checkpoint}"
-    )
-    return 0
-
-
 def register_candidate(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser(
         "candidate",
@@ -186,11 +158,87 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(func=run_candidate)
 
 
+def register_rl(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser(
+        "rl",
+        help="train an RL baseline: irbpp (pick a listed placement) or tapnet (pick the object)",
+        description="MaskablePPO (sb3-contrib) on the geometric backend, one agent over all "
+        "levels; held-out evaluation, checkpoints, log.csv and curves.png under --out. "
+        "Rerun the same command to resume.",
+    )
+    field = partial(add_field, r, RLTrainConfig)
+    field("agent", "--agent", help="default {default}")
+    r.add_argument(
+        "--cases",
+        default="packdata-20k",
+        help="a dataset recipe (generated now) or generated cases on disk; default %(default)s",
+    )
+    field("steps", "--steps", help="env steps in total; default {default}")
+    field("out", "--out", help="run directory; default {default}")
+    field("minutes", "--minutes", help="wall-time cap across resumes (0: none)")
+    field("envs", "--envs", help="environment copies; default {default}")
+    field("vec", "--vec", help="default {default}")
+    field("reward", "--reward", help="default {default}")
+    field("k", "--k", help="irbpp: placements listed per step; default {default}")
+    field("n_steps", "--n-steps", help="steps per env per rollout; default {default}")
+    field("batch", "--batch", help="default {default}")
+    field("epochs", "--epochs", help="default {default}")
+    field("lr", "--lr", help="default {default}")
+    field("gamma", "--gamma", help="default {default}")
+    field("ent_coef", "--ent-coef", help="default {default}")
+    field("width", "--width", help="default {default}")
+    field("eval_every", "--eval-every", help="env steps; default {default}")
+    field("eval_cases_per_level", "--eval-cases", help="held out per level; default {default}")
+    field("seed", "--seed", help="default {default}")
+    field("threads", "--threads", help="torch threads of the learner; default {default}")
+    field("init", "--init", help="a model directory to start from (e.g. rl-imitate's --out)")
+    r.set_defaults(func=run_rl)
+    register_rl_imitate(sub)
+
+
+def register_rl_imitate(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser(
+        "rl-imitate",
+        help="behaviour-clone an RL agent (irbpp or tapnet) from planner-labelled states",
+        description="Fit the agent's actor to a teacher's picks in candidate-mode states "
+        "(JSONL, packlab.vlm.candidate.states) and save a model directory that packlab bench "
+        "plays (--policy-arg irbpp:model=DIR) and packlab train rl --init DIR continues.",
+    )
+    field = partial(add_field, r, ImitationConfig)
+    field("agent", "--agent", help="default {default}")
+    r.add_argument("--states", required=True, help="labelled states (JSONL)")
+    r.add_argument(
+        "--cases",
+        default=None,
+        help="the generated cases the states come from (recipe or path), checked by their "
+        "seeds; without it, the states' case ids must be training-domain ids (train-...)",
+    )
+    field("out", "--out", help="model directory; default {default}")
+    for name in ("k", "width", "epochs", "batch", "lr", "value_weight", "seed", "threads"):
+        field(name, "--" + name.replace("_", "-"), help="default {default}")
+    r.set_defaults(func=run_rl_imitate)
+
+
+def check_sft_data(data: str) -> None:
+    """Refuse SFT data holding bench cases (:func:`packlab.cli.train_run.check_sft_data`)."""
+    importlib.import_module(RUN_MODULE).check_sft_data(data)
+
+
+def run_sft(args: argparse.Namespace) -> int:
+    """``packlab train sft``."""
+    return int(importlib.import_module(RUN_MODULE).run_sft(args))
+
+
 def run_candidate(args: argparse.Namespace) -> int:
-    cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
-    source = resolve_cases(args.cases)
-    cases = require_training_cases(source.cases, source.origin)
-    dagger = _torch_side(DAGGER_MODULE)
-    final = dagger.run_dagger(cfg, cases, write_curves)
-    print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")
-    return 0
+    """``packlab train candidate``."""
+    return int(importlib.import_module(RUN_MODULE).run_candidate(args))
+
+
+def run_rl(args: argparse.Namespace) -> int:
+    """``packlab train rl``."""
+    return int(importlib.import_module(RL_RUN_MODULE).run_rl(args))
+
+
+def run_rl_imitate(args: argparse.Namespace) -> int:
+    """``packlab train rl-imitate``."""
+    return int(importlib.import_module(RL_RUN_MODULE).run_rl_imitate(args))

@@ -1,15 +1,16 @@
-"""``packlab train rl``: train an RL baseline (irbpp or tapnet) with MaskablePPO (rl extra)."""
+"""What ``packlab train rl`` and ``train rl-imitate`` do: train an RL baseline (irbpp or tapnet)
+with MaskablePPO, or behaviour-clone one (rl extra). :mod:`packlab.cli.train` defines their flags
+and imports this module when one runs."""
 
 from __future__ import annotations
 
 import argparse
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 from packlab.bench.suites import resolve_cases
 from packlab.cases import cases_sha256
-from packlab.cli.options import add_field, config_kwargs
+from packlab.cli.options import config_kwargs
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Action, Case
 from packlab.datagen.config import RECIPES
@@ -47,44 +48,6 @@ def training_cases(spec: str) -> tuple[list[Case], dict[str, Any]]:
     source = resolve_cases(spec)
     cases = require_training_cases(source.cases, source.origin)
     return cases, {"cases": source.origin, "cases_sha256": source.sha256}
-
-
-def register_rl(sub: argparse._SubParsersAction) -> None:
-    r = sub.add_parser(
-        "rl",
-        help="train an RL baseline: irbpp (pick a listed placement) or tapnet (pick the object)",
-        description="MaskablePPO (sb3-contrib) on the geometric backend, one agent over all "
-        "levels; held-out evaluation, checkpoints, log.csv and curves.png under --out. "
-        "Rerun the same command to resume.",
-    )
-    field = partial(add_field, r, RLTrainConfig)
-    field("agent", "--agent", help="default {default}")
-    r.add_argument(
-        "--cases",
-        default="packdata-20k",
-        help="a dataset recipe (generated now) or generated cases on disk; default %(default)s",
-    )
-    field("steps", "--steps", help="env steps in total; default {default}")
-    field("out", "--out", help="run directory; default {default}")
-    field("minutes", "--minutes", help="wall-time cap across resumes (0: none)")
-    field("envs", "--envs", help="environment copies; default {default}")
-    field("vec", "--vec", help="default {default}")
-    field("reward", "--reward", help="default {default}")
-    field("k", "--k", help="irbpp: placements listed per step; default {default}")
-    field("n_steps", "--n-steps", help="steps per env per rollout; default {default}")
-    field("batch", "--batch", help="default {default}")
-    field("epochs", "--epochs", help="default {default}")
-    field("lr", "--lr", help="default {default}")
-    field("gamma", "--gamma", help="default {default}")
-    field("ent_coef", "--ent-coef", help="default {default}")
-    field("width", "--width", help="default {default}")
-    field("eval_every", "--eval-every", help="env steps; default {default}")
-    field("eval_cases_per_level", "--eval-cases", help="held out per level; default {default}")
-    field("seed", "--seed", help="default {default}")
-    field("threads", "--threads", help="torch threads of the learner; default {default}")
-    field("init", "--init", help="a model directory to start from (e.g. rl-imitate's --out)")
-    r.set_defaults(func=run_rl)
-    register_rl_imitate(sub)
 
 
 def run_rl(args: argparse.Namespace) -> int:
@@ -133,29 +96,6 @@ def demos_from_states(path: Path, cases: list[Case] | None = None) -> list[Any]:
         soft = tuple(zip(actions, getattr(state, "soft", ()) or ()))
         demos.append(Demo(observation_of(state), actions[state.label], soft))
     return demos
-
-
-def register_rl_imitate(sub: argparse._SubParsersAction) -> None:
-    r = sub.add_parser(
-        "rl-imitate",
-        help="behaviour-clone an RL agent (irbpp or tapnet) from planner-labelled states",
-        description="Fit the agent's actor to a teacher's picks in candidate-mode states "
-        "(JSONL, packlab.vlm.candidate.states) and save a model directory that packlab bench "
-        "plays (--policy-arg irbpp:model=DIR) and packlab train rl --init DIR continues.",
-    )
-    field = partial(add_field, r, ImitationConfig)
-    field("agent", "--agent", help="default {default}")
-    r.add_argument("--states", required=True, help="labelled states (JSONL)")
-    r.add_argument(
-        "--cases",
-        default=None,
-        help="the generated cases the states come from (recipe or path), checked by their "
-        "seeds; without it, the states' case ids must be training-domain ids (train-...)",
-    )
-    field("out", "--out", help="model directory; default {default}")
-    for name in ("k", "width", "epochs", "batch", "lr", "value_weight", "seed", "threads"):
-        field(name, "--" + name.replace("_", "-"), help="default {default}")
-    r.set_defaults(func=run_rl_imitate)
 
 
 def run_rl_imitate(args: argparse.Namespace) -> int:

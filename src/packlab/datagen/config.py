@@ -11,11 +11,13 @@ naming the field, so a bad configuration fails before any work starts.
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from packlab.core.choices import (
     ArrivalOrder,
+    Executor,
     LayoutFamily,
     PhysicsBackend,
     SFTExport,
@@ -359,3 +361,22 @@ class DatasetConfig:
         }
         fields.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**fields)
+
+
+@dataclass(frozen=True, slots=True)
+class RunOptions:
+    """How a dataset is produced (never what it contains)."""
+
+    out: str
+    workers: int = 0  # 0: one per CPU core; 1: in this process (process executor)
+    executor: Executor = "process"  # where shards run (packlab.executors)
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        require_choice(self.executor, Executor, "executor")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
+            raise ConfigError(f"workers = {self.workers}: must be >= 0 (0 = one per core)")
+
+    @property
+    def n_workers(self) -> int:
+        return self.workers or os.cpu_count() or 1

@@ -23,7 +23,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.records import (
     PACKDATA_FORMAT,
@@ -35,7 +34,7 @@ from packlab.core.records import (
     ImageInfo,
 )
 from packlab.datagen import format as fmt
-from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig
+from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig, RunOptions
 from packlab.datagen.generator import SlotOutcome, fill_slot
 from packlab.datagen.validate import replay
 from packlab.executors import Context, Lost, WorkerLost, progress_bar, run_items
@@ -46,25 +45,6 @@ TRAIN_DOMAIN = "train"
 
 #: Called once per finished slot with (kept?, rejected attempts) for progress reporting.
 Report = Callable[[bool, int], None]
-
-
-@dataclass(frozen=True, slots=True)
-class RunOptions:
-    """How a dataset is produced (never what it contains)."""
-
-    out: str
-    workers: int = 0  # 0: one per CPU core; 1: in this process (process executor)
-    executor: Executor = "process"  # where shards run (packlab.executors)
-    progress: bool = True
-
-    def __post_init__(self) -> None:
-        require_choice(self.executor, Executor, "executor")
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
-            raise ConfigError(f"workers = {self.workers}: must be >= 0 (0 = one per core)")
-
-    @property
-    def n_workers(self) -> int:
-        return self.workers or os.cpu_count() or 1
 
 
 @dataclass(frozen=True, slots=True)
