@@ -1,17 +1,25 @@
-"""Milliseconds per decision of the shipped learned policies (and the proposer and plan-fast), one
-thread, on generated hard cases.
+"""Milliseconds per decision of the shipped learned policies under both runtimes (ONNX Runtime
+and torch), and of the proposer and plan-fast, on one core, on generated hard cases.
 
-Usage: OMP_NUM_THREADS=1 python benchmarks/learned_decision_time.py [--cases 3] [--repeats 2]
-       [--policies proposer,vlm,irbpp,tapnet,plan-fast]
+Usage: python benchmarks/learned_decision_time.py [--cases 3] [--repeats 2]
+       [--policies proposer,vlm,irbpp,tapnet,plan-fast] [--runtimes onnx,torch]
 
-Each policy plays ``--cases`` generated hard cases (train seed domain, user seed 7413, geometric
-backend) ``--repeats`` times; ``act`` is timed at every step and the fastest of the repeats kept
-per step (the machine is shared: the minimum is the least disturbed). Prints mean, median and
-p95 per policy. A decision includes everything the policy does: the proposer's listing, the
-line vectors, the image, tokenising and the forward pass.
+One core: ``OMP_NUM_THREADS=1`` is set before numpy, torch and ONNX Runtime load, torch runs one
+thread and every learned policy gets ``threads=1``. The learned policies (vlm, irbpp, tapnet)
+play once per runtime (``runtime=onnx`` | ``runtime=torch``); a policy without the option is
+reported as such. Each row plays ``--cases`` generated hard cases (train seed domain, user seed
+7413, geometric backend) ``--repeats`` times after one untimed warm-up case; ``act`` is timed at
+every step and the fastest of the repeats kept per step (the machine is shared: the minimum is
+the least disturbed). Prints mean, median and p95 per row. A decision includes everything the
+policy does: the proposer's listing, the line vectors, the image, tokenising and the forward
+pass.
 """
 
 from __future__ import annotations
+
+import os
+
+os.environ["OMP_NUM_THREADS"] = "1"  # before numpy / torch / onnxruntime read it
 
 import argparse
 import time
@@ -19,9 +27,13 @@ import time
 import numpy as np
 import torch
 
+from packlab.core.errors import ConfigError
 from packlab.datagen import generate_cases
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
+
+#: The policies that take ``runtime`` (and ``threads``).
+LEARNED = ("vlm", "irbpp", "tapnet")
 
 
 class Timed:
@@ -38,25 +50,48 @@ class Timed:
         return action
 
 
+def rows(policies: list[str], runtimes: list[str]) -> list[tuple[str, dict]]:
+    """(label, options) of every row: each learned policy once per runtime."""
+    out = []
+    for name in policies:
+        if name in LEARNED:
+            out += [(f"{name} ({rt})", {"runtime": rt, "threads": 1}) for rt in runtimes]
+        else:
+            out.append((name, {}))
+    return out
+
+
+def time_row(name: str, options: dict, cases, repeats: int) -> np.ndarray:
+    """Milliseconds per decision, the fastest of the repeats at each step."""
+    run_episode(cases[0], make_policy(name, **options), seed=0, backend="geometric")  # warm-up
+    runs = []
+    for _ in range(repeats):
+        timed = Timed(make_policy(name, **options))
+        for case in cases:
+            run_episode(case, timed, seed=0, backend="geometric")
+        runs.append(np.asarray(timed.times))
+    return np.min(np.stack(runs), axis=0) * 1000
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--cases", type=int, default=3)
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--policies", default="proposer,vlm,irbpp,tapnet,plan-fast")
+    p.add_argument("--runtimes", default="onnx,torch")
     a = p.parse_args()
     torch.set_num_threads(1)
     cases = generate_cases("hard", a.cases, 7413, False, domain="train")
-    print(f"{a.cases} hard cases, {a.repeats} repeats, one thread")
+    print(f"{a.cases} hard cases, {a.repeats} repeats, one core (OMP_NUM_THREADS=1)")
     print("| policy | decisions | mean ms | median ms | p95 ms |\n|---|---:|---:|---:|---:|")
-    for name in a.policies.split(","):
-        runs = []
-        for _ in range(a.repeats):
-            timed = Timed(make_policy(name))
-            for case in cases:
-                run_episode(case, timed, seed=0, backend="geometric")
-            runs.append(np.asarray(timed.times))
-        best = np.min(np.stack(runs), axis=0) * 1000
-        print(f"| {name} | {best.size} | {best.mean():.1f} | {np.median(best):.1f} | "
+    for label, options in rows(a.policies.split(","), a.runtimes.split(",")):
+        name = label.split(" ")[0]
+        try:
+            best = time_row(name, options, cases, a.repeats)
+        except ConfigError as exc:  # e.g. a policy that does not take runtime (yet)
+            print(f"| {label} | - | - | - | - |  <!-- {exc} -->")
+            continue
+        print(f"| {label} | {best.size} | {best.mean():.1f} | {np.median(best):.1f} | "
               f"{np.percentile(best, 95):.1f} |")  # fmt: skip
 
 
