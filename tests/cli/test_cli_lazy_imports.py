@@ -66,6 +66,15 @@ def test_help_imports_no_heavy_module(argv):
     assert _heavy(_modules_after(argv)) == []
 
 
+#: Commands whose flags need nothing heavy either (``train``'s configs load the planner, scipy).
+LIGHT_COMMANDS = ("cases", "generate", "inspect-data", "export", "serve", "viz")
+
+
+@pytest.mark.parametrize("command", LIGHT_COMMANDS)
+def test_command_help_imports_no_heavy_module(command):
+    assert _heavy(_modules_after([command, "--help"])) == []
+
+
 def test_top_level_help_imports_no_subcommand_module():
     loaded = _modules_after(["--help"])
     commands = [m for m in loaded if m.startswith("packlab.cli.") and m != "packlab.cli.main"]
