@@ -13,7 +13,7 @@ import argparse
 import importlib
 import importlib.util
 import sys
-from typing import Any
+from typing import Any, cast
 
 from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
 
@@ -67,17 +67,21 @@ class _LazySubParsers(argparse._SubParsersAction):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._name_parser_map = self.choices = _CommandParsers()
+        self.commands = _CommandParsers()
+        self._name_parser_map = self.choices = self.commands
 
     def add_command(self, name: str, module: str, help: str) -> None:
         self.add_parser(name, help=help)
-        self._name_parser_map.pending[name] = module
+        self.commands.pending[name] = module
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``packlab`` parser; a command's options are added when it is parsed (or looked up)."""
     parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, action=_LazySubParsers)
+    sub = cast(
+        _LazySubParsers,
+        parser.add_subparsers(dest="command", required=True, action=_LazySubParsers),
+    )
     for name, (module, help) in COMMANDS.items():
         module_name = f"packlab.cli.{module}"
         if importlib.util.find_spec(module_name) is None:  # a command not built yet
