@@ -154,28 +154,40 @@ def test_the_shipped_model_picks_as_torch_on_generated_states(generated, blank):
     assert worst < 1e-4
 
 
-#: Tiny random pointer models that export: (map, line vectors, pool).
-TINY_CONFIGS = [("image", True, "last"), ("text", False, "mean"), ("both", True, "mean")]
+#: Tiny random pointer models that export: (family, map, line vectors, pool).
+TINY_CONFIGS = [
+    ("qwen3_vl", "image", True, "last"),
+    ("qwen3_vl", "text", False, "mean"),
+    ("qwen3_vl", "both", True, "mean"),
+    ("qwen2_5_vl", "image", True, "last"),  # no deepstack, 14 px patches
+]
 
 
-@pytest.mark.torch
-@pytest.mark.parametrize(("map", "lines", "pool"), TINY_CONFIGS)
-def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, map, lines, pool):
+def _saved_tiny(tmp_path: Path, family: str, map: str, lines: bool, pool: str):
+    """A tiny random pointer model saved as a checkpoint directory (not exported)."""
     torch = _torch()
     from packlab.policies.candidates import ProposerConfig
-    from packlab.vlm.candidate.encoding import PromptSettings
-    from packlab.vlm.candidate.onnx_export import export_onnx
-    from packlab.vlm.candidate.onnx_scoring import load_onnx_pointer
     from packlab.vlm.candidate.pointer import PointerModel
     from packlab.vlm.candidate.saved import save_pointer
     from packlab.vlm.model.tiny import build_tiny_model
     from packlab.vlm.prompt.render import PROMPT_VERSION
 
     torch.manual_seed(1)
-    model = PointerModel(build_tiny_model("qwen3_vl", "tiny"), pool, map, lines).eval()
+    model = PointerModel(build_tiny_model(family, "tiny"), pool, map, lines).eval()
     card = {"proposer": asdict(ProposerConfig(k=16)), "instructions": "short", "map": map,
             "line_vectors": lines, "pool": pool, "prompt_version": PROMPT_VERSION}  # fmt: skip
-    path = save_pointer(model, tmp_path / "m", card)
+    return model, save_pointer(model, tmp_path / "m", card)
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("family", "map", "lines", "pool"), TINY_CONFIGS)
+def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, family, map, lines, pool):
+    _torch()
+    from packlab.vlm.candidate.encoding import PromptSettings
+    from packlab.vlm.candidate.onnx_export import export_onnx
+    from packlab.vlm.candidate.onnx_scoring import load_onnx_pointer
+
+    model, path = _saved_tiny(tmp_path, family, map, lines, pool)
     exported = export_onnx(path, check_states=4)
     assert exported.extra["check"]["argmax_equal"] == 4
     assert set(exported.graphs) == ({"text"} if map == "text" else {"text", "vision"})
@@ -183,6 +195,16 @@ def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, map, l
     settings = PromptSettings.of(onnx_model.meta)
     equal, worst = _agreement(model, onnx_model, generated, settings)
     assert equal == len(generated) and worst < 1e-4
+
+
+@pytest.mark.torch
+def test_a_family_that_does_not_export_says_so(tmp_path):
+    from packlab.vlm.candidate.onnx_export import export_onnx
+
+    _, path = _saved_tiny(tmp_path, "qwen3_5", "text", False, "last")
+    with pytest.raises(ConfigError, match="qwen3_5 pointer model.*runtime=torch"):
+        export_onnx(path, check_states=1)
+    assert not (path / CARD_FILE).exists()
 
 
 # -- playing: the default runtime, no torch, the options --------------------------------------

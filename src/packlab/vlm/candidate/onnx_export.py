@@ -50,7 +50,6 @@ from packlab.vlm.candidate.json_tokenizer import JsonTokenizer
 from packlab.vlm.candidate.onnx_graphs import (
     TEXT_OUTPUTS,
     VISION_INPUTS,
-    VISION_OUTPUTS,
     TextGraph,
     VisionGraph,
 )
@@ -139,10 +138,11 @@ def _open(directory: Path, spec: GraphSpec) -> OnnxGraph:
 
 
 def export_vision(model: PointerModel, grid: ImageGrid, directory: Path) -> GraphSpec:
-    spec = GraphSpec(f"{VISION_GRAPH}.onnx", VISION_INPUTS, VISION_OUTPUTS)
+    graph = VisionGraph(model, grid.thw)
+    spec = GraphSpec(f"{VISION_GRAPH}.onnx", VISION_INPUTS, graph.outputs)
     pixels = np.zeros((1, grid.side, grid.side), dtype=np.uint8)
     sample = torch.from_numpy(patchify(pixels, grid.patch, grid.merge, grid.temporal)[0])
-    _export(VisionGraph(model, grid.thw), (sample,), directory / spec.file,
+    _export(graph, (sample,), directory / spec.file,
             input_names=list(spec.inputs), output_names=list(spec.outputs))  # fmt: skip
     return spec
 
@@ -188,8 +188,9 @@ def compare(
     return CheckReport(len(states), equal, ties, worst)
 
 
-#: The model families whose pointer models export (the graphs call Qwen3-VL's modules).
-EXPORTABLE_FAMILIES = ("qwen3_vl",)
+#: The model families whose pointer models export (their decoder layers take the additive
+#: causal mask the text graph builds; Qwen3.5's linear-attention layers do not).
+EXPORTABLE_FAMILIES = ("qwen3_vl", "qwen2_5_vl")
 
 
 def _model(directory: Path) -> tuple[PointerModel, OnnxPointer]:

@@ -25,7 +25,7 @@ from packlab.vlm.candidate.pointer import PointerModel
 
 #: The graphs' input and output names (the card records them; the runtime feeds them).
 VISION_INPUTS = ("pixel_values",)
-VISION_OUTPUTS = ("visual", "deepstack")
+VISION_OUTPUTS = ("visual", "deepstack")  # deepstack: Qwen3-VL's only
 TEXT_INPUTS = ("input_ids", "position_ids", "ends")
 MEAN_INPUTS = ("starts",)  # the first token of each line (``pool`` = mean only)
 LINE_INPUTS = ("vectors",)
@@ -33,11 +33,19 @@ IMAGE_INPUTS = ("visual_at", "visual", "deepstack")
 TEXT_OUTPUTS = ("scores",)
 
 
-def text_inputs(image: bool, lines: bool, pool: str) -> tuple[str, ...]:
+def deepstack_layers(pointer: PointerModel) -> int:
+    """How many decoder layers add a vision layer's features (Qwen3-VL's deepstack; 0 for the
+    families without it)."""
+    vision = pointer.vlm.model.config.vision_config
+    return len(getattr(vision, "deepstack_visual_indexes", ()))
+
+
+def text_inputs(image: bool, lines: bool, pool: str, deepstack: bool) -> tuple[str, ...]:
     """The text graph's inputs, in order: only those the model reads (an exporter drops unused
     inputs, and the card must name the graph's own)."""
     mean = MEAN_INPUTS if pool == "mean" else ()
-    return TEXT_INPUTS + mean + (LINE_INPUTS if lines else ()) + (IMAGE_INPUTS if image else ())
+    shown = IMAGE_INPUTS if deepstack else IMAGE_INPUTS[:-1]
+    return TEXT_INPUTS + mean + (LINE_INPUTS if lines else ()) + (shown if image else ())
 
 
 class VisionGraph(nn.Module):
@@ -47,9 +55,12 @@ class VisionGraph(nn.Module):
         super().__init__()
         self.visual = pointer.visual
         self.register_buffer("grid_thw", torch.tensor([grid_thw], dtype=torch.long))
+        self.outputs = VISION_OUTPUTS if deepstack_layers(pointer) else VISION_OUTPUTS[:1]
 
-    def forward(self, pixel_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, pixel_values: torch.Tensor) -> tuple[torch.Tensor, ...]:
         out = self.visual(pixel_values, grid_thw=self.grid_thw, return_dict=True)
+        if len(self.outputs) == 1:
+            return (out.pooler_output,)
         return out.pooler_output, torch.stack(list(out.deepstack_features))
 
 
@@ -69,9 +80,8 @@ class TextGraph(nn.Module):
         self.text = pointer.text
         self.head = pointer.head
         self.lines, self.pool, self.image = pointer.lines, pointer.pool, image
-        deepstack = pointer.vlm.model.config.vision_config.deepstack_visual_indexes
-        self.deepstack_layers = len(deepstack) if image else 0
-        self.names = text_inputs(image, pointer.lines, pointer.pool)
+        self.deepstack_layers = deepstack_layers(pointer) if image else 0
+        self.names = text_inputs(image, pointer.lines, pointer.pool, self.deepstack_layers > 0)
 
     def _embed(self, input_ids: torch.Tensor, extra: dict[str, torch.Tensor]) -> torch.Tensor:
         hidden = self.text.embed_tokens(input_ids)

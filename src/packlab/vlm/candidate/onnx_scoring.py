@@ -95,7 +95,9 @@ def graph_inputs(model: OnnxPointer, enc: Encoded) -> dict[str, np.ndarray]:
         pixels, _ = patchify(enc.image[None], grid.patch, grid.merge, grid.temporal)
         vision = model.graphs[VISION_GRAPH].run(pixel_values=pixels)
         feed["visual_at"] = np.flatnonzero(enc.ids == enc.image_token).astype(np.int64)
-        feed["visual"], feed["deepstack"] = vision["visual"], vision["deepstack"]
+        feed["visual"] = vision["visual"]
+        if "deepstack" in vision:  # Qwen3-VL's deepstack features
+            feed["deepstack"] = vision["deepstack"]
     return feed
 
 
