@@ -38,7 +38,10 @@ def test_resolve_fills_defaults(tiny_suite, tmp_path):
     run = resolve(RunConfig(cases=str(tiny_suite), backend="geometric"))
     assert run.policies == default_policies(run.cases)
     assert "oracle" in run.policies and "random" in run.policies
-    assert not any(p.startswith("vlm") or p == "endpoint" for p in run.policies)
+    # The shipped learned policies play by default (ONNX, core install); the text-answer VLM,
+    # a server endpoint and the proposer only when named.
+    assert {"vlm", "irbpp", "tapnet"} <= set(run.policies)
+    assert not {"vlm-small", "endpoint", "proposer", "plan"} & set(run.policies)
     assert run.difficulties == ("easy", "hard")
     assert str(run.out).endswith("bench-tiny") and run.workers >= 1 and run.physics is None
     mj = resolve(RunConfig(cases=str(tiny_suite)))
@@ -94,10 +97,12 @@ def test_policy_args_parse_and_must_name_a_policy_that_runs(tiny_suite):
     )
     with pytest.raises(ConfigError, match="POLICY:KEY=VALUE"):
         parse_policy_args(["vlm=model"])
-    with pytest.raises(ConfigError, match="'vlm' is not among the policies to run"):
+    with pytest.raises(ConfigError, match="'endpoint' is not among the policies to run"):
         resolve(
             RunConfig(
-                cases=str(tiny_suite), backend="geometric", policy_args=(("vlm", "model", "x"),)
+                cases=str(tiny_suite),
+                backend="geometric",
+                policy_args=(("endpoint", "model", "x"),),
             )
         )
 

@@ -35,7 +35,8 @@ def plotly_js() -> str:
         from plotly.offline import get_plotlyjs
     except ImportError:
         raise ReportUnavailable(
-            "the HTML report needs plotly, a core dependency that is missing here: pip install plotly"
+            "the HTML report needs plotly, a core dependency that is missing here: "
+            "pip install plotly"
         ) from None
     return get_plotlyjs()
 
