@@ -5,12 +5,13 @@ All are judged on *final* poses: a box knocked outside late in an episode does n
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
-from packlab.core.types import Container, InternalId
+from packlab.core.types import Case, Container, InternalId, Pose
 
 #: The three metrics of every summary, in table order.
 METRICS = ("success_ratio", "compactness", "overall")
@@ -47,7 +48,8 @@ def inside_mask(
     """
     centres = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
     upper = np.asarray(container.size_mm, dtype=np.float64) + tol_mm
-    return np.all((centres >= -tol_mm) & (centres <= upper), axis=1)
+    mask: np.ndarray = np.all((centres >= -tol_mm) & (centres <= upper), axis=1)
+    return mask
 
 
 def success_ratio(inside_volume_mm3: float, total_volume_mm3: float) -> float:
@@ -91,7 +93,7 @@ class EpisodeMetrics:
     residual_angular_radps: float = 0.0
     wall_time_s: float = 0.0
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
@@ -114,12 +116,12 @@ def score_final_state(
     return sr, comp, sr * comp, inside_volume, sum(inside), max_height
 
 
-def planned_centres_mm(case) -> dict[InternalId, tuple[float, float, float]]:
+def planned_centres_mm(case: Case) -> dict[InternalId, tuple[float, float, float]]:
     """Centre (mm) of every object in the case's perfect layout, by internal id."""
     if case.gt_plan is None:
         raise ValueError(f"case {case.episode_id!r} has no gt_plan")
     cell, cell_z = case.container.cell_xy_mm, case.container.cell_z_mm
-    centres = {}
+    centres: dict[InternalId, tuple[float, float, float]] = {}
     for p in case.gt_plan:
         box = case.box_by_id(p.internal_id)
         fx, fy = box.footprint_mm(p.rotation)
@@ -131,7 +133,7 @@ def planned_centres_mm(case) -> dict[InternalId, tuple[float, float, float]]:
     return centres
 
 
-def plan_drift_mm(case, poses) -> float:
+def plan_drift_mm(case: Case, poses: Mapping[InternalId, Pose | None]) -> float:
     """Largest per-axis distance (mm) between settled centres and the plan; inf if one is missing.
 
     ``poses`` maps internal id to a ``Pose`` (or None for an object never placed).

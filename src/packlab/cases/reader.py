@@ -66,7 +66,7 @@ class Reader:
         return mm
 
     def integer(
-        self, value: Any, field: str, *, minimum: int | None = None, bound: int = INT64_BOUND
+        self, value: object, field: str, *, minimum: int | None = None, bound: int = INT64_BOUND
     ) -> int:
         """An integer (or a float with no fraction) in ``[minimum or -bound, bound)``."""
         if isinstance(value, bool) or not isinstance(value, int):
@@ -100,8 +100,10 @@ def shorten(value: object) -> object:
     if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
         digits = str(abs(value))
         return Cut(f"{'-' if value < 0 else ''}{digits[:12]}...({len(digits)} digits)")
-    if isinstance(value, (str, bytes)) and len(value) > 60:
-        return value[:57] + (b"..." if isinstance(value, bytes) else "...")
+    if isinstance(value, str) and len(value) > 60:
+        return value[:57] + "..."
+    if isinstance(value, bytes) and len(value) > 60:
+        return value[:57] + b"..."
     if isinstance(value, (list, tuple, dict)):
         text = repr(value)
         return value if len(text) <= 80 else Cut(text[:77] + "...")

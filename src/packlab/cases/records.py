@@ -46,6 +46,7 @@ def case_from_dict(
         raise CaseFormatError(source, line, "<case>", shorten(record), "expected a JSON object")
     if default_id is None:
         default_id = f"{Path(source).stem}-{line if line is not None else 0}"
+    flat: Mapping[str, Any]
     if "extra_info" in record:
         flat, aliases, origin = _flatten_reference_row(record, source, line)
         r = Reader(source, line, aliases)

@@ -41,7 +41,8 @@ def footprint_max(heightmap: np.ndarray, fx: int, fy: int) -> np.ndarray:
     if fx > nx or fy > ny:
         return np.zeros((max(nx - fx + 1, 0), max(ny - fy + 1, 0)), dtype=heightmap.dtype)
     along_x = sliding_window_view(heightmap, fx, axis=0).max(axis=-1)
-    return sliding_window_view(along_x, fy, axis=1).max(axis=-1)
+    maxima: np.ndarray = sliding_window_view(along_x, fy, axis=1).max(axis=-1)
+    return maxima
 
 
 def placement_height(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int) -> int:

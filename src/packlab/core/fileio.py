@@ -30,7 +30,7 @@ def current_umask() -> int:
     return mask
 
 
-def write_atomically(path: Path, write: Callable[[IO[bytes]], None]) -> Path:
+def write_atomically(path: Path, write: Callable[[IO[bytes]], object]) -> Path:
     """Write ``path`` through a temp file renamed into place, so no reader ever sees half a
     file and a failure leaves the old one. ``mkstemp`` creates 0600; the file gets the mode a
     plain ``open`` would have given it (0666 less the umask) before the rename."""

@@ -606,7 +606,8 @@ def decode_episode(raw: bytes, source: str, line: int | None = None) -> EpisodeR
     or a field missing or of the wrong type.
     """
     try:
-        record = msgspec.json.decode(raw, type=EpisodeRecord)
+        # msgspec types a decode to a union (not a type[T]) as Any.
+        record: EpisodeRecord = msgspec.json.decode(raw, type=EpisodeRecord)
     except msgspec.DecodeError:  # not the current layout (or not JSON): the slow, careful path
         return episode_from_json(loads(raw, source, line), source, line)
     if record.format != RUN_FORMAT:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from importlib import resources
-from typing import Any, ClassVar
+from typing import Any, ClassVar, SupportsInt
 
 import gymnasium as gym
 import numpy as np
@@ -88,7 +88,8 @@ class InsideVolume:
 class PackEnv(gym.Env):
     """Closed-loop bin packing as a Gymnasium environment (see the module docstring)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 2}
+    # gymnasium declares Env.metadata an instance variable; it is read as a class attribute.
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 2}  # type: ignore[misc]
 
     def __init__(
         self,
@@ -152,8 +153,7 @@ class PackEnv(gym.Env):
             )
         )
 
-    def _observation(self) -> dict[str, np.ndarray]:
-        case = self._case
+    def _observation(self, case: Case) -> dict[str, np.ndarray]:
         hm = np.full(self.grid, case.container.height_mm, dtype=np.int32)
         cx, cy = case.container.cells
         hm[:cx, :cy] = self._episode.observed_heightmap  # the perceived one in perceived mode
@@ -175,19 +175,23 @@ class PackEnv(gym.Env):
         }
 
     # -- gymnasium API ---------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         options = options or {}
         index = options.get("case_index")
         if index is None:
             index = int(self.np_random.integers(len(self.cases)))
-        self._case = self.cases[int(index)]
+        case = self._case = self.cases[int(index)]
         run_seed = int(options.get("run_seed", self.np_random.integers(2**31 - 1)))
-        self._episode.reset(self._case, run_seed)
-        self._reward.reset(self._case)
-        return self._observation(), {"case_id": self._case.episode_id, "run_seed": run_seed}
+        self._episode.reset(case, run_seed)
+        self._reward.reset(case)
+        return self._observation(case), {"case_id": case.episode_id, "run_seed": run_seed}
 
-    def step(self, action):
+    def step(
+        self, action: SupportsInt
+    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if self._case is None:
             raise RuntimeError("PackEnv.step() before reset()")
         result = self._episode.step(self.decode_action(int(action)))
@@ -198,9 +202,9 @@ class PackEnv(gym.Env):
             info["replan"] = result.replan
         if terminated:
             info["metrics"] = self._episode.metrics().to_dict()
-        return self._observation(), float(reward), terminated, False, info
+        return self._observation(self._case), float(reward), terminated, False, info
 
-    def render(self):
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array" or self._case is None:
             return None
         return heightmap_to_rgb(self._episode.heightmap, self._case.container)

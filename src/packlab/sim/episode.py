@@ -10,11 +10,11 @@ import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol, cast
 
 import numpy as np
 
-from packlab.core.choices import SideNames, require_choice
+from packlab.core.choices import PhysicsBackend, SideNames, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
@@ -76,8 +76,8 @@ class StepResult:
     #: (n, 3) float mm and quaternions (n, 4) wxyz; NaN rows for boxes not in the container
     #: (not yet placed, or set aside). Records keep only their changes from step to step
     #: (``EpisodeResult.to_record``, ``packlab.sim.pose_log``).
-    positions_mm: np.ndarray = field(default=None, repr=False, compare=False)
-    quaternions: np.ndarray = field(default=None, repr=False, compare=False)
+    positions_mm: np.ndarray = field(repr=False, compare=False)
+    quaternions: np.ndarray = field(repr=False, compare=False)
     #: Largest linear (m/s) and angular (rad/s) speed of any box when the placement's settle
     #: stopped: under the rest thresholds when ``settled``, the residual motion when not.
     max_linear_speed: float = 0.0
@@ -146,6 +146,23 @@ def _cells(mm: int, cell: int) -> int:
     return -(-mm // cell)
 
 
+class _NoisyBackend(TransitionBackend, Protocol):
+    """A backend whose ``place`` executes noisy drops (``supports_noisy_execution``: mujoco)."""
+
+    def place(
+        self,
+        index: int,
+        rotation: int,
+        min_corner_mm: tuple[int, int, int],
+        offset_mm: tuple[float, float] = (0.0, 0.0),
+        yaw_deg: float = 0.0,
+        release_mm: float = 0.0,
+        comply_mm: float = 0.0,
+        seat_mm: float = 0.0,
+        seat_sides: tuple[int, int] = (0, 0),
+    ) -> Transition: ...
+
+
 class Episode:
     """One closed-loop packing episode over a case on a transition backend.
 
@@ -153,6 +170,14 @@ class Episode:
     events by ``replan``; ``execution`` noise executes each drop off-plan (mujoco only). Without
     them the episode is exactly the exact-mode loop.
     """
+
+    # Set by reset(): the case and backend of this episode (``case`` and ``backend`` before the
+    # first reset are None), the shown objects and the perception they were shown from.
+    _case: Case
+    _backend: TransitionBackend
+    _shown_indices: list[int]
+    _shown: tuple[ShownItem, ...]
+    _perception: Perception
 
     def __init__(
         self,
@@ -178,17 +203,19 @@ class Episode:
     # -- lifecycle -------------------------------------------------------------------------
     def reset(self, case: Case, seed: int = 0) -> Observation:
         if isinstance(self._backend_spec, str):
-            self.backend = make_backend(self._backend_spec, self._physics)
+            # make_backend refuses a name that is not a PhysicsBackend.
+            name = cast(PhysicsBackend, self._backend_spec)
+            self.backend = self._backend = make_backend(name, self._physics)
         else:
-            self.backend = self._backend_spec
+            self.backend = self._backend = self._backend_spec
         if self._execution is not None and not getattr(
             self.backend, "supports_noisy_execution", False
         ):
             raise ConfigError(
-                f"execution = 'noisy': the {self.backend.name} backend places boxes on whole "
+                f"execution = 'noisy': the {self._backend.name} backend places boxes on whole "
                 "cells and cannot execute noisy drops; use the mujoco backend"
             )
-        self.case = case
+        self.case = self._case = case
         self.seed = seed
         self._rng = episode_rng(case.seed, seed)
         # Own streams for execution noise and perception, spawned from the episode's seeds so
@@ -198,7 +225,7 @@ class Episode:
         ).spawn(2)
         self._execution_rng = np.random.default_rng(execution_seed)
         self._perception_rng = np.random.default_rng(perception_seed)
-        self._heightmap = self.backend.reset(case.container, case.objects)
+        self._heightmap = self._backend.reset(case.container, case.objects)
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
         self.missed = 0  # objects perception did not find, set aside (perceived mode)
@@ -215,10 +242,10 @@ class Episode:
         Returns the case indices of the shown objects perception missed."""
         if self._perceiver is None:
             return []
-        positions, quaternions = self.backend.poses()
+        positions, quaternions = self._backend.poses()
         scene = Scene(
-            container=self.case.container,
-            sizes_mm=np.array([b.size_mm for b in self.case.objects], dtype=np.int64),
+            container=self._case.container,
+            sizes_mm=np.array([b.size_mm for b in self._case.objects], dtype=np.int64),
             positions_mm=positions,
             quaternions=quaternions,
             heightmap=self._heightmap,
@@ -231,11 +258,11 @@ class Episode:
                 f"{len(self._shown)} shown objects"
             )
         # The policy is shown the perceived sizes (cells rounded up, as for exact sizes).
-        c = self.case.container
+        c = self._case.container
         self._shown = tuple(
             replace(
                 item,
-                size_mm=tuple(int(v) for v in size),
+                size_mm=(int(size[0]), int(size[1]), int(size[2])),
                 size_cells=(
                     _cells(int(size[0]), c.cell_xy_mm),
                     _cells(int(size[1]), c.cell_xy_mm),
@@ -251,7 +278,7 @@ class Episode:
         to the sides it was shown, which perception lists longer first (``axis_swapped``), and
         exact observation as ``sides`` says."""
         if self._perceiver is None:
-            l, w, _ = self.case.objects[self._shown_indices[object_id]].size_mm
+            l, w, _ = self._case.objects[self._shown_indices[object_id]].size_mm
             return rotation ^ int(self._sides == "longer-first" and l < w)
         if not self._perception.axis_swapped:
             return rotation
@@ -279,7 +306,7 @@ class Episode:
                 self._pending.remove(index)
             self.missed += len(missed)
             if not self._pending:
-                final = self._last_settle = self.backend.finish()
+                final = self._last_settle = self._backend.finish()
                 self._heightmap = final.heightmap
                 self.final_settle_steps = final.settle_steps
                 self._shown_indices, self._shown = [], ()
@@ -287,21 +314,21 @@ class Episode:
                 return final.settle_steps
 
     def _show_window(self) -> None:
-        window = visible_window(self._pending, self.case.buffer_size)
+        window = visible_window(self._pending, self._case.buffer_size)
         self._shown_indices = shuffled_view(window, self._rng)
-        c = self.case.container
-        sizes = [self._named(self.case.objects[idx].size_mm) for idx in self._shown_indices]
+        c = self._case.container
+        sizes = [self._named(self._case.objects[idx].size_mm) for idx in self._shown_indices]
         self._shown = tuple(
             ShownItem(
                 shown_index=i,
-                internal_id=self.case.objects[idx].internal_id,
+                internal_id=self._case.objects[idx].internal_id,
                 size_mm=size,
                 size_cells=(
                     _cells(size[0], c.cell_xy_mm),
                     _cells(size[1], c.cell_xy_mm),
                     _cells(size[2], c.cell_z_mm),
                 ),
-                type_id=self.case.objects[idx].type_id,
+                type_id=self._case.objects[idx].type_id,
             )
             for (i, idx), size in zip(enumerate(self._shown_indices), sizes)
         )
@@ -316,7 +343,7 @@ class Episode:
             raise RuntimeError("Episode.observe() before reset()")
         return Observation(
             step_index=len(self.steps),
-            container=self.case.container,
+            container=self._case.container,
             heightmap=self.observed_heightmap.copy(),
             shown=self._shown,
             history=tuple(self._history),
@@ -345,8 +372,8 @@ class Episode:
         return self._shown_indices[int(self._rng.integers(len(self._shown_indices)))]
 
     def _footprint_cells(self, index: int, rotation: int) -> tuple[int, int]:
-        fx_mm, fy_mm = self.case.objects[index].footprint_mm(rotation)
-        cell = self.case.container.cell_xy_mm
+        fx_mm, fy_mm = self._case.objects[index].footprint_mm(rotation)
+        cell = self._case.container.cell_xy_mm
         return _cells(fx_mm, cell), _cells(fy_mm, cell)
 
     def step(self, action: Action | Unparsable) -> StepResult:
@@ -354,7 +381,7 @@ class Episode:
             raise RuntimeError("Episode.step() before reset()")
         if self.done:
             raise RuntimeError(
-                f"episode {self.case.episode_id!r} is finished; reset() to start again"
+                f"episode {self._case.episode_id!r} is finished; reset() to start again"
             )
         started = time.perf_counter()
         reason, index = self._check(action)
@@ -363,14 +390,14 @@ class Episode:
         predicted = seen_before  # what the policy expects to see next (perceived mode)
         drop = executed = None
         placed: Transition | None = None
-        if not reason:
+        if not reason and isinstance(action, Action):  # no reason: an Action
             chosen, x, y = int(action.rotation), int(action.x), int(action.y)
             rotation = self._turned(int(action.object_id), chosen)
             fx, fy = self._footprint_cells(index, rotation)
             # The release height from what the robot sees (perceived mode: the perceived
             # heightmap; too low, _lift_clear stops the descent on contact).
             z = placement_height(seen_before, x, y, fx, fy)
-            cell = self.case.container.cell_xy_mm
+            cell = self._case.container.cell_xy_mm
             drop = (x * cell, y * cell, z)
             executed = self._executed_drop(index, rotation, drop)
             placed = self._last_settle = self._place(index, rotation, drop, executed)
@@ -381,11 +408,11 @@ class Episode:
             self._set_aside.add(index)
         settle_steps = placed.settle_steps if placed else 0
         if len(self._pending) == 1:  # this step processes the last object
-            final = self._last_settle = self.backend.finish()
+            final = self._last_settle = self._backend.finish()
             self._heightmap = final.heightmap
             self.final_settle_steps = final.settle_steps
             settle_steps += final.settle_steps
-        positions, quaternions = self.backend.poses()
+        positions, quaternions = self._backend.poses()
         self._history.append(HistoryEntry(seen_before, shown_before, action, not reason))
         self._pending.remove(index)
         if self._pending:
@@ -398,7 +425,7 @@ class Episode:
             action=action,
             valid=not reason,
             reason=reason,
-            internal_id=self.case.objects[index].internal_id,
+            internal_id=self._case.objects[index].internal_id,
             shown=shown_before,
             drop_mm=drop,
             settle_steps=settle_steps,
@@ -430,8 +457,8 @@ class Episode:
         sides the place skill seats it toward, read from the observed heightmap."""
         if self._execution is None:
             return None
-        c = self.case.container
-        footprint = self.case.objects[index].footprint_mm(rotation)
+        c = self._case.container
+        footprint = self._case.objects[index].footprint_mm(rotation)
         executed = perturb_drop(
             self._execution,
             drop,
@@ -459,14 +486,19 @@ class Episode:
             return NO_GRASP_ERROR
         errors = self._perception.grasp_errors
         shown = list(self._shown_indices).index(index)
-        return tuple(errors[shown]) if shown < len(errors) else NO_GRASP_ERROR
+        if shown >= len(errors):
+            return NO_GRASP_ERROR
+        dx, dy, dyaw = errors[shown]
+        return (dx, dy, dyaw)
 
     def _place(
         self, index: int, rotation: int, drop: tuple[int, int, int], executed: ExecutedDrop | None
     ) -> Transition:
         if executed is None or executed.is_exact:
-            return self.backend.place(index, rotation, drop)
-        return self.backend.place(
+            return self._backend.place(index, rotation, drop)
+        # reset() refused an execution noise for a backend without supports_noisy_execution.
+        noisy = cast(_NoisyBackend, self._backend)
+        return noisy.place(
             index,
             rotation,
             drop,
@@ -488,15 +520,14 @@ class Episode:
     # -- outcome ---------------------------------------------------------------------------
     def final_poses(self) -> dict[InternalId, Pose | None]:
         """Settled pose of every object by internal id; None for objects never placed."""
-        positions, quats = self.backend.poses()
+        positions, quats = self._backend.poses()
         out: dict[InternalId, Pose | None] = {}
-        for i, box in enumerate(self.case.objects):
+        for i, box in enumerate(self._case.objects):
             if np.isnan(positions[i]).any():
                 out[box.internal_id] = None
             else:
-                out[box.internal_id] = Pose(
-                    tuple(map(float, positions[i])), tuple(map(float, quats[i]))
-                )
+                (x, y, z), (qw, qx, qy, qz) = map(float, positions[i]), map(float, quats[i])
+                out[box.internal_id] = Pose((x, y, z), (qw, qx, qy, qz))
         return out
 
     def metrics(self) -> EpisodeMetrics:
@@ -505,11 +536,11 @@ class Episode:
         ``at_rest`` and the residual speeds describe the latest settle: once done, the final
         settle the scores were taken after.
         """
-        positions, _ = self.backend.poses()
+        positions, _ = self._backend.poses()
         centres = [None if np.isnan(p).any() else p for p in positions]
-        volumes = [b.volume_mm3 for b in self.case.objects]
+        volumes = [b.volume_mm3 for b in self._case.objects]
         sr, comp, overall, inside_vol, n_inside, max_h = score_final_state(
-            self.case.container, volumes, centres, self._heightmap
+            self._case.container, volumes, centres, self._heightmap
         )
         reasons = Counter(s.reason for s in self.steps if s.reason)
         return EpisodeMetrics(
@@ -615,7 +646,7 @@ def run_episode(
         case_id=case.episode_id,
         seed=seed,
         policy=getattr(policy, "name", type(policy).__name__),
-        backend=episode.backend.name,
+        backend=episode._backend.name,
         steps=tuple(episode.steps),
         metrics=episode.metrics(),
         poses=episode.final_poses(),

@@ -254,9 +254,10 @@ class MujocoBackend:
 
     def __init__(self, config: PhysicsConfig | None = None) -> None:
         self.config = config or PhysicsConfig()
-        self._model: mujoco.MjModel | None = None
-        self._data: mujoco.MjData | None = None
-        self._container: Container | None = None
+        # The episode's simulation, set by ``reset`` (read through the properties below).
+        self._model_or_none: mujoco.MjModel | None = None
+        self._data_or_none: mujoco.MjData | None = None
+        self._container_or_none: Container | None = None
         self._sizes_mm = np.zeros((0, 3))
         self._placed = np.zeros(0, dtype=bool)
         self._body_ids = np.zeros(0, dtype=int)
@@ -264,8 +265,8 @@ class MujocoBackend:
 
     def reset(self, container: Container, boxes: Sequence[Box]) -> np.ndarray:
         model = mujoco.MjModel.from_xml_string(build_model_xml(container, boxes, self.config))
-        self._model, self._data = model, mujoco.MjData(model)
-        self._container = container
+        self._model_or_none, self._data_or_none = model, mujoco.MjData(model)
+        self._container_or_none = container
         self._sizes_mm = np.array([b.size_mm for b in boxes], dtype=np.float64).reshape(-1, 3)
         self._placed = np.zeros(len(boxes), dtype=bool)
         self._regions: dict[int, tuple[np.ndarray, np.ndarray, object]] = {}
@@ -273,6 +274,24 @@ class MujocoBackend:
         self._geom_ids = np.array([model.geom(f"g{i}").id for i in range(len(boxes))], dtype=int)
         mujoco.mj_forward(model, self._data)
         return np.zeros(container.cells, dtype=np.int32)
+
+    @property
+    def _model(self) -> mujoco.MjModel:
+        """The episode's model (``reset`` first)."""
+        assert self._model_or_none is not None, "reset() first"
+        return self._model_or_none
+
+    @property
+    def _data(self) -> mujoco.MjData:
+        """The episode's state (``reset`` first)."""
+        assert self._data_or_none is not None, "reset() first"
+        return self._data_or_none
+
+    @property
+    def _container(self) -> Container:
+        """The episode's container (``reset`` first)."""
+        assert self._container_or_none is not None, "reset() first"
+        return self._container_or_none
 
     def _qpos_slice(self, index: int) -> slice:
         adr = self._model.jnt_qposadr[self._model.body_jntadr[self._body_ids[index]]]
@@ -306,9 +325,6 @@ class MujocoBackend:
         defaults the drop is computed exactly as without them, so exact runs keep their scores
         bit for bit."""
         model, data, cfg = self._model, self._data, self.config
-        assert model is not None and data is not None and self._container is not None, (
-            "reset() first"
-        )
         l, w, h = self._sizes_mm[index]
         fx, fy = (w, l) if rotation == 1 else (l, w)
         x, y, z = min_corner_mm
@@ -719,7 +735,7 @@ class MujocoBackend:
         n = len(self._placed)
         positions = np.full((n, 3), np.nan)
         quats = np.full((n, 4), np.nan)
-        for i in np.flatnonzero(self._placed):
+        for i in np.flatnonzero(self._placed).tolist():
             q = self._data.qpos[self._qpos_slice(i)]
             positions[i] = q[:3] / _MM
             quats[i] = q[3:]
@@ -734,7 +750,7 @@ class MujocoBackend:
         """
         positions, quats = self.poses()
         grid, cell = self._container.cells, self._container.cell_xy_mm
-        for i in np.flatnonzero(self._placed):
+        for i in np.flatnonzero(self._placed).tolist():
             cached = self._regions.get(i)
             if (
                 cached is None

@@ -123,7 +123,9 @@ def _wrap(angle_deg: float, period: float) -> float:
     return (angle_deg + period / 2) % period - period / 2
 
 
-def _compare_to_truth(shown: np.ndarray, buffer: BufferPerception):
+def _compare_to_truth(
+    shown: np.ndarray, buffer: BufferPerception
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(sizes, axis_swapped, grasp errors, (dims, raw dims, yaw errors)) per shown object.
 
     The sizes are the estimates as measured (longer side first). Which true axis the estimated
