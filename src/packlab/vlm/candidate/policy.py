@@ -29,7 +29,6 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose
 from packlab.policies.registry import make_policy
-from packlab.vlm.candidate.encoding import PromptSettings
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
 from packlab.vlm.prompt.parse import parse_or_unparsable
@@ -40,6 +39,9 @@ IN_MEMORY = "<in memory>"
 SCORING_MODULE = "packlab.vlm.candidate.scoring"
 SAVED_MODULE = "packlab.vlm.candidate.saved"
 ONNX_SCORING_MODULE = "packlab.vlm.candidate.onnx_scoring"
+#: Loaded with the model, not at import: it reaches scipy (line vectors), which the policy
+#: registry (every CLI start) should not pay for.
+ENCODING_MODULE = "packlab.vlm.candidate.encoding"
 #: How a candidate-mode model plays (module docstring); the RL agents take the same names.
 RUNTIMES = ("onnx", "torch")
 
@@ -134,7 +136,8 @@ class CandidateVLMPolicy:
                 f", this packlab renders {PROMPT_VERSION!r}; retrain it"
             )
         self._proposer = ProposerConfig(**meta["proposer"])
-        self._settings = PromptSettings.of(meta, blank_map=self.blank_image)
+        encoding = importlib.import_module(ENCODING_MODULE)
+        self._settings = encoding.PromptSettings.of(meta, blank_map=self.blank_image)
 
     def reset(self, case: Case, seed: int) -> None:
         self.load()
