@@ -271,12 +271,13 @@ def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
             conn.send((_RAISED, _portable(exc)))
 
 
-def _context() -> mp.context.BaseContext:
+def _context() -> mp.context.ForkContext | mp.context.SpawnContext:
     # fork: workers start in milliseconds with the engine and every registered policy already
     # imported (spawn would re-import mujoco and scipy per worker, about a second each, and lose
     # policies registered at run time, e.g. by tests). run_items forks before threads start.
-    methods = mp.get_all_start_methods()
-    return mp.get_context("fork" if "fork" in methods else "spawn")
+    if "fork" in mp.get_all_start_methods():
+        return mp.get_context("fork")
+    return mp.get_context("spawn")
 
 
 @dataclass(slots=True)

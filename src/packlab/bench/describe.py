@@ -52,11 +52,11 @@ class GroupStats:
     name: str
     n_cases: int
     buffer_sizes: tuple[int, ...]
-    objects: Range
+    objects: Range | None  # None for a group of no cases
     layers: Range | None
     steps: int  # packing steps: one per object
     container_cm: tuple[tuple[float, float, float], ...]  # distinct container sizes, sorted
-    fill_ratio: Range  # object volume / container volume
+    fill_ratio: Range | None  # object volume / container volume
 
     def to_dict(self) -> dict:
         def r(x: Range | None) -> dict | None:
@@ -75,7 +75,9 @@ class GroupStats:
 
 def group_stats(name: str, cases: Sequence[Case]) -> GroupStats:
     layers = [n for n in (_layers(c) for c in cases) if n is not None]
-    containers = sorted({tuple(v / 10 for v in c.container.size_mm) for c in cases})
+    containers = sorted(
+        {(x / 10, y / 10, z / 10) for x, y, z in (c.container.size_mm for c in cases)}
+    )
     return GroupStats(
         name=name,
         n_cases=len(cases),
@@ -83,7 +85,7 @@ def group_stats(name: str, cases: Sequence[Case]) -> GroupStats:
         objects=Range.of([len(c.objects) for c in cases]),
         layers=Range.of(layers) if len(layers) == len(cases) else None,
         steps=sum(len(c.objects) for c in cases),
-        container_cm=tuple(containers),  # type: ignore[arg-type]
+        container_cm=tuple(containers),
         fill_ratio=Range.of([c.total_volume_mm3 / c.container.volume_mm3 for c in cases]),
     )
 
@@ -119,10 +121,12 @@ def format_description(label: str, stats: Sequence[GroupStats]) -> str:
     for s in stats:
         buf = ",".join(map(str, s.buffer_sizes))
         layers = s.layers.text() if s.layers else "-"
+        objects = s.objects.text() if s.objects else "-"
+        fill = s.fill_ratio.text(2) if s.fill_ratio else "-"
         lines.append(
-            f"{s.name:<10} {s.n_cases:>5} {buf:>6}  {s.objects.text():<22} {layers:<20} "
+            f"{s.name:<10} {s.n_cases:>5} {buf:>6}  {objects:<22} {layers:<20} "
             f"{s.steps:>5}  "
-            f"{s.fill_ratio.text(2):<22} {_containers_text(s.container_cm)}"
+            f"{fill:<22} {_containers_text(s.container_cm)}"
         )
     return "\n".join(lines)
 

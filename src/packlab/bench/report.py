@@ -112,9 +112,9 @@ def pick_showcase_case(summary: RunSummary, cases: Sequence[Case]) -> str | None
             for p in summary.policies
             if p != "oracle" and case.episode_id in summary.per_case.get(p, {})
         ]
-        vals = [v for v in vals if v is not None]
-        if vals:
-            scored.append((sum(vals) / len(vals), case.episode_id))
+        scores = [v for v in vals if v is not None]
+        if scores:
+            scored.append((sum(scores) / len(scores), case.episode_id))
     if not scored:
         return None
     scored.sort()

@@ -44,6 +44,7 @@ from packlab.bench.records import (
 from packlab.bench.report import write_outputs
 from packlab.bench.task import DeadlineReached, Task, error_record, run_task
 from packlab.cases import save_cases
+from packlab.core.choices import ErrorKind
 from packlab.core.errors import ConfigError, RunAborted
 from packlab.core.records import EpisodeError, EpisodeRecord, RunSummary, Timing
 from packlab.core.types import Case
@@ -111,6 +112,7 @@ class EpisodeWork:
 
     def lost(self, task: Task, lost: Lost) -> EpisodeError:
         """The error record of an episode whose worker died or was killed (silent too long)."""
+        kind: ErrorKind
         if lost.kind == "overdue":
             kind = "timeout"
             message = (

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
+from typing import TypedDict
 
 from msgspec import UNSET, Struct
 
@@ -58,6 +59,7 @@ from packlab.core.records import (
     PolicyCounts,
     RunConfigHead,
     RunSummary,
+    SensingModes,
     Timing,
 )
 from packlab.metrics import AVERAGE, METRICS
@@ -122,7 +124,27 @@ def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
     )
 
 
-def _perception_counts(mine: list[EpisodeOk]) -> dict[str, float | None]:
+class _PerceptionCounts(TypedDict, total=False):
+    """The ``PolicyCounts`` fields of perceived runs (issue 15)."""
+
+    replans_per_episode: float
+    missed_per_episode: float
+    dims_error_mm: float | None
+    yaw_error_deg: float | None
+    heightmap_mae_mm: float | None
+
+
+class _RunFields(TypedDict, total=False):
+    """The ``RunSummary`` fields taken from config.json."""
+
+    suite: str | None
+    backend: str | None
+    n_cases: int | None
+    cases_sha256: str | None
+    sensing: SensingModes
+
+
+def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
     """Perceived runs' counters (issue 15); none for exact runs: their summary is unchanged."""
     replans = [r.metrics.replans for r in mine if r.metrics.replans is not UNSET]
     if not replans:
@@ -132,13 +154,13 @@ def _perception_counts(mine: list[EpisodeOk]) -> dict[str, float | None]:
     yaws = [v for p in seen for v in p.yaw_error_deg if v is not None]
     maes = [p.heightmap_mae_mm for p in seen if p.heightmap_mae_mm is not None]
     missed = [r.metrics.missed for r in mine if r.metrics.missed is not UNSET]
-    return {
-        "replans_per_episode": math.fsum(replans) / len(replans),
-        **({"missed_per_episode": math.fsum(missed) / len(missed)} if missed else {}),
-        "dims_error_mm": _number(_mean(dims)),
-        "yaw_error_deg": _number(_mean(yaws)),
-        "heightmap_mae_mm": _number(_mean(maes)),
-    }
+    counts: _PerceptionCounts = {"replans_per_episode": math.fsum(replans) / len(replans)}
+    if missed:
+        counts["missed_per_episode"] = math.fsum(missed) / len(missed)
+    counts["dims_error_mm"] = _number(_mean(dims))
+    counts["yaw_error_deg"] = _number(_mean(yaws))
+    counts["heightmap_mae_mm"] = _number(_mean(maes))
+    return counts
 
 
 #: Scores by (policy, difficulty) -> case -> seed -> metric.
@@ -219,18 +241,17 @@ def summarize(
         p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))
         for p in policies
     }
-    run = (
-        {}
-        if meta is None
-        else {
+    run: _RunFields = {}
+    if meta is not None:
+        run = {
             "suite": meta.suite,
             "backend": meta.backend,
             "n_cases": meta.n_cases,
             "cases_sha256": meta.cases_sha256,
-            # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
-            **({} if meta.sensing is None else {"sensing": meta.sensing}),
         }
-    )
+        # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
+        if meta.sensing is not None:
+            run["sensing"] = meta.sensing
     return RunSummary(
         format=SUMMARY_FORMAT,
         **run,

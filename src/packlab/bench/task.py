@@ -204,7 +204,7 @@ def run_task(
         )
         timing = {"timeout_s": timeout_s}
     except Exception as exc:  # noqa: BLE001 - any failure of a policy or engine is data here
-        kind = "transport" if is_transport_error(exc) else "exception"
+        kind: ErrorKind = "transport" if is_transport_error(exc) else "exception"
         record = error_record(
             case, policy, seed, backend, kind, one_line(exc), traceback.format_exc()
         )

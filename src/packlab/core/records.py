@@ -116,12 +116,19 @@ class ActionRecord(Struct, frozen=True):
             return cls(object_id=action.object_id, x=action.x, y=action.y, rotation=action.rotation)
         return cls(unparsable=action.text, error=action.error)
 
+    def placement(self) -> tuple[int, int, int, int] | None:
+        """(object_id, rotation, x, y) of a placement; None for the ``{unparsable, error}`` form."""
+        o, r, x, y = self.object_id, self.rotation, self.x, self.y
+        if isinstance(o, int) and isinstance(r, int) and isinstance(x, int) and isinstance(y, int):
+            return o, r, x, y
+        return None
+
     def to_action(self) -> Action | Unparsable:
         if isinstance(self.unparsable, str):
             return Unparsable(self.unparsable, self.error if isinstance(self.error, str) else "")
-        fields = (self.object_id, self.rotation, self.x, self.y)
-        assert all(isinstance(v, int) for v in fields)  # __post_init__ checked the form
-        return Action(*fields)  # type: ignore[arg-type]
+        fields = self.placement()
+        assert fields is not None  # __post_init__ checked the form
+        return Action(*fields)
 
 
 class PerceptionErrors(Struct, frozen=True):

@@ -53,8 +53,8 @@ class DifficultySpec:
             raise ConfigError(
                 f"{where}: fewer objects {self.n_objects} than layers {self.n_layers}"
             )
-        lo, hi = self.height_ratio
-        if not 0.0 < lo <= hi <= 1.0:
+        low, high = self.height_ratio
+        if not 0.0 < low <= high <= 1.0:
             raise ConfigError(
                 f"{where}: height_ratio = {self.height_ratio}: need 0 < low <= high <= 1"
             )

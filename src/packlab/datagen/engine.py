@@ -100,6 +100,7 @@ def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
     """The slot's first validated case in the training seed space, with the trajectory of the
     dataset's teacher on it (the validating replay itself when the teacher is the oracle). A
     ``random``-family case is not validated (it has no plan); its teacher's run is the episode."""
+    assert cfg.seed is not None, "DatasetConfig resolves its seed on creation"
     outcome = fill_slot(
         cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-"
     )

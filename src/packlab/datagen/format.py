@@ -421,7 +421,8 @@ def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> l
 def _case_settings_note(info: DatasetInfo) -> str:
     """A paragraph on the arrival order / random layout when not the defaults (else "", so the
     cards of datasets made before those options keep their bytes)."""
-    case = info.generator_config.get("case") or {}
+    raw_case = info.generator_config.get("case")
+    case = raw_case if isinstance(raw_case, dict) else {}
     notes = []
     if case.get("layout") == "random":
         notes.append(

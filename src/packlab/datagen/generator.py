@@ -228,7 +228,7 @@ def fill_slot(
     if cfg.layout == "random":
         case = slot_case(user_seed, domain, difficulty, slot, 0, cfg, id_prefix)
         return SlotOutcome(case, None, ())
-    rejected = []
+    rejected: list[str] = []
     for attempt in range(validation.max_attempts):
         case = slot_case(user_seed, domain, difficulty, slot, attempt, cfg, id_prefix)
         verdict = check_case(case, validation, replay_plan=replay_plan)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from packlab.core.errors import ConfigError
-from packlab.core.types import Action, Case, Observation, PlanStep
+from packlab.core.types import Action, Case, InternalId, Observation, PlanStep
 
 
 class OraclePolicy:
@@ -16,7 +16,7 @@ class OraclePolicy:
     name = "oracle"
 
     def __init__(self) -> None:
-        self._plan: dict[int, tuple[int, PlanStep]] = {}
+        self._plan: dict[InternalId, tuple[int, PlanStep]] = {}
 
     def reset(self, case: Case, seed: int) -> None:
         if case.gt_plan is None:

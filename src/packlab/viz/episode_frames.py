@@ -31,11 +31,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from msgspec import UNSET
+from msgspec import UNSET, UnsetType
 
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk, StepRecord, to_builtins
-from packlab.core.types import Case, ShownItem
+from packlab.core.types import Case, InternalId, ShownItem
 from packlab.metrics import EpisodeMetrics
 from packlab.sim.episode import Episode, StepResult
 from packlab.sim.heightmap import rasterise_poses
@@ -125,7 +125,7 @@ def has_step_poses(record: EpisodeOk) -> bool:
     return bool(record.steps) and all(getattr(s, "poses", UNSET) is not UNSET for s in record.steps)
 
 
-def _shown_items(case: Case, ids: tuple[object, ...]) -> tuple[ShownItem, ...]:
+def _shown_items(case: Case, ids: tuple[InternalId, ...]) -> tuple[ShownItem, ...]:
     """A step record's shown ids as the ShownItems the policy saw (sizes from the case)."""
     cell_xy, cell_z = case.container.cell_xy_mm, case.container.cell_z_mm
     items = []
@@ -164,6 +164,7 @@ def _recorded_frames(case: Case, record: EpisodeOk) -> tuple[Frame, ...]:
     container = case.container
     frames = []
     for k, step in enumerate(record.steps):
+        assert not isinstance(step.poses, UnsetType), "has_step_poses(record) first"
         for entry in step.poses:
             i = int(entry[0])
             if not 0 <= i < n:
@@ -177,9 +178,15 @@ def _recorded_frames(case: Case, record: EpisodeOk) -> tuple[Frame, ...]:
             container.cells, container.cell_xy_mm, sizes[placed], pos[placed], quat[placed]
         )
         last = k == len(record.steps) - 1
-        metrics = EpisodeMetrics(**to_builtins(record.metrics)) if last else None
+        metrics = _episode_metrics(record) if last else None
         frames.append(Frame(_recorded_step(case, step, pos, quat), heightmap, None, metrics))
     return tuple(frames)
+
+
+def _episode_metrics(record: EpisodeOk) -> EpisodeMetrics:
+    """The metrics an episode record holds, as the episode computed them."""
+    fields: dict[str, Any] = to_builtins(record.metrics)  # EpisodeMetrics' fields, JSON values
+    return EpisodeMetrics(**fields)
 
 
 def _resimulated_frames(
@@ -188,7 +195,8 @@ def _resimulated_frames(
     """(frames, same steps, same scores) of the record's actions stepped again."""
     episode = Episode(record.backend, physics)
     episode.reset(case, record.seed)
-    frames, same_steps = [], True
+    frames: list[Frame] = []
+    same_steps = True
     for step in record.steps:
         if episode.done:  # more recorded steps than objects: not this case's episode
             return tuple(frames), False, False

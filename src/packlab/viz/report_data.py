@@ -146,9 +146,10 @@ def step_poses(record: EpisodeOk, case: Case) -> tuple[list[list[PoseEntry]], st
 
 def _action(step: StepRecord) -> list[int] | str:
     a = step.action
-    if isinstance(a.unparsable, str):
+    placement = a.placement()
+    if placement is None:  # the {unparsable, error} form
         return f"unparsable: {a.error}"[:_ERROR_TEXT]
-    return [a.object_id, a.rotation, a.x, a.y]
+    return list(placement)
 
 
 def episode_steps(record: EpisodeOk, case: Case) -> tuple[list[list[Any]], str]:

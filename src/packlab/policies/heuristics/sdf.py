@@ -63,7 +63,7 @@ def voxel_layers(
     return k0, np.maximum(k1, k0 + 1)
 
 
-def solid_layers(heights_mm: np.ndarray, voxel_mm: int) -> np.ndarray:
+def solid_layers(heights_mm: np.ndarray | int, voxel_mm: int) -> np.ndarray:
     """Number of voxel layers of a column of each height: those whose centre is below its top."""
     # (k + 0.5) * v < H  <=>  k < H / v - 0.5; count = ceil(H / v - 0.5), clipped at 0.
     heights = np.asarray(heights_mm, dtype=np.int64)

@@ -72,7 +72,7 @@ def rim_pool(cands: CandidateSet) -> np.ndarray:
 def check_tie_break(value: object, policy: str = "heuristic") -> TieBreak:
     """``value`` as a :data:`TieBreak`, or a ConfigError naming it and the choices."""
     if isinstance(value, str) and value in TIE_BREAKS:
-        return value  # type: ignore[return-value]  (checked against the Literal's choices)
+        return value
     raise ConfigError(
         f"policy-arg {policy}:tie_break = {value!r}: unknown tie-break rule; "
         f"choose one of {', '.join(TIE_BREAKS)}"
@@ -162,7 +162,7 @@ def per_group(
     cands: CandidateSet, fn: Callable[..., np.ndarray], dtype: type = np.int64
 ) -> np.ndarray:
     """Flat (n,) array built by ``fn(group) -> grid`` for each candidate group (scan order)."""
-    out = np.empty(len(cands), dtype=dtype)
+    out: np.ndarray = np.empty(len(cands), dtype=dtype)
     for g in cands.groups:
         out[g.offset : g.offset + g.size] = np.asarray(fn(g)).ravel()
     return out

@@ -86,8 +86,8 @@ def coverable_by_squares(region: np.ndarray, side: int) -> bool:
     return bool(np.array_equal(opened, region))
 
 
-def _run(line: np.ndarray) -> int:
-    """Length of the leading run of True in a 1-D bool array."""
+def _run(line: np.ndarray | np.bool) -> int:
+    """Length of the leading run of True in a 1-D bool array (a 0-d one: 0 or 1)."""
     stop = np.flatnonzero(~line)
     return int(stop[0]) if stop.size else int(line.size)
 

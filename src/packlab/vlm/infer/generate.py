@@ -241,7 +241,8 @@ class PrefixCachedGenerator:
         self.eos_ids = frozenset(int(e) for e in eos_ids)
         self.im_start_id = int(self.tokenizer.convert_tokens_to_ids(IM_START))
         inner = getattr(self.model, "model", None)
-        self._rope_owner = inner if hasattr(inner, "get_rope_index") else self.model
+        # The module whose get_rope_index gives M-RoPE positions (the inner model, else the model).
+        self._rope_owner: Any = inner if hasattr(inner, "get_rope_index") else self.model
         self.device = next(self.model.parameters()).device
         self.reset()
 
@@ -311,6 +312,7 @@ class PrefixCachedGenerator:
             raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
         if inside:
             grid = enc.image_grid_thw
+            assert grid is not None and enc.pixel_values is not None  # image spans: images
             per_image = [int(g.prod()) for g in grid]
             offsets = [0]
             for n in per_image:

@@ -271,7 +271,9 @@ def keep_last_steps(messages: Sequence[dict[str, Any]], n: int) -> list[dict[str
     start = 1 if msgs and msgs[0]["role"] == "system" else 0
     # Every past step has one user turn; the last user turn is the current state.
     while sum(m["role"] == "user" for m in msgs[start:]) - 1 > n:
-        msgs = drop_oldest_step(msgs)  # type: ignore[assignment]  (a past step exists here)
+        shorter = drop_oldest_step(msgs)
+        assert shorter is not None  # a past step exists here
+        msgs = shorter
     return msgs
 
 

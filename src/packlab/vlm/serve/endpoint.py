@@ -44,6 +44,7 @@ import os
 import time
 from typing import Any
 
+from packlab.core.choices import HistoryMode, ImageMode
 from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
@@ -210,8 +211,8 @@ class EndpointPolicy:
         retries: int = DEFAULT_RETRIES,
         backoff_s: float = DEFAULT_BACKOFF_S,
         max_backoff_s: float = DEFAULT_MAX_BACKOFF_S,
-        history: str = "full",
-        image: str = "heightmap",
+        history: HistoryMode = "full",
+        image: ImageMode = "heightmap",
         image_size: int = DEFAULT_IMAGE_SIZE,
         temperature: float = 0.0,
         max_tokens: int = 64,
@@ -235,7 +236,7 @@ class EndpointPolicy:
             max_tokens,
             max_past_steps,
         )
-        self.options = PromptOptions(history, image)  # type: ignore[arg-type]  (checked there)
+        self.options = PromptOptions(history, image)  # which checks the names
         self.name = name
         self.base_url, self.url = base_url, chat_completions_url(base_url)
         self.model = model
@@ -386,7 +387,8 @@ class EndpointPolicy:
             # The model said nothing usable: an empty answer in the history, the body in the error.
             return Unparsable(text="", error=f"endpoint: {e}")
         action = parse_or_unparsable(text)
-        usage = decoded.get("usage") if isinstance(decoded.get("usage"), dict) else {}
+        raw_usage = decoded.get("usage")
+        usage = raw_usage if isinstance(raw_usage, dict) else {}
         choice = decoded["choices"][0]
         log.update(
             prompt_tokens=usage.get("prompt_tokens"),

@@ -116,7 +116,9 @@ class ChatServer:
         self.requests = httpd.requests
         self.headers = httpd.recorded_headers
         self.model_name = httpd.model_name
-        self.host, self.port = httpd.server_address[:2]
+        host, self.port = httpd.server_address[:2]
+        assert isinstance(host, str)  # the bound address: getsockname() names the host by a str
+        self.host = host
 
     @property
     def base_url(self) -> str:

@@ -67,7 +67,8 @@ def _describe(exc: BaseException) -> str:
 
 def _read_capped(resp: http.client.HTTPResponse, max_bytes: int) -> tuple[bytes, bool]:
     """(up to ``max_bytes`` of the body, whether there was more)."""
-    chunks, size = [], 0
+    chunks: list[bytes] = []
+    size = 0
     while size <= max_bytes:
         chunk = resp.read(min(65536, max_bytes + 1 - size))
         if not chunk:
