@@ -53,10 +53,7 @@ OPTIONS: dict[str, dict[str, Any]] = {
 
 #: Modules a policy needs beyond the core install (skipped where they are missing).
 EXTRAS = {
-    "vlm": ("torch", "transformers"),
-    "vlm-small": ("torch", "transformers"),
-    "irbpp": ("torch", "sb3_contrib"),
-    "tapnet": ("torch", "sb3_contrib"),
+    "vlm": ("torch", "transformers"),  # OPTIONS: a tiny generative model (the torch path)
 }
 
 

@@ -15,8 +15,8 @@ from functools import partial
 from typing import Any
 
 from packlab.cli.options import add_field, config_kwargs
+from packlab.core.choices import TEACHERS
 from packlab.core.errors import PacklabError
-from packlab.policies.listed import TEACHERS
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.vlm.candidate.recipe import DaggerConfig
 from packlab.vlm.data.sft_examples import RECIPES

@@ -50,6 +50,10 @@ PromptInstructions = Literal["full", "short"]
 #: an image through the vision tower, as the digit text map, both, or an all-zero image (the
 #: blank-image ablation).
 PointerMap = Literal["image", "text", "both", "blank"]
+#: Who labels candidate-mode training states with a listed pick (packlab.policies.listed says
+#: what each does); here so that `packlab train --help` lists them without loading the planner.
+Teacher = Literal["plan", "plan-lookahead", "sdf", "mta", "oracle", "oracle-canonical", "first"]
+TEACHERS: tuple[str, ...] = get_args(Teacher)
 
 #: The RL agents of ``packlab train rl``: IR-BPP-style (choose one of K proposed placements) and
 #: TAP-Net-style (choose which shown object; a fixed rule places it).

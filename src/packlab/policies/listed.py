@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from packlab.core.choices import TEACHERS
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet
 from packlab.core.types import Action, Case, Observation
@@ -40,8 +41,6 @@ from packlab.policies.plan.cover import JOKER
 from packlab.policies.plan.evaluate import Weights
 from packlab.policies.plan.policy import PlanDecision, make_plan_fast, observation_problem
 from packlab.policies.plan.search import Budget, search
-
-TEACHERS = ("plan", "plan-lookahead", "sdf", "mta", "oracle", "oracle-canonical", "first")
 
 #: The soft target's share for the teacher's own pick when other listed boxes of its tiling
 #: share the rest: the pick stays the single most likely answer.

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from packlab.core.choices import PointerMap, require_choice
+from packlab.core.choices import TEACHERS, PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.policies.candidates import STUDENT_K
-from packlab.policies.listed import TEACHERS
 from packlab.vlm.candidate.compose import Instructions
 
 #: The recipe's module (vlm extra), imported when ``packlab train candidate`` runs.
