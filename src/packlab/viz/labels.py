@@ -16,6 +16,12 @@ DISPLAY_NAMES = {
     "plan-lookahead": "Plan (lookahead only)",
     "proposer": "Proposer (index 0)",
     "vlm-small": "PackLab-VLM (vlm-small, candidate mode)",
+    # The learned rows of the default table: the paper's names for its baselines (the agents are
+    # IR-BPP- and TAP-Net-style, trained here; docs/rl.md) and the packing VLM, whatever
+    # checkpoint `--policy-arg vlm:model=` names.
+    "vlm": "PackLab-VLM",
+    "irbpp": "IR-BPP",
+    "tapnet": "TAP-Net",
     "random": "Random",
     "oracle": "Oracle (gt plan)",
 }
