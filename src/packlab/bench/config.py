@@ -103,7 +103,7 @@ def sensing_identity(config: RunConfig) -> dict[str, str] | None:
         and config.sides == "catalogue"
     ):
         return None
-    identity = {"observation": config.observation, "execution": config.execution}
+    identity: dict[str, str] = {"observation": config.observation, "execution": config.execution}
     identity["noise"] = config.noise
     if config.observation == "perceived":
         identity["segmentation"] = config.segmentation
@@ -185,9 +185,10 @@ def physics_from_json(fields: dict[str, Any] | None) -> Any:
     if not fields:
         return None
     try:
-        return PhysicsConfig(
-            **{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
-        )
+        values: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()
+        }
+        return PhysicsConfig(**values)
     except TypeError as exc:  # a field this version of the engine does not know
         raise ConfigError(f"config.json: field 'physics' = {fields!r}: {exc}") from None
 

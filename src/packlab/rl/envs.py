@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -93,6 +93,12 @@ class ListedActionEnv(gym.Env):
             raise ValueError("the env needs at least one case")
         self.spec_features = FeatureSpec.default(agent, k)
         self.observation_space = observation_space(self.spec_features)
+        # The terminal observation: zeros of each space's shape (never acted on). Every Box
+        # here has a shape; gymnasium types it Optional.
+        self._terminal = {
+            k: np.zeros(cast(tuple[int, ...], box.shape), np.float32)
+            for k, box in self.observation_space.items()
+        }
         self.action_space = spaces.Discrete(self.spec_features.n_items)
         self.backend_name = backend
         self._episode = Episode(
@@ -114,7 +120,7 @@ class ListedActionEnv(gym.Env):
 
     def _advance(self) -> tuple[float, dict[str, Any]]:
         """Encode the state; while nothing is listed, set the box aside (reward summed)."""
-        total, info = 0.0, {}
+        total, info = 0.0, dict[str, Any]()
         while not self._episode.done:
             self._encoded = encode(self._episode.observe(), self.spec_features)
             if self._encoded.actions:
@@ -127,7 +133,7 @@ class ListedActionEnv(gym.Env):
 
     def _arrays(self) -> dict[str, np.ndarray]:
         if self._encoded is None:  # terminal: a zero observation, never acted on
-            return {k: np.zeros(s.shape, s.dtype) for k, s in self.observation_space.items()}
+            return {k: np.zeros_like(a) for k, a in self._terminal.items()}
         return self._encoded.arrays
 
     # -- gymnasium API ---------------------------------------------------------------------

@@ -220,7 +220,9 @@ def encode(
     """The arrays an agent sees for ``observation`` and the actions of its item rows
     (``cands``: the observation's candidate set when the caller already has it)."""
     cands = observation_candidates(observation) if cands is None else cands
-    ranks = object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
+    ranks: np.ndarray | list[int] = (
+        object_rank(cands.shown_sizes_mm, cands.shown_id_order) if cands.buffer_size else []
+    )
     items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
     actions = []
     walls = walled(cands.heightmap, cands.container_height_mm)

@@ -101,7 +101,7 @@ def imitation_sample(demo: Demo, spec: FeatureSpec) -> Sample | None:
         weights = _tapnet_weights(obs, actions, prefs)
     else:
         rows = {_key(a): r for r, a in enumerate(actions)}
-        extra = []
+        extra: list[np.ndarray] = []
         for action, w in prefs:
             if _key(action) not in rows and w > 0:
                 row = _extra_row(cands, obs, action)

@@ -34,12 +34,20 @@ def _split(latent: torch.Tensor, width: int, n_items: int):
     return state, items, mask
 
 
+def _shape(space: gym.spaces.Dict, key: str) -> tuple[int, ...]:
+    """The shape of one Box of the observation dict (gymnasium types it Optional)."""
+    shape = space[key].shape
+    if shape is None:
+        raise ValueError(f"observation space {key!r} has no shape")
+    return shape
+
+
 class PackFeatures(BaseFeaturesExtractor):
     """Observation dict -> [state (W) | items (N * W) | mask (N)] (module docstring)."""
 
     def __init__(self, observation_space: gym.spaces.Dict, width: int = DEFAULT_WIDTH) -> None:
-        n_items, n_features = observation_space["items"].shape
-        n_globals = observation_space["globals"].shape[0]
+        n_items, n_features = _shape(observation_space, "items")
+        n_globals = _shape(observation_space, "globals")[0]
         super().__init__(observation_space, width + n_items * width + n_items)
         self.width, self.n_items = width, n_items
         self.cnn = nn.Sequential(  # 32 -> 16 -> 8 -> 4
@@ -52,7 +60,7 @@ class PackFeatures(BaseFeaturesExtractor):
             nn.Flatten(),
         )
         with torch.no_grad():
-            cnn_out = self.cnn(torch.zeros(1, *observation_space["heightmap"].shape)).shape[1]
+            cnn_out = self.cnn(torch.zeros(1, *_shape(observation_space, "heightmap"))).shape[1]
         self.state = nn.Sequential(nn.Linear(cnn_out + n_globals, width), nn.ReLU())
         self.items = nn.Sequential(
             nn.Linear(n_features, width), nn.ReLU(), nn.Linear(width, width), nn.ReLU()

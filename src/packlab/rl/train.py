@@ -23,6 +23,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from sb3_contrib import MaskablePPO
@@ -62,9 +63,9 @@ def _make_env(cfg: RLTrainConfig, cases: Sequence[Case]) -> ListedActionEnv:
     return ListedActionEnv(cfg.agent, list(cases), "geometric", cfg.reward, cfg.k)
 
 
-def make_vec_env(cfg: RLTrainConfig, cases: Sequence[Case]):
+def make_vec_env(cfg: RLTrainConfig, cases: Sequence[Case]) -> VecMonitor:
     """``cfg.envs`` copies of the env (processes or in-process), seeded, with episode stats."""
-    fns = [partial(_make_env, cfg, cases) for _ in range(cfg.envs)]
+    fns: list[Callable[[], gym.Env]] = [partial(_make_env, cfg, cases) for _ in range(cfg.envs)]
     venv = SubprocVecEnv(fns) if cfg.vec == "subproc" and cfg.envs > 1 else DummyVecEnv(fns)
     venv.seed(cfg.seed)
     return VecMonitor(venv)
@@ -86,7 +87,7 @@ def _check_resume(out: Path, cfg: RLTrainConfig, source: dict[str, Any]) -> None
         raise ConfigError(f"{path}: the run was trained on other cases ({saved.get('cases')})")
 
 
-def _append_log(path: Path, row: dict[str, float]) -> None:
+def _append_log(path: Path, row: dict[str, Any]) -> None:
     new = not path.is_file()
     with path.open("a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=LOG_FIELDS)
@@ -155,7 +156,7 @@ class _Run:
         self.cfg, self.out, self.source, self.held, self.on_log = cfg, out, source, held, on_log
         self.spec = FeatureSpec.default(cfg.agent, cfg.k)
         state_path = out / "state.json"
-        self.state = (
+        self.state: dict[str, Any] = (
             json.loads(state_path.read_text())
             if state_path.is_file() and (out / "checkpoint.zip").is_file()
             else {"env_steps": 0, "wall_s": 0.0, "best_avg": -1.0, "best": {}}
@@ -193,7 +194,11 @@ class _Run:
         state = (json.dumps(self.state, indent=1) + "\n").encode()
         write_atomically(self.out / "state.json", lambda f: f.write(state))
         returns = [e["r"] for e in model.ep_info_buffer]
-        row = {"env_steps": steps, "wall_s": round(wall, 1), "steps_per_s": round(rate, 1)}
+        row: dict[str, float | str] = {
+            "env_steps": steps,
+            "wall_s": round(wall, 1),
+            "steps_per_s": round(rate, 1),
+        }
         row |= {"train_return": round(float(np.mean(returns)), 4) if returns else ""}
         row |= {k: round(v, 4) for k, v in scores.items()}
         _append_log(self.out / "log.csv", row)

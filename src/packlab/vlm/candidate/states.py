@@ -37,7 +37,8 @@ STATES_FILE = "states.jsonl"
 
 class StoredShown(msgspec.Struct, frozen=True, array_like=True):
     shown_index: int
-    internal_id: int
+    # int | str as core.types.InternalId: reference files name objects by string.
+    internal_id: int | str
     size_mm: tuple[int, int, int]
     size_cells: tuple[int, int, int]
     type_id: int
@@ -107,7 +108,7 @@ def make_state(
         difficulty=difficulty,
         step=observation.step_index,
         remaining=observation.remaining,
-        container_mm=tuple(c.size_mm),
+        container_mm=c.size_mm,
         cell_xy_mm=c.cell_xy_mm,
         cell_z_mm=c.cell_z_mm,
         heightmap=encode_heightmap(observation.heightmap),
@@ -133,14 +134,18 @@ def _as_struct(c: Candidate) -> StoredPlacement:
 
 def observation_of(state: LabelledState) -> Observation:
     """The observation the state was recorded from (history left out: not stored)."""
-    container = Container(tuple(state.container_mm), state.cell_xy_mm, state.cell_z_mm)
+    container = Container(state.container_mm, state.cell_xy_mm, state.cell_z_mm)
     return Observation(
         step_index=state.step,
         container=container,
         heightmap=decode_heightmap(state.heightmap, container.cells),
         shown=tuple(
             ShownItem(
-                s.shown_index, s.internal_id, tuple(s.size_mm), tuple(s.size_cells), s.type_id
+                s.shown_index,
+                s.internal_id,
+                (s.size_mm[0], s.size_mm[1], s.size_mm[2]),
+                (s.size_cells[0], s.size_cells[1], s.size_cells[2]),
+                s.type_id,
             )
             for s in state.shown
         ),

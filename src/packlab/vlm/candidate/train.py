@@ -29,7 +29,7 @@ from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.policies.candidates import STUDENT_K, ProposerConfig
-from packlab.vlm.candidate.compose import Instructions
+from packlab.vlm.candidate.compose import Answer, Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.onnx_export import export_onnx
@@ -65,7 +65,7 @@ class PointerTrainConfig:
     line_vectors: bool = True
     #: Placements the states list (the proposer's K the policy will list at play time).
     k: int = STUDENT_K
-    answer: str = "index"  # compose.ANSWERS: pointer over the listed lines, or free JSON tokens
+    answer: Answer = "index"  # pointer over the listed lines, or free JSON tokens
     shuffle: bool = False  # list the placements in a random order per state (states.shuffled)
     steps: int = 3000
     batch: int = 16
@@ -84,6 +84,7 @@ class PointerTrainConfig:
 
     def __post_init__(self) -> None:
         require_choice(self.map, PointerMap, "map")
+        require_choice(self.answer, Answer, "answer")
 
 
 #: Observations on which a trained model's ONNX export is checked against torch.
@@ -98,7 +99,8 @@ def load_encoded(
     cfg: PointerTrainConfig, tokenizer: Any, grid: ImageGrid = QWEN3_GRID
 ) -> tuple[list[Encoded], list[Encoded]]:
     """The labelled states encoded, split into (training, held-out)."""
-    train, held = [], []
+    train: list[Encoded] = []
+    held: list[Encoded] = []
     for path in cfg.states:
         for s in read_states(Path(path)):
             if s.label < 0:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.errors import ConfigError
@@ -140,10 +140,12 @@ class VLMPolicy:
         dtype = runtime.resolve_dtype(self.dtype, device)
         vlm = runtime.load_vlm(self.model_spec, device, dtype, self.model_seed)
         sft = self._training_settings(vlm.meta or {})
-        options = PromptOptions(
-            history=self.history or sft.get("history", "full"),
-            image=self.image or sft.get("image", "heightmap"),
-        )
+        # The checkpoint's card is read from disk: its values are checked like the user's.
+        history = self.history or sft.get("history", "full")
+        image = self.image or sft.get("image", "heightmap")
+        require_choice(history, HistoryMode, "history")
+        require_choice(image, ImageMode, "image")
+        options = PromptOptions(history=cast(HistoryMode, history), image=cast(ImageMode, image))
         max_length = self.max_length if self.max_length is not None else sft.get("max_length")
         template_kwargs = (
             self.template_kwargs
@@ -204,12 +206,13 @@ class VLMPolicy:
     # -- the Policy protocol -----------------------------------------------------------------
     def reset(self, case: Case, seed: int) -> None:
         self.load()
+        assert self._renderer is not None  # set by load()
         self._generator.reset()
         self._renderer.reset()
         self.step_log = []
 
     def act(self, observation: Observation) -> Action | Unparsable:
-        if self._generator is None:
+        if self._generator is None or self._renderer is None:
             raise RuntimeError(f"policy {self.name!r}: act() before reset()")
         t0 = time.perf_counter()
         messages = self._renderer.messages(observation)
