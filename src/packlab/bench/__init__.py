@@ -13,8 +13,9 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from packlab.core.lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from packlab.bench.config import ResolvedRun, RunConfig, resolve
@@ -46,11 +47,7 @@ _HOMES = {
     "summarize": "packlab.bench.summary",
 }
 
-
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(_HOMES[name]), name)
+__getattr__ = lazy_attributes(__name__, _HOMES)
 
 
 __all__ = [

@@ -7,8 +7,9 @@ from a case seed) and ``packlab.datagen.engine.generate_dataset`` (PackData on d
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from packlab.core.lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from packlab.datagen.config import (
@@ -32,11 +33,7 @@ _HOMES = {
     "generate_cases": "packlab.datagen.generator",
 }
 
-
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(_HOMES[name]), name)
+__getattr__ = lazy_attributes(__name__, _HOMES)
 
 
 __all__ = [
