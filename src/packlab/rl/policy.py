@@ -22,6 +22,7 @@ from typing import Any
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.model_cache import load_once
 from packlab.rl.card import CARD_FILE, AgentCard, read_card
 from packlab.rl.decision import RowLogits, decide
 from packlab.rl.extra import RLExtraMissing, import_rl
@@ -42,21 +43,6 @@ class _Playing:
 
     spec: FeatureSpec
     row_logits: RowLogits
-
-
-#: Agents loaded in this process. The bench makes a fresh policy per episode; one ONNX session
-#: (or torch model) per policy name, directory, runtime and thread count serves them all. The
-#: key holds the directory's file stamps, so a re-export or retraining in between is loaded (and
-#: checked) anew.
-_LOADED: dict[tuple[object, ...], _Playing] = {}
-
-
-def _stamps(directory: Path) -> tuple[tuple[str, int, int], ...]:
-    """(name, mtime ns, size) of each file in ``directory`` (empty when it does not exist)."""
-    if not directory.is_dir():
-        return ()
-    stats = ((p.name, p.stat()) for p in directory.iterdir() if p.is_file())
-    return tuple(sorted((name, st.st_mtime_ns, st.st_size) for name, st in stats))
 
 
 class RLAgentPolicy:
@@ -101,11 +87,9 @@ class RLAgentPolicy:
         self.__dict__.update(state)
 
     def _load(self) -> _Playing:
-        where = self.model_dir.resolve()
-        key = (self.name, where, self.runtime, self.threads, _stamps(self.model_dir))
-        if key not in _LOADED:
-            _LOADED[key] = self._load_now()
-        return _LOADED[key]
+        # One ONNX session (or torch model) per process serves every episode's fresh policy.
+        settings = (self.name, self.runtime, self.threads)
+        return load_once(self.model_dir, settings, self._load_now)
 
     def _load_now(self) -> _Playing:
         card = self._card()

@@ -28,6 +28,7 @@ import numpy as np
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose
+from packlab.policies.model_cache import load_once
 from packlab.policies.registry import make_policy
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
@@ -97,7 +98,11 @@ class CandidateVLMPolicy:
                 f"runtime=onnx plays without torch"
             ) from None
         scoring.set_threads(self.threads)
-        self.use_model(saved.load_pointer(self.model_spec))
+        settings = ("pointer", "torch")  # threads are the process's (torch.set_num_threads)
+        loaded = load_once(
+            Path(self.model_spec), settings, lambda: saved.load_pointer(self.model_spec)
+        )
+        self.use_model(loaded)
 
     def _load_onnx(self) -> None:
         """The directory's ONNX graphs (:mod:`.onnx_scoring`; torch-free)."""
@@ -108,8 +113,13 @@ class CandidateVLMPolicy:
                 f"policy {self.name!r}: model {self.model_spec!r} answers in free JSON (the "
                 f"format ablation), which generates text and plays with runtime=torch only"
             )
+        settings = ("pointer", "onnx", self.threads)
         try:
-            model = onnx_scoring.load_onnx_pointer(self.model_spec, self.threads)
+            model = load_once(
+                Path(self.model_spec),
+                settings,
+                lambda: onnx_scoring.load_onnx_pointer(self.model_spec, self.threads),
+            )
         except ConfigError as exc:
             raise ConfigError(
                 f"policy {self.name!r} (runtime=onnx): {exc}; or play it with runtime=torch"
