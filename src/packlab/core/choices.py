@@ -50,6 +50,9 @@ PromptInstructions = Literal["full", "short"]
 #: an image through the vision tower, as the digit text map, both, or an all-zero image (the
 #: blank-image ablation).
 PointerMap = Literal["image", "text", "both", "blank"]
+#: Who computes a learned policy's network outputs: ONNX Runtime (core install) or torch (extras).
+LearnedRuntime = Literal["onnx", "torch"]
+RUNTIMES: tuple[str, ...] = get_args(LearnedRuntime)
 #: Who labels candidate-mode training states with a listed pick (packlab.policies.listed says
 #: what each does); here so that `packlab train --help` lists them without loading the planner.
 Teacher = Literal["plan", "plan-lookahead", "sdf", "mta", "oracle", "oracle-canonical", "first"]

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from packlab.core.choices import RUNTIMES
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.model_cache import load_once
@@ -32,8 +33,6 @@ from packlab.rl.onnx_agent import load_onnx_agent
 #: Where the package ships its trained agents, one directory per policy name.
 SHIPPED_MODELS = Path(__file__).resolve().parents[1] / "data" / "models"
 AGENT_MODULE = "packlab.rl.agent"
-#: Who computes the network's logits: ONNX Runtime (core install) or torch (rl extra).
-RUNTIMES = ("onnx", "torch")
 OPTIONS = ("model", "threads", "runtime")
 
 

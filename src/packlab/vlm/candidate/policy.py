@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.choices import RUNTIMES
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose
@@ -43,8 +44,6 @@ ONNX_SCORING_MODULE = "packlab.vlm.candidate.onnx_scoring"
 #: Loaded with the model, not at import: it reaches scipy (line vectors), which the policy
 #: registry (every CLI start) should not pay for.
 ENCODING_MODULE = "packlab.vlm.candidate.encoding"
-#: How a candidate-mode model plays (module docstring); the RL agents take the same names.
-RUNTIMES = ("onnx", "torch")
 
 
 class CandidateVLMPolicy:
