@@ -15,6 +15,7 @@ import importlib.util
 import sys
 from typing import Any, cast
 
+from packlab.cli.parser import PacklabParser
 from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
 
 #: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
@@ -77,7 +78,7 @@ class _LazySubParsers(argparse._SubParsersAction):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``packlab`` parser; a command's options are added when it is parsed (or looked up)."""
-    parser = argparse.ArgumentParser(prog="packlab", description=__doc__.splitlines()[0])
+    parser = PacklabParser(prog="packlab", description=__doc__.splitlines()[0])
     sub = cast(
         _LazySubParsers,
         parser.add_subparsers(dest="command", required=True, action=_LazySubParsers),
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     bad input: a PacklabError or an OSError about a path (missing, a directory, not writable)
     is one line ``packlab <cmd>: error: ...`` and exit code 2; a stopped run (RunAborted) 3."""
     parser = build_parser()
-    args = parser.parse_args(argv)  # argparse's own errors: usage + one line, exit code 2
+    args = parser.parse_args(argv)  # argparse's own errors: one line, exit code 2 (cli.parser)
     try:
         return int(args.func(args) or 0)
     except RunAborted as exc:
