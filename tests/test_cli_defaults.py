@@ -48,9 +48,9 @@ MINIMAL_ARGV: dict[str, list[str]] = {
 #: Options that set no config field: what a command does (--describe), what it prints or draws,
 #: or commands without a config dataclass (reading a run, the test server).
 CLI_ONLY: dict[str, set[str]] = {
-    "bench": {"--describe", "--no-figures", "--no-html"},
-    "bench report": {"--case", "--seed", "--no-figures", "--html"},
-    "bench compare": {"--labels", "--out", "--html", "--reference"},
+    "bench": {"--describe", "--no-figures", "--no-html", "--wide"},
+    "bench report": {"--case", "--seed", "--no-figures", "--html", "--wide"},
+    "bench compare": {"--labels", "--out", "--html", "--reference", "--wide"},
     "cases validate": set(),
     "cases export": {"--format", "--out"},
     "generate": set(),

@@ -106,7 +106,9 @@ def test_viz_episode_cli_unknown_case_is_one_line(geometric_run, tmp_path, capsy
 
 def test_bench_report_cli_prints_the_table(geometric_run, capsys):
     assert main(["bench", "report", str(geometric_run), "--no-figures"]) == 0
-    assert "| SDF-Pack |" in capsys.readouterr().out
+    assert "| SDF-Pack " in capsys.readouterr().out  # the 120-column view pads its names
+    assert main(["bench", "report", str(geometric_run), "--no-figures", "--wide"]) == 0
+    assert "| SDF-Pack |" in capsys.readouterr().out  # table.md's layout
 
 
 @pytest.mark.parametrize("seed", ["-1", "99999"])

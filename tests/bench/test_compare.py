@@ -81,14 +81,20 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
         (tmp_path / name / "summary.json").write_text(json.dumps(_summary_json({"vlm": v})))
     out = tmp_path / "cmp" / "table.md"
     rc = main(["bench", "compare", str(tmp_path / "run-full"), str(tmp_path / "run-blank"),
-               "--labels", "full,blank image", "--out", str(out)])  # fmt: skip
+               "--labels", "full,blank image", "--out", str(out), "--wide"])  # fmt: skip
     assert rc == 0
     text = capsys.readouterr().out
     # summaries without per-case cells: the means alone, and no paired differences to make
     assert "| blank image | 0.250 | 0.250 |" in text and "| full | 0.400 |" in text
     assert "none here: this summary has no per-case scores" in text
     assert "| blank image | - | - | - |\n" in text  # row, cases, easy, verdict
-    assert out.read_text() + "\n" == text  # the file holds exactly what was printed
+    assert out.read_text() + "\n" == text  # the file holds exactly what --wide printed
+    # Without --wide the results table is the 120-column view; the file stays the whole table.
+    main(["bench", "compare", str(tmp_path / "run-full"), str(tmp_path / "run-blank"),
+          "--labels", "full,blank image", "--out", str(out)])  # fmt: skip
+    compact = capsys.readouterr().out
+    assert "| blank image |        0.250 |" in compact and "--wide prints them" in compact
+    assert out.read_text() + "\n" == text
     assert compare_markdown([tmp_path / "run-full"]).count("| run-full |") == 2  # both tables
 
 
@@ -170,7 +176,9 @@ def test_cli_reference_picks_the_row_differences_are_taken_against(tmp_path, cap
     assert main(["bench", "compare", str(run), "--reference", "run: ref"]) == 0
     assert capsys.readouterr().out == default  # naming the first row is the default
     out = tmp_path / "against.md"
-    rc = main(["bench", "compare", str(run), "--reference", "run: better", "--out", str(out)])
+    rc = main(
+        ["bench", "compare", str(run), "--reference", "run: better", "--out", str(out), "--wide"]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     assert "### Paired differences: each row minus run: better" in text

@@ -43,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _add_sensing_options(p)
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_wide(p)
     p.add_argument(
         "--no-html",
         action="store_true",
@@ -51,6 +52,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.set_defaults(func=run)
     _add_subcommands(p)
+
+
+def add_wide(p: argparse.ArgumentParser) -> None:
+    """``--wide``: print the whole table (as table.md) rather than the 120-column view."""
+    p.add_argument(
+        "--wide",
+        action="store_true",
+        help="print the whole table (SR, Compactness and intervals per level, run details), "
+        "as table.md has it; default: Overall per level and Average Overall with its interval, "
+        "best first, in 120 columns",
+    )
 
 
 def _add_case_options(p: argparse.ArgumentParser) -> None:
@@ -247,6 +259,7 @@ def _add_report_parser(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument("--seed", type=int, help="run seed of that figure (default: the first seed)")
     r.add_argument("--no-figures", action="store_true", help="tables only (no PNG figures)")
+    add_wide(r)
     r.add_argument(
         "--html",
         action="store_true",
@@ -264,7 +277,8 @@ def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
     )
     c.add_argument("dirs", nargs="+", help="bench run directories")
     c.add_argument("--labels", help="comma-separated row labels (default: the directory names)")
-    c.add_argument("--out", help="also write the Markdown to this file")
+    c.add_argument("--out", help="also write the Markdown to this file (the whole table)")
+    add_wide(c)
     c.add_argument(
         "--reference",
         metavar="NAME",

@@ -22,10 +22,11 @@ from packlab.bench.compare import (
 from packlab.bench.describe import describe_cases, format_description
 from packlab.bench.html_report import build_html_report, write_compare_html
 from packlab.bench.options import COMPARE_HTML, REPORT_HTML
-from packlab.bench.report import build_report
+from packlab.bench.report import TABLE_FILE, build_report
 from packlab.bench.runner import BenchOutcome, run_bench
 from packlab.bench.suites import resolve_cases
 from packlab.bench.table import render_markdown
+from packlab.bench.terminal import terminal_text
 from packlab.cli.bench import config_from_args
 from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
 
@@ -46,7 +47,12 @@ def run(args: argparse.Namespace) -> int:
         return describe(args.cases)
     config = config_from_args(args)  # every flag checked before anything is loaded or written
     outcome = run_bench(config, figures=not args.no_figures, html=not args.no_html)
-    print(outcome.table_md)
+    wide = getattr(args, "wide", False)
+    print(
+        outcome.table_md
+        if wide
+        else terminal_text(outcome.summary, table_file=outcome.run_dir / TABLE_FILE)
+    )
     # The report's path and any note first: the run's line and the exit reason stay the last.
     for path in outcome.outputs:
         if path.name == REPORT_HTML:
@@ -89,29 +95,34 @@ def exit_status(outcome: BenchOutcome) -> tuple[int, str]:
 
 
 def run_report(args: argparse.Namespace) -> int:
-    _, table_md, paths = build_report(
+    summary, table_md, paths = build_report(
         args.dir, figures=not args.no_figures, case_id=args.case, seed=args.seed
     )
     if args.html:
         paths.append(build_html_report(args.dir))
-    print(table_md)
+    table_file = Path(args.dir) / TABLE_FILE
+    print(
+        table_md if getattr(args, "wide", False) else terminal_text(summary, table_file=table_file)
+    )
     for path in paths:
         print(f"wrote {path}", file=sys.stderr)
     return 0
 
 
-def compare_text(dirs: list[str], labels: list[str] | None, reference: str | None) -> str:
+def compare_text(
+    dirs: list[str], labels: list[str] | None, reference: str | None, wide: bool = True
+) -> str:
     """The comparison's Markdown, its paired differences against ``reference`` (a row as the
     table names it; None: the first row). A name that is no row is a ConfigError naming the
-    flag and the rows."""
-    if reference is None:
+    flag and the rows. ``wide=False``: the 120-column results table a terminal prints."""
+    if reference is None and wide:
         return compare_markdown(dirs, labels)
     names = labels if labels else [Path(d).name for d in dirs]
     merged = merge_summaries([load_summary(d) for d in dirs], names)
-    if reference not in merged.policies:
+    if reference is not None and reference not in merged.policies:
         rows = ", ".join(repr(r) for r in merged.policies)
         raise ConfigError(f"--reference {reference!r}: not a row of this comparison; rows: {rows}")
-    text = render_markdown(merged)
+    text = render_markdown(merged) if wide else terminal_text(merged)
     diffs = differences_markdown(merged, reference)
     return f"{text}\n{diffs}" if diffs else text
 
@@ -126,7 +137,8 @@ def run_compare(args: argparse.Namespace) -> int:
     if args.html is not None:
         html = Path(args.html or (out.with_suffix(".html") if out is not None else COMPARE_HTML))
         html = write_compare_html(args.dirs, html, labels)
-    print(text)
+    wide = getattr(args, "wide", False)
+    print(text if wide else compare_text(args.dirs, labels, args.reference, wide=False))
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text, encoding="utf-8")
