@@ -3,7 +3,10 @@ written (each case names the value that was wrong and asserts where the message 
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -44,7 +47,7 @@ BENCH_CASES = [
         ["--policy-arg", "oracle:x=1", "--policies", "dblf"],
         "policy 'oracle' is not among the policies",
     ),
-    (["--policy-arg", "dblf:nope=1", "--policies", "dblf"], "policy = 'dblf': cannot be created"),
+    (["--policy-arg", "dblf:nope=1", "--policies", "dblf"], "dblf:nope: unknown option"),
 ]
 
 
@@ -180,8 +183,10 @@ def test_argparse_errors_exit_2(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["bench", "--episode-timeout", "abc"])
     assert exc.value.code == EXIT_USAGE
-    assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        "packlab bench: error: argument --episode-timeout: invalid float value: 'abc'"
+    # One line, no usage block above it (packlab.cli.parser).
+    assert capsys.readouterr().err.strip() == (
+        "packlab bench: error: argument --episode-timeout: invalid float value: 'abc' "
+        "(see packlab bench --help)"
     )
 
 
@@ -202,3 +207,81 @@ def test_path_errors_and_aborts_map_to_their_exit_codes(monkeypatch, capsys):
     monkeypatch.setattr(bench_cli, "run", raise_(OSError(28, os.strerror(28))))
     with pytest.raises(OSError):
         main(["bench"])
+
+
+#: Issue 37's bad inputs: each is one line, exit code 2, before any heavy import and before a
+#: run directory exists (benchmarks/cli_bad_input.py times them in fresh interpreters).
+UP_FRONT = [
+    (["bench", "--policies", "dblff"], "'dblff' is not a registered policy (did you mean 'dblf'?)"),
+    (["bench", "--policy-arg", "irbpp:modle=x"], "irbpp:modle: unknown option (did you mean"),
+    (["bench", "--policy-arg", "irbpp:runtime=onxx"], "(did you mean 'onnx'?)"),
+    (["bench", "--policy-arg", "irbpp:threads=0"], "irbpp:threads = 0: must be a whole number"),
+    (["bench", "--policy-arg", "irbpp:model=nosuch"], "irbpp:model = 'nosuch': no such directory"),
+    (["bench", "--policy-arg", "vlm:model=nosuch"], "vlm:model = 'nosuch': no such directory"),
+    (["bench", "--policy-arg", "plan:model=x"], "policy 'plan' is not among the policies to run"),
+    (["bench", "--cases", "nosuch.jsonl"], "cases = 'nosuch.jsonl': no such file or directory"),
+    (["bench", "--cases", "packlab-bench-v2"], "(did you mean 'packlab-bench-v1'?)"),
+    (["bench", "--seeds", "0-x"], "seeds = '0-x'"),
+    (["bench", "--workers", "-1"], "workers = -1"),
+    (["generate", "--difficulty", "easy", "--episodes", "0", "--out", "d"], "nothing to generate"),
+    (
+        ["generate", "--difficulty", "easy", "--episodes", "1", "--teacher", "plna", "--out", "d"],
+        "(did you mean 'plan'?)",
+    ),
+]
+
+
+@pytest.mark.parametrize("argv, message", UP_FRONT, ids=[" ".join(a) for a, _ in UP_FRONT])
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)  # the default run directory would be runs/... under here
+    code, err = _run(argv, capsys)
+    assert code == EXIT_USAGE, err
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert list(tmp_path.iterdir()) == []  # no run directory, no dataset
+
+
+def test_model_dir_without_its_files(tmp_path, capsys):
+    empty = tmp_path / "agent"
+    empty.mkdir()
+    code, err = _run(["bench", "--policy-arg", f"irbpp:model={empty}"], capsys)
+    assert code == EXIT_USAGE and "no card.json, not an RL agent directory" in err
+    (empty / "card.json").write_text("{}")
+    code, err = _run(["bench", "--policy-arg", f"tapnet:model={empty}"], capsys)
+    assert code == EXIT_USAGE and "no onnx.json (not exported to ONNX)" in err
+    assert "packlab export onnx" in err and len(err.splitlines()) == 1
+
+
+def test_misspelt_subcommand_gets_the_nearest_name(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bnech"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == EXIT_USAGE and len(err.splitlines()) == 1
+    assert "invalid choice: 'bnech' (did you mean 'bench'?)" in err
+
+
+_NO_HEAVY_PROBE = """
+import contextlib, io, json, sys
+from packlab.cli.main import main
+with contextlib.redirect_stderr(io.StringIO()):
+    code = main(json.loads(sys.argv[1]))
+heavy = ("mujoco", "matplotlib", "plotly", "scipy", "onnxruntime", "torch", "packlab.bench.runner")
+print(json.dumps([code, sorted(m for m in sys.modules if m.split(".")[0] in heavy
+                                or m.startswith("packlab.bench.runner"))]))
+"""
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [a for a, _ in UP_FRONT if a[0] == "bench"][:5],
+    ids=lambda a: " ".join(a),
+)
+def test_bench_flag_errors_come_before_heavy_imports(tmp_path, argv):
+    # What makes the error come in a fraction of a second: nothing heavy is loaded before it.
+    done = subprocess.run(
+        [sys.executable, "-c", _NO_HEAVY_PROBE, json.dumps(argv)],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=tmp_path,
+    )
+    assert json.loads(done.stdout.splitlines()[-1]) == [EXIT_USAGE, []]

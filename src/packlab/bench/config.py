@@ -23,12 +23,16 @@ from packlab.bench.describe import difficulty_order
 from packlab.bench.options import (
     DEFAULT_EPISODE_TIMEOUT_S,
     DEFAULT_MAX_TRANSPORT_FAILURES,
+    DEFAULT_POLICIES,
     DEFAULT_SUITE,
+    LEARNED_DEFAULTS,
     MAX_SEED_VALUE,
     MAX_SEEDS,
     MAX_TIME_LIMIT_S,
     MAX_WORKERS,
+    NEEDS_PLAN,
     RunConfig,
+    check_out_dir,
     parse_names,
     parse_physics,
     parse_policy_args,
@@ -39,7 +43,6 @@ from packlab.bench.suites import CaseSource, resolve_cases
 from packlab.core.errors import ConfigError
 from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
-from packlab.policies.heuristics import SCORERS
 from packlab.sim.modes import EpisodeModes, episode_modes
 from packlab.sim.physics.mujoco_backend import PhysicsConfig
 
@@ -64,25 +67,18 @@ IDENTITY_KEYS = (
 )
 
 
-#: The shipped learned policies in the default table, in the paper's Table 2 order. They play
-#: their ONNX graphs on ONNX Runtime (core install); a user's own models are named with
-#: ``--policies`` and ``--policy-arg NAME:model=DIR``.
-LEARNED_DEFAULTS = ("vlm", "irbpp", "tapnet")
-
-
 def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
-    """Every registered heuristic, the planner at its fast budget (``plan-fast``), the shipped
-    learned policies (:data:`LEARNED_DEFAULTS`), then random and the oracle (when every case has a
-    plan).
+    """:data:`DEFAULT_POLICIES` (packlab.bench.options): every heuristic, the planner at its fast
+    budget (``plan-fast``), the shipped learned policies (:data:`LEARNED_DEFAULTS`), then random
+    and the oracle (when every case has a plan).
 
     ``plan`` at its default budget is left to ``--policies``: it would take the default run past
     five minutes on two cores; so are the other registered policies (the text-answer ``vlm-small``,
     ``endpoint``, the proposer, the RL random floors).
     """
-    names = (*SCORERS, "plan-fast", *LEARNED_DEFAULTS, "random")
     if all(c.gt_plan is not None for c in cases):
-        names += ("oracle",)
-    return names
+        return DEFAULT_POLICIES
+    return tuple(n for n in DEFAULT_POLICIES if n != NEEDS_PLAN)
 
 
 def local_cores() -> int:
@@ -249,25 +245,6 @@ def resolve(config: RunConfig) -> ResolvedRun:
     )
 
 
-def check_out_dir(out: Path) -> None:
-    """ConfigError unless ``out`` is a directory or can be created as one (checked before
-    anything is written, so a bad --out leaves no half-made run behind)."""
-    if out.exists() and not out.is_dir():
-        raise ConfigError(
-            f"out = {str(out)!r}: exists and is not a directory; give a directory "
-            f"(an existing run directory is resumed)"
-        )
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise ConfigError(f"out = {str(out)!r}: {str(parent)!r} is a file, not a directory")
-            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
-                raise ConfigError(
-                    f"out = {str(out)!r}: cannot create it, {str(parent)!r} is not writable"
-                )
-            return
-
-
 def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) -> None:
     """ConfigError unless a run directory's saved config has the same identity as this run."""
     for key in IDENTITY_KEYS:
@@ -295,6 +272,7 @@ __all__ = [
     "DEFAULT_MAX_TRANSPORT_FAILURES",
     "DEFAULT_SUITE",
     "IDENTITY_KEYS",
+    "LEARNED_DEFAULTS",
     "MAX_SEEDS",
     "MAX_SEED_VALUE",
     "MAX_TIME_LIMIT_S",

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from packlab.core.choices import (
     DEFAULT_NOISE,
     DEFAULT_SEGMENTATION,
+    HEURISTICS,
     ExecutionMode,
     Executor,
     NoisePreset,
@@ -23,12 +26,23 @@ from packlab.core.choices import (
     PhysicsBackend,
     Segmentation,
     SideNames,
+    did_you_mean,
     require_choice,
 )
 from packlab.core.errors import ConfigError
 
 #: The suite a bench run plays unless ``--cases`` names another (``packlab.bench.suites``).
 DEFAULT_SUITE = "packlab-bench-v1"
+#: The shipped learned policies in the default table, in the paper's Table 2 order. They play
+#: their ONNX graphs on ONNX Runtime (core install); a user's own models are named with
+#: ``--policies`` and ``--policy-arg NAME:model=DIR``.
+LEARNED_DEFAULTS = ("vlm", "irbpp", "tapnet")
+#: What a run plays without ``--policies``: every heuristic, the planner at its fast budget, the
+#: shipped learned policies, random, and the oracle (dropped when a case has no plan:
+#: ``packlab.bench.config.default_policies``). ``--policies``' help prints this very tuple.
+DEFAULT_POLICIES = (*HEURISTICS, "plan-fast", *LEARNED_DEFAULTS, "random", "oracle")
+#: The one default policy that needs every case to carry its perfect plan.
+NEEDS_PLAN = "oracle"
 #: The interactive reports' file names (``packlab.bench.html_report``): a run's, and a
 #: comparison's when neither ``--html FILE`` nor ``--out`` names it.
 REPORT_HTML = "report.html"
@@ -210,8 +224,8 @@ class RunConfig:
             for name in self.policies:
                 if name not in known:
                     raise ConfigError(
-                        f"policies: {name!r} is not a registered policy; "
-                        f"available: {', '.join(known)}"
+                        f"policies: {name!r} is not a registered policy"
+                        f"{did_you_mean(name, known)}; available: {', '.join(known)}"
                     )
         if len(set(self.difficulties)) != len(self.difficulties):
             raise ConfigError(
@@ -257,6 +271,25 @@ def _check_sensing(config: RunConfig) -> None:
         )
 
 
+def check_out_dir(out: Path) -> None:
+    """ConfigError unless ``out`` is a directory or can be created as one (checked before
+    anything is written, so a bad --out leaves no half-made run behind)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(
+            f"out = {str(out)!r}: exists and is not a directory; give a directory "
+            f"(an existing run directory is resumed)"
+        )
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ConfigError(f"out = {str(out)!r}: {str(parent)!r} is a file, not a directory")
+            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
+                raise ConfigError(
+                    f"out = {str(out)!r}: cannot create it, {str(parent)!r} is not writable"
+                )
+            return
+
+
 def _typed(text: str) -> Any:
     """A command-line value as the type it looks like: bool, int, float, else the string."""
     low = text.strip().lower()
@@ -299,13 +332,17 @@ __all__ = [
     "COMPARE_HTML",
     "DEFAULT_EPISODE_TIMEOUT_S",
     "DEFAULT_MAX_TRANSPORT_FAILURES",
+    "DEFAULT_POLICIES",
     "DEFAULT_SUITE",
+    "LEARNED_DEFAULTS",
     "MAX_SEEDS",
     "MAX_SEED_VALUE",
     "MAX_TIME_LIMIT_S",
     "MAX_WORKERS",
+    "NEEDS_PLAN",
     "REPORT_HTML",
     "RunConfig",
+    "check_out_dir",
     "parse_names",
     "parse_physics",
     "parse_policy_args",

@@ -18,7 +18,9 @@ from functools import partial
 
 from packlab.bench.options import (
     COMPARE_HTML,
+    DEFAULT_POLICIES,
     MAX_SEEDS,
+    NEEDS_PLAN,
     RunConfig,
     parse_names,
     parse_physics,
@@ -26,6 +28,7 @@ from packlab.bench.options import (
     parse_seeds,
     time_limit_arg,
 )
+from packlab.cli.bench_checks import check_before_loading, check_cases
 from packlab.cli.options import add_field, config_kwargs
 
 #: What the commands do (runner, reports, comparisons), imported when one of them runs.
@@ -82,7 +85,7 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
         "policies",
         "--policies",
         parse=partial(parse_names, flag="policies"),
-        help="comma-separated policy names (default: every heuristic, random, oracle)",
+        help=policies_help(),
     )
     add_field(
         p,
@@ -100,6 +103,15 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
         "--difficulty",
         parse=partial(parse_names, flag="difficulty"),
         help="comma-separated difficulties to run (default: all)",
+    )
+
+
+def policies_help() -> str:
+    """``--policies``' help, read from the default list itself (it once said "every heuristic,
+    random, oracle" while the default ran eleven methods)."""
+    return (
+        f"comma-separated policy names (default: {', '.join(DEFAULT_POLICIES)}; "
+        f"{NEEDS_PLAN} only when every case has its perfect plan)"
     )
 
 
@@ -303,6 +315,12 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
 
 def run(args: argparse.Namespace) -> int:
     """``packlab bench``: run (or ``--describe``) the cases; the exit code says how it ended."""
+    # Every flag checked here, before RUN_MODULE's imports (engine, reports: seconds) and before
+    # anything is written: a typo costs a fraction of a second, not a run directory.
+    if args.describe:
+        check_cases(args.cases)
+    else:
+        check_before_loading(config_from_args(args))
     return int(importlib.import_module(RUN_MODULE).run(args))
 
 

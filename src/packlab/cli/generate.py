@@ -7,6 +7,7 @@ import importlib
 import sys
 
 from packlab.cli.options import add_field, config_kwargs
+from packlab.core.choices import did_you_mean
 from packlab.core.errors import ConfigError
 from packlab.datagen.config import (
     RECIPES,
@@ -19,6 +20,8 @@ from packlab.datagen.config import (
 
 #: What the command does (the data engine), imported when it runs.
 RUN_MODULE = "packlab.cli.generate_run"
+#: The policy registry (light: it lists entry-point names and imports no policy).
+POLICY_REGISTRY = "packlab.policies"
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -190,7 +193,7 @@ def config_from_args(args: argparse.Namespace) -> DatasetConfig:
     fields["validation"] = ValidationConfig(**config_kwargs(args, "generate", ValidationConfig))
     recipe = fields.pop("recipe", None)
     if recipe:
-        return DatasetConfig.from_recipe(recipe, **fields)
+        return _something_to_do(DatasetConfig.from_recipe(recipe, **fields))
     missing = [
         flag
         for flag, key in (("--difficulty", "difficulties"), ("--episodes", "episodes"))
@@ -198,7 +201,27 @@ def config_from_args(args: argparse.Namespace) -> DatasetConfig:
     ]
     if missing:
         raise ConfigError(f"give {' and '.join(missing)} (or --recipe)")
-    return DatasetConfig(**fields)
+    return _something_to_do(DatasetConfig(**fields))
+
+
+def _something_to_do(config: DatasetConfig) -> DatasetConfig:
+    """A dataset of zero episodes is a typo (it used to exit 0 with an empty directory); a
+    count of 0 for one difficulty among others stays allowed."""
+    if config.total_episodes == 0:
+        counts = ",".join(map(str, config.episodes))
+        raise ConfigError(f"episodes = {counts!r}: nothing to generate; give at least one episode")
+    return config
+
+
+def check_teacher(name: str) -> None:
+    """The teacher is a registered policy (names from the registry's entry points; no policy
+    imported), with the nearest name when misspelt."""
+    known = importlib.import_module(POLICY_REGISTRY).available_policies()
+    if name not in known:
+        raise ConfigError(
+            f"teacher = {name!r}: not a registered policy{did_you_mean(name, known)}; "
+            f"available: {', '.join(known)}"
+        )
 
 
 def options_from_args(args: argparse.Namespace) -> RunOptions:
@@ -208,6 +231,11 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
 
 def run(args: argparse.Namespace) -> int:
     """``packlab generate``: exit code 1 when some episode slots failed."""
+    # The flags checked before the data engine is imported or the directory made.
+    check_teacher(config_from_args(args).teacher)
+    options_from_args(args)
+    if not args.out.strip():
+        raise ConfigError("out = '': give a dataset directory")
     return int(importlib.import_module(RUN_MODULE).run(args))
 
 

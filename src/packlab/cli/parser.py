@@ -11,18 +11,11 @@ them with ``type(parent)``), so every command and subcommand behaves the same.
 from __future__ import annotations
 
 import argparse
-import difflib
 import sys
-from collections.abc import Iterable
 from typing import Any, NoReturn
 
+from packlab.core.choices import did_you_mean
 from packlab.core.errors import EXIT_USAGE
-
-
-def did_you_mean(value: str, names: Iterable[str]) -> str:
-    """``" (did you mean 'dblf'?)"`` for the closest of ``names``, or ``""`` when none is close."""
-    close = difflib.get_close_matches(value, [str(n) for n in names], n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 class PacklabParser(argparse.ArgumentParser):
@@ -32,10 +25,10 @@ class PacklabParser(argparse.ArgumentParser):
         choices = action.choices
         if choices is not None and value not in choices:
             names = list(choices)  # a subcommand map lists its names
-            hint = did_you_mean(str(value), names) if isinstance(value, str) else ""
             raise argparse.ArgumentError(
                 action,
-                f"invalid choice: {value!r}{hint}; choose from {', '.join(map(str, names))}",
+                f"invalid choice: {value!r}{did_you_mean(value, names)}; "
+                f"choose from {', '.join(map(str, names))}",
             )
 
     def error(self, message: str) -> NoReturn:

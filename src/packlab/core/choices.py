@@ -6,6 +6,8 @@ allowed values from them (:func:`choices`), so a choice list is written exactly 
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
 from typing import Literal, get_args
 
 from packlab.core.errors import ConfigError
@@ -20,6 +22,11 @@ ImageMode = Literal["heightmap", "blank", "none"]
 HistoryMode = Literal["full", "current_only", "no_actions"]
 #: Bench and dataset difficulty levels (paper Table 1).
 Difficulty = Literal["easy", "medium", "hard"]
+#: The heuristic policies, in the paper's Table 2 order (their scorers:
+#: ``packlab.policies.heuristics.SCORERS``, same names and order, checked by a test); here so that
+#: the bench's default policy list is known without loading numpy.
+Heuristic = Literal["dblf", "hm", "mta", "ffp", "sdf"]
+HEURISTICS: tuple[str, ...] = get_args(Heuristic)
 #: Heuristic tie rule between equally scored placements (docs/heuristics.md).
 TieBreak = Literal["larger_volume", "shown_order"]
 #: Layout family of generated cases: the paper's ``layered``, the opt-in richer ``stepped``, or
@@ -99,8 +106,19 @@ def choices(choice_type: object) -> tuple[str, ...]:
     return values
 
 
+def did_you_mean(value: object, names: Iterable[object]) -> str:
+    """``" (did you mean 'dblf'?)"`` for the name closest to a misspelt ``value``, else ``""``."""
+    if not isinstance(value, str):
+        return ""
+    close = difflib.get_close_matches(value, [str(n) for n in names], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def require_choice(value: object, choice_type: object, field: str) -> None:
     """Raise ``ConfigError`` naming ``field`` when ``value`` is not one of the type's values."""
     allowed = choices(choice_type)
     if value not in allowed:
-        raise ConfigError(f"{field} = {value!r}: unknown; choose one of {', '.join(allowed)}")
+        raise ConfigError(
+            f"{field} = {value!r}: unknown{did_you_mean(value, allowed)}; "
+            f"choose one of {', '.join(allowed)}"
+        )
