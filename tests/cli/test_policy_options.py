@@ -73,3 +73,11 @@ def test_policies_help_states_the_default_list():
     assert ", ".join(DEFAULT_POLICIES) in policies.help
     assert default_policies(tuple(load_suite("packlab-bench-v1"))) == DEFAULT_POLICIES
     assert len(DEFAULT_POLICIES) == 11
+
+
+def test_light_policy_names_are_the_registry_names():
+    from packlab.bench.options import POLICY_ENTRY_POINTS, POLICY_REGISTRY, policy_names
+    from packlab.policies import registry
+
+    assert (POLICY_REGISTRY, POLICY_ENTRY_POINTS) == (registry.__name__, registry.ENTRY_POINT_GROUP)
+    assert policy_names() == registry.available_policies()

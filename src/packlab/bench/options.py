@@ -8,10 +8,11 @@ directory's ``config.json``) is :mod:`packlab.bench.config`, which re-exports ev
 
 from __future__ import annotations
 
-import importlib
 import math
 import os
+import sys
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -47,8 +48,9 @@ NEEDS_PLAN = "oracle"
 #: comparison's when neither ``--html FILE`` nor ``--out`` names it.
 REPORT_HTML = "report.html"
 COMPARE_HTML = "compare.html"
-#: The policy registry, imported when a config names policies (it loads every built-in policy).
-POLICY_REGISTRY = "packlab.policies"
+#: The policy registry's module and entry-point group (packlab.policies.registry).
+POLICY_REGISTRY = "packlab.policies.registry"
+POLICY_ENTRY_POINTS = "packlab.policies"
 #: Limits of a run's size, checked while the flags are parsed (before anything is allocated):
 #: ``--seeds 0-100000000`` must be an error, not a process that eats memory until it dies.
 MAX_SEEDS = 1000  # run seeds per run (each seed reruns every case x policy)
@@ -220,7 +222,7 @@ class RunConfig:
             raise ConfigError(f"policies = {','.join(self.policies)}: a policy is repeated")
         if self.policies:
             # The registry loads the built-in policies (numpy and more): only when names are given.
-            known = importlib.import_module(POLICY_REGISTRY).available_policies()
+            known = policy_names()
             for name in self.policies:
                 if name not in known:
                     raise ConfigError(
@@ -242,6 +244,17 @@ class RunConfig:
                 f"physics = {dict(self.physics_overrides)!r}: "
                 "only the mujoco backend has physics settings"
             )
+
+
+def policy_names() -> list[str]:
+    """Every policy name that can be made, without importing ``packlab.policies`` (its package
+    loads numpy: a quarter of a second before a typo's one-line error). A policy registered at
+    run time (``register_policy``) lives in an already imported registry, which then answers;
+    otherwise the entry points are the whole list."""
+    registry = sys.modules.get(POLICY_REGISTRY)
+    if registry is not None:
+        return list(registry.available_policies())
+    return sorted({ep.name for ep in entry_points(group=POLICY_ENTRY_POINTS)})
 
 
 def _check_sensing(config: RunConfig) -> None:
@@ -347,5 +360,6 @@ __all__ = [
     "parse_physics",
     "parse_policy_args",
     "parse_seeds",
+    "policy_names",
     "time_limit_arg",
 ]

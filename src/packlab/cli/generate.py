@@ -6,6 +6,7 @@ import argparse
 import importlib
 import sys
 
+from packlab.bench.options import policy_names
 from packlab.cli.options import add_field, config_kwargs
 from packlab.core.choices import did_you_mean
 from packlab.core.errors import ConfigError
@@ -20,8 +21,6 @@ from packlab.datagen.config import (
 
 #: What the command does (the data engine), imported when it runs.
 RUN_MODULE = "packlab.cli.generate_run"
-#: The policy registry (light: it lists entry-point names and imports no policy).
-POLICY_REGISTRY = "packlab.policies"
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -216,7 +215,7 @@ def _something_to_do(config: DatasetConfig) -> DatasetConfig:
 def check_teacher(name: str) -> None:
     """The teacher is a registered policy (names from the registry's entry points; no policy
     imported), with the nearest name when misspelt."""
-    known = importlib.import_module(POLICY_REGISTRY).available_policies()
+    known = policy_names()
     if name not in known:
         raise ConfigError(
             f"teacher = {name!r}: not a registered policy{did_you_mean(name, known)}; "
