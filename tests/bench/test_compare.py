@@ -11,9 +11,11 @@ from record_helpers import ok_record
 from packlab.bench.compare import (
     compare_markdown,
     differences_markdown,
+    judged_significant,
     load_summary,
     merge_summaries,
     paired_differences,
+    reliable_groups,
 )
 from packlab.bench.intervals import Interval
 from packlab.bench.report import summary_json
@@ -57,15 +59,74 @@ def test_rows_follow_runs_and_keep_their_numbers():
 
 
 @pytest.mark.parametrize(
-    ("other", "field"),
+    ("other", "said"),
     [
-        (_summary({"vlm": 0.1}, seeds=(0,)), "seeds"),
-        (_summary({"vlm": 0.1}, sha="zzz"), "cases_sha256"),
+        (_summary({"vlm": 0.1}, seeds=(0,)), "differ in seeds (--seeds): 0,1,2 in 'a', 0 in 'b'"),
+        (
+            _summary({"vlm": 0.1}, sha="zzz"),
+            "differ in cases (--cases): s (sha256 abc...) in 'a', s (sha256 zzz...) in 'b'",
+        ),
     ],
 )
-def test_incomparable_runs_are_refused_by_name(other, field):
-    with pytest.raises(PacklabError, match=f"run 'b' has {field}"):
+def test_incomparable_runs_are_refused_in_the_users_words(other, said):
+    with pytest.raises(PacklabError) as err:
         merge_summaries([_summary({"vlm": 0.4}), other], ["a", "b"])
+    message = str(err.value)
+    assert said in message and "UNSET" not in message and "_sha256" not in message
+    assert "compare needs the same cases, seeds, difficulties and backend" in message
+
+
+def _sensing(**settings: str) -> dict:
+    return {"observation": "exact", "execution": "exact", "noise": "structured-light", **settings}
+
+
+def test_documented_ablations_are_labelled_rows():
+    # README's ablation: an exact run against the same run with --sides longer-first. The
+    # exact run's summary has no sensing entry, the other one no segmentation: neither leaks.
+    lf = _summary_json({"dblf": 0.3, "hm": 0.35}) | {"sensing": _sensing(sides="longer-first")}
+    merged = merge_summaries(
+        [_summary({"dblf": 0.4, "hm": 0.38}), summary_from_json(json.dumps(lf), "s.json")],
+        ["exact", "lf"],
+    )
+    assert merged.policies == (
+        "exact (sides catalogue): DBLF",
+        "exact (sides catalogue): HM",
+        "lf (sides longer-first): DBLF",
+        "lf (sides longer-first): HM",
+    )
+    perceived = _summary_json({"vlm": 0.2}) | {
+        "sensing": _sensing(observation="perceived", segmentation="truth")
+    }
+    depth = _summary_json({"vlm": 0.1}) | {
+        "sensing": _sensing(observation="perceived", segmentation="depth")
+    }
+    merged = merge_summaries(
+        [summary_from_json(json.dumps(x), "s.json") for x in (perceived, depth)], ["t", "d"]
+    )
+    assert merged.policies == ("t (segmentation truth)", "d (segmentation depth)")
+    merged = merge_summaries(
+        [_summary({"vlm": 0.4}), summary_from_json(json.dumps(depth), "s.json")], ["e", "p"]
+    )
+    assert merged.policies == (
+        "e (observation exact)",
+        "p (observation perceived, noise structured-light, segmentation depth)",
+    )
+
+
+def test_few_cases_a_level_make_unreliable_unmarked_intervals(tmp_path):
+    # One case per level: the interval collapses to a point; it is shown, flagged, not bold.
+    a = _run_dir(tmp_path, "a", {"p": {"c1": [0.5] * 3, "c2": [0.6] * 3}})
+    b = _run_dir(tmp_path, "b", {"p": {"c1": [0.36] * 3, "c2": [0.46] * 3}})
+    text = compare_markdown([a, b])
+    row = next(line for line in text.splitlines() if line.startswith("| b | 2 |"))
+    assert "-0.140 [-0.140, -0.140]†" in row and "**" not in row
+    assert row.endswith("| not judged (fewer than 5 cases a level) |")
+    assert "† fewer than 5 cases per level: intervals not reliable" in text
+    merged = merge_summaries([load_summary(a), load_summary(b)], ["a", "b"])
+    diffs = paired_differences(merged, "b", "a")
+    assert diffs["average"].significant  # the bootstrap alone would call it significant
+    assert reliable_groups(diffs) == {"easy": False, "hard": False, "average": False}
+    assert not judged_significant(diffs["average"], False)
 
 
 def test_labels_must_match_runs_and_differ():
@@ -202,3 +263,14 @@ def test_cli_reference_that_is_no_row_is_one_line_naming_flag_and_rows(tmp_path,
             "rows: 'run: ref', 'run: other'"
         )
     ]
+
+
+def test_report_page_does_not_judge_differences_from_few_cases(tmp_path):
+    from packlab.bench.html_report import difference_notes
+
+    a = _run_dir(tmp_path, "a", {"p": {"c1": [0.5] * 3, "c2": [0.6] * 3}})
+    b = _run_dir(tmp_path, "b", {"p": {"c1": [0.36] * 3, "c2": [0.46] * 3}})
+    (note,) = difference_notes(merge_summaries([load_summary(a), load_summary(b)], ["a", "b"]))
+    assert note.endswith("not judged: fewer than 5 cases per level: intervals not reliable, "
+                         "significance not marked.")  # fmt: skip
+    assert ": significant" not in note

@@ -2,8 +2,12 @@
 
 Used for ablations, where each variant is its own run directory (``vlm`` with ``image=blank`` and
 ``vlm`` with the full context both record under the policy name ``vlm``). Runs are only comparable
-on the same cases, seeds, physics backend and observation / execution modes (issue 15), so a
-mismatch is an error naming the run and field.
+on the same cases, seeds, difficulties and physics backend (:data:`MUST_MATCH`); a mismatch is
+refused in the user's words: which setting differs, its value in both runs, what compare needs.
+The documented ablations of how a run senses and acts (:data:`ABLATIONS`: ``--sides``,
+``--segmentation``, ``--observation``, ``--execution``, ``--noise``) may differ: each run's rows
+are then labelled with its setting, e.g. ``exact (sides catalogue): DBLF`` and ``lf (sides
+longer-first): DBLF``.
 Each summary.json is read as a typed ``RunSummary`` with its version checked (older ones
 migrate; see ``packlab.core.records``).
 
@@ -13,7 +17,9 @@ Overall, row minus reference, per level and on average, over the (case, seed) un
 (paired by case, each case's differences averaged over its common seeds), with a 95 % paired
 bootstrap interval (``packlab.bench.intervals``; seeds resampled within each case too when
 either method's scores vary across seeds). A difference counts as significant only where its
-interval excludes 0.
+interval excludes 0, and only where each level pairs at least :data:`MIN_RELIABLE_CASES` cases:
+with fewer, a bootstrap over cases has next to nothing to resample (one case per level collapses
+the interval to a point), so such intervals are marked unreliable and never called significant.
 """
 
 from __future__ import annotations
@@ -39,9 +45,33 @@ from packlab.core.records import (
 from packlab.metrics import AVERAGE
 from packlab.viz.labels import display_name, group_title
 
-#: Summary fields that must agree for rows of different runs to share one table.
-#: ``sensing`` (observation / execution / noise, issue 15) is absent for exact runs.
-MUST_MATCH = ("cases_sha256", "seeds", "backend", "difficulties", "sensing")
+#: Summary fields that must agree for rows of different runs to share one table, with the words
+#: and flag a user knows them by.
+MUST_MATCH: dict[str, tuple[str, str]] = {
+    "cases_sha256": ("cases", "--cases"),
+    "seeds": ("seeds", "--seeds"),
+    "backend": ("backend", "--backend"),
+    "difficulties": ("difficulties", "--difficulty"),
+}
+#: The sensing settings (summary ``sensing``, issue 15) a comparison may vary: documented
+#: ablations, each run's rows labelled with its value. Field -> its value when not recorded
+#: (None: the setting does not apply to that run, e.g. segmentation of an exact observation).
+ABLATIONS: dict[str, str | None] = {
+    "observation": "exact",
+    "execution": "exact",
+    "noise": None,
+    "segmentation": None,
+    "sides": "catalogue",
+}
+#: Fewest paired cases per level for an interval to be read: below it the bootstrap over cases
+#: resamples too few units (1 case: a point) and a difference is not called significant.
+MIN_RELIABLE_CASES = 5
+#: The footnote mark of an unreliable interval and the footnote itself.
+UNRELIABLE_MARK = "†"
+UNRELIABLE_NOTE = (
+    f"{UNRELIABLE_MARK} fewer than {MIN_RELIABLE_CASES} cases per level: intervals not "
+    "reliable, significance not marked."
+)
 
 
 def load_summary(run_dir: str | os.PathLike[str]) -> RunSummary:
@@ -58,9 +88,70 @@ def load_summary(run_dir: str | os.PathLike[str]) -> RunSummary:
 
 def _field(summary: RunSummary, name: str) -> object:
     value = getattr(summary, name)
-    if name == "sensing" and value in (None, msgspec.UNSET):
-        return "exact"  # both modes exact: written nowhere, shown as such
     return None if value is msgspec.UNSET else value
+
+
+def sensing_settings(summary: RunSummary) -> dict[str, str | None]:
+    """The run's :data:`ABLATIONS` settings as a user set them (defaults filled in; None where
+    a setting does not apply), whatever summary.json left out."""
+    sensing = summary.sensing
+    recorded = (
+        msgspec.structs.asdict(sensing)
+        if isinstance(sensing, SensingModes)
+        else {}  # absent: both modes exact, sides the catalogue's
+    )
+    out: dict[str, str | None] = {}
+    for name, default in ABLATIONS.items():
+        value = recorded.get(name, msgspec.UNSET)
+        out[name] = default if value is msgspec.UNSET or value is None else str(value)
+    if out["observation"] == "exact" and out["execution"] == "exact":
+        out["noise"] = None  # a preset only the perceived and noisy modes use
+    return out
+
+
+def _shown(name: str, value: object) -> str:
+    """A MUST_MATCH value as a user reads it: seeds as typed, a digest shortened."""
+    if value is None:
+        return "not recorded"
+    if isinstance(value, (tuple, list)):
+        return ",".join(map(str, value)) or "none"
+    if name == "cases_sha256":
+        return f"sha256 {str(value)[:12]}..."
+    return str(value)
+
+
+def _check_comparable(summaries: Sequence[RunSummary], labels: Sequence[str]) -> None:
+    first = summaries[0]
+    for label, s in zip(labels[1:], summaries[1:]):
+        for field, (words, flag) in MUST_MATCH.items():
+            mine, theirs = _field(s, field), _field(first, field)
+            if mine == theirs:
+                continue
+            if field == "cases_sha256":  # the suite's name says more than a digest
+                mine = f"{s.suite} ({_shown(field, mine)})"
+                theirs = f"{first.suite} ({_shown(field, theirs)})"
+            else:
+                mine, theirs = _shown(field, mine), _shown(field, theirs)
+            raise PacklabError(
+                f"bench compare: runs {labels[0]!r} and {label!r} differ in {words} "
+                f"({flag}): {theirs} in {labels[0]!r}, {mine} in {label!r}; compare needs "
+                "the same cases, seeds, difficulties and backend in every run (rerun one with "
+                f"the other's {flag})"
+            )
+
+
+def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> list[str]:
+    """Each run's label, with the settings that differ between the runs appended, e.g.
+    ``"lf (sides longer-first)"``; unchanged when no setting differs."""
+    settings = [sensing_settings(s) for s in summaries]
+    varying = [name for name in ABLATIONS if len({str(st[name]) for st in settings}) > 1]
+    if not varying:
+        return list(labels)
+    out = []
+    for label, st in zip(labels, settings):
+        shown = [f"{name} {st[name]}" for name in varying if st[name] is not None]
+        out.append(f"{label} ({', '.join(shown)})" if shown else label)
+    return out
 
 
 def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> RunSummary:
@@ -73,13 +164,9 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
     if len(set(labels)) != len(labels):
         raise PacklabError(f"bench compare: labels must differ, got {list(labels)}")
     first = summaries[0]
-    for label, s in zip(labels[1:], summaries[1:]):
-        for field in MUST_MATCH:
-            if _field(s, field) != _field(first, field):
-                raise PacklabError(
-                    f"bench compare: run {label!r} has {field} = {_show(_field(s, field))}, "
-                    f"but run {labels[0]!r} has {_show(_field(first, field))}"
-                )
+    _check_comparable(summaries, labels)
+    labels = _ablation_labels(summaries, labels)
+    same_sensing = len({repr(sensing_settings(s)) for s in summaries}) == 1
     policies: list[str] = []
     table: dict[str, dict[str, MetricCells]] = {}
     per_case: dict[str, dict[str, CaseCells]] = {}
@@ -98,7 +185,8 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         format=first.format,
         suite=first.suite,
         backend=first.backend,
-        sensing=first.sensing,
+        # Runs of different settings: the rows say which is which, the merged run has none.
+        sensing=first.sensing if same_sensing else msgspec.UNSET,
         n_cases=first.n_cases,
         policies=tuple(policies),
         seeds=first.seeds,
@@ -108,13 +196,6 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         counts=counts,
         errors=tuple(errors),
     )
-
-
-def _show(value: object) -> str:
-    """A field's value as the JSON it was read from (lists, not tuples)."""
-    if isinstance(value, SensingModes):
-        return repr(msgspec.structs.asdict(value))
-    return repr(list(value)) if isinstance(value, tuple) else repr(value)
 
 
 def _overall_by_level(summary: RunSummary, row: str) -> list[dict[str, dict[str, float]]]:
@@ -144,17 +225,36 @@ def _seed_scores(strata: list[dict[str, dict[str, float]]]) -> list[dict[str, fl
     return [seeds for stratum in strata for seeds in stratum.values()]
 
 
-def _format_difference(diff: Difference | None) -> str:
+def reliable_groups(diffs: dict[str, Difference | None]) -> dict[str, bool]:
+    """Per group of :func:`paired_differences`: whether its interval may be read, i.e. every
+    level it covers pairs at least :data:`MIN_RELIABLE_CASES` cases (the average: every level)."""
+    levels = {g: d.n_cases >= MIN_RELIABLE_CASES for g, d in diffs.items() if d and g != AVERAGE}
+    out = dict(levels)
+    if AVERAGE in diffs and diffs[AVERAGE] is not None:
+        out[AVERAGE] = bool(levels) and all(levels.values())
+    return out
+
+
+def judged_significant(diff: Difference | None, reliable: bool) -> bool:
+    """Significant, and from enough cases to say so."""
+    return diff is not None and reliable and diff.significant
+
+
+def _format_difference(diff: Difference | None, reliable: bool = True) -> str:
     if diff is None:
         return "-"
     lo, hi = diff.interval.low, diff.interval.high
     text = f"{diff.estimate:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+    if not reliable:
+        return text + UNRELIABLE_MARK
     return f"**{text}**" if diff.significant else text
 
 
-def _verdict(diff: Difference | None) -> str:
+def _verdict(diff: Difference | None, reliable: bool = True) -> str:
     if diff is None:
         return "-"
+    if not reliable:
+        return f"not judged (fewer than {MIN_RELIABLE_CASES} cases a level)"
     if not diff.significant:
         return "no (interval includes 0)"
     return "yes, higher" if diff.estimate > 0 else "yes, lower"
@@ -189,13 +289,18 @@ def differences_markdown(summary: RunSummary, reference: str | None = None) -> s
         "| " + " | ".join(header) + " |",
         "| --- |" + " ---: |" * (len(header) - 2) + " --- |",
     ]
+    any_unreliable = False
     for row in (r for r in summary.policies if r != reference):
         diffs = paired_differences(summary, row, reference)
+        reliable = reliable_groups(diffs)
+        any_unreliable |= not all(reliable.values())
         last = diffs.get(groups[-1])
         cells = [row, "-" if last is None else str(last.n_cases)]
-        cells += [_format_difference(diffs.get(g)) for g in groups]
-        cells.append(_verdict(last))
+        cells += [_format_difference(diffs.get(g), reliable.get(g, True)) for g in groups]
+        cells.append(_verdict(last, reliable.get(groups[-1], True)))
         lines.append("| " + " | ".join(cells) + " |")
+    if any_unreliable:
+        lines += ["", UNRELIABLE_NOTE]
     return "\n".join(lines) + "\n"
 
 

@@ -21,7 +21,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from packlab.bench.compare import merge_summaries, paired_differences
+from packlab.bench.compare import (
+    UNRELIABLE_MARK,
+    UNRELIABLE_NOTE,
+    merge_summaries,
+    paired_differences,
+    reliable_groups,
+)
 from packlab.bench.options import COMPARE_HTML, REPORT_HTML
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
@@ -89,11 +95,15 @@ def difference_notes(merged: RunSummary) -> list[str]:
     ref, last = merged.policies[0], _groups(merged)[-1]
     notes = []
     for row in merged.policies[1:]:
-        diff = paired_differences(merged, row, ref).get(last)
+        diffs = paired_differences(merged, row, ref)
+        diff = diffs.get(last)
         if diff is None:
             continue
         lo, hi = diff.interval.low, diff.interval.high
-        verdict = "significant" if diff.significant else "not significant (interval includes 0)"
+        if not reliable_groups(diffs).get(last, True):  # too few cases to call it either way
+            verdict = f"not judged: {UNRELIABLE_NOTE.removeprefix(UNRELIABLE_MARK).strip()}"
+        else:
+            verdict = "significant" if diff.significant else "not significant (interval includes 0)"
         notes.append(
             f"{row} minus {ref}, {group_title(last)} Overall: {diff.estimate:+.3f} "
             f"[{lo:+.3f}, {hi:+.3f}] over {diff.n_cases} paired cases: {verdict}"
