@@ -301,5 +301,5 @@ def test_compare_html_refuses_runs_on_other_seeds(tiny_suite, tmp_path):
     argv = _bench_argv(tiny_suite, tmp_path / "b", "--no-html")
     argv[argv.index("--seeds") + 1] = "1"
     assert main(argv) == EXIT_OK
-    with pytest.raises(PacklabError, match="run 'b' has seeds = \\[1\\], but run 'a' has \\[0\\]"):
+    with pytest.raises(PacklabError, match="differ in seeds \\(--seeds\\): 0 in 'a', 1 in 'b'"):
         compare_html([tmp_path / "a", tmp_path / "b"])
