@@ -122,11 +122,18 @@ def run_dir(case, tmp_path_factory):
     return root / "run"
 
 
-def test_cli_saves_a_record_beside_its_run(run_dir, case, capsys):
+def test_cli_saves_a_record_in_the_current_directory(run_dir, case, tmp_path, monkeypatch, capsys):
+    # Not inside the bench run's directory: a run directory changes only when a run writes it.
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    before = sorted(p.relative_to(run_dir) for p in run_dir.rglob("*"))
     args = ["viz", "rerun", str(run_dir), "--case", case.episode_id, "--policy", "random"]
     assert main([*args, "--seed", "1"]) == 0
-    out = run_dir / "rerun" / f"{case.episode_id}_random_seed1.rrd"
-    assert f"saved {out}" in capsys.readouterr().out
+    name = f"{case.episode_id}_random_seed1.rrd"
+    assert f"saved {name}" in capsys.readouterr().out
+    out = here / name
+    assert sorted(p.relative_to(run_dir) for p in run_dir.rglob("*")) == before
     record = next(
         r for r in read_records(run_dir / "episodes.jsonl") if r.policy == "random" and r.seed == 1
     )

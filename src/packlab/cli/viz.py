@@ -22,8 +22,10 @@ from pathlib import Path
 from packlab.core.choices import PhysicsBackend, choices
 from packlab.viz.options import DEFAULT_VIEWER_URL, EPISODE_MAX_STEPS
 
-#: Where ``viz rerun --live`` saves its .rrd files unless told (records go beside their run).
-LIVE_RRD_DIR = Path("runs") / "rerun"
+#: Where ``viz rerun`` saves its .rrd file unless ``--out`` says: the current directory, as a
+#: download would; writing into the bench run's directory (as it once did) left a user looking
+#: for the file and changed a run directory nobody asked to change.
+RRD_DIR = Path(".")
 #: What the commands do (replays, figures, Rerun recordings), imported when one runs.
 RUN_MODULE = "packlab.cli.viz_run"
 
@@ -116,9 +118,9 @@ def _add_rerun_parser(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument(
         "--out",
-        help="the .rrd file (default: RUN/rerun/CASE_POLICY_seedS.rrd for records, "
-        f"{LIVE_RRD_DIR}/CASE_POLICY_seedS_BACKEND.rrd with --live); with --spawn or "
-        "--connect it is written as well",
+        help="the .rrd file to save (default: CASE_POLICY_seedS.rrd in the current "
+        "directory, CASE_POLICY_seedS_BACKEND.rrd with --live); with --spawn or --connect "
+        "it is written only when given (docs/viewer.md)",
     )
     view = r.add_mutually_exclusive_group()
     view.add_argument("--spawn", action="store_true", help="start a viewer and stream to it")

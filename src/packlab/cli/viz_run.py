@@ -20,7 +20,7 @@ from packlab.bench.config import (
 from packlab.bench.records import CASES_FILE, CONFIG_FILE, EPISODES_FILE, iter_ok, read_records
 from packlab.bench.replay import replay_record
 from packlab.cases import load_cases
-from packlab.cli.viz import LIVE_RRD_DIR
+from packlab.cli.viz import RRD_DIR
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Case
@@ -148,7 +148,7 @@ def _rerun_record(args: argparse.Namespace) -> Exported:
     found = _recorded_episode(args)
     record = found.record
     name = f"{record.case_id}_{record.policy}_seed{record.seed}.rrd"
-    target = _viewer_target(args, found.run_dir / "rerun" / name)
+    target = _viewer_target(args, RRD_DIR / name)
     return rerun_replay(
         found.case, record, target, str(found.episodes), found.physics, args.resimulate
     )
@@ -172,7 +172,7 @@ def _rerun_live(args: argparse.Namespace) -> Exported:
         given["policy_args"] = parse_policy_args(args.policy_arg)
     config = RunConfig(**given)
     seed = config.seeds[0]
-    default_out = LIVE_RRD_DIR / f"{args.case}_{args.policy}_seed{seed}_{config.backend}.rrd"
+    default_out = RRD_DIR / f"{args.case}_{args.policy}_seed{seed}_{config.backend}.rrd"
     target = _viewer_target(args, default_out)
     run = resolve(dataclasses.replace(config, out=str(target.out.parent)))
     case = next((c for c in run.cases if c.episode_id == args.case), None)
