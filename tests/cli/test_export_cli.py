@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from packlab.cases import load_cases
+from packlab.cli.export import TIE_TOLERANCE, check_summary
 from packlab.cli.main import main
 from packlab.core.errors import EXIT_USAGE, ConfigError
 from packlab.policies import make_policy
@@ -66,9 +67,30 @@ def test_an_exported_agent_plays_under_the_default_runtime(tmp_path, capsys):
     assert main(["export", "onnx", str(agent), "--check-states", "8"]) == 0
     out = capsys.readouterr().out
     assert f"card: {agent / CARD_FILE}" in out and (agent / CARD_FILE).is_file()
+    # The check it ran is said, not only written into onnx.json.
+    check = out.strip().splitlines()[-1]
+    assert check.startswith("check: torch vs ONNX Runtime, the greedy row on 8 generated states")
+    assert "same row on all 8; max |logit difference|" in check and check.endswith(": pass")
     case = load_cases(demo_cases_path())[0]
     mine = run_episode(case, make_policy("irbpp", model=str(agent)), seed=0, backend="geometric")
     shipped = run_episode(case, make_policy("irbpp"), seed=0, backend="geometric")
     # The same weights, re-exported: the same actions at every step.
     assert [s.action for s in mine.steps] == [s.action for s in shipped.steps]
     assert mine.metrics.overall == shipped.metrics.overall
+
+
+def test_the_pointer_check_line_names_ties_and_the_largest_difference():
+    extra = {"check": {"states": 64, "argmax_equal": 63, "ties": 1, "max_abs_diff": 3.1e-6}}
+    assert check_summary("pointer", extra) == (
+        "check: torch vs ONNX Runtime, the listed pick on 64 generated states: same pick on 63, "
+        "1 picks between placements tied within 0.0001; max |score difference| 3.10e-06: pass"
+    )
+    assert check_summary("pointer", {"check": {"states": 0}}).startswith("check: skipped")
+    assert check_summary("rl-agent", {"check_states": 0}).startswith("check: skipped")
+
+
+def test_the_tie_tolerance_is_the_exporters():
+    pytest.importorskip("torch")
+    from packlab.vlm.candidate.onnx_export import TIE_TOLERANCE as EXPORTER_TOLERANCE
+
+    assert TIE_TOLERANCE == EXPORTER_TOLERANCE

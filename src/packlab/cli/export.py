@@ -17,6 +17,7 @@ import argparse
 import importlib
 import json
 from pathlib import Path
+from typing import Any
 
 from packlab.core.errors import ConfigError
 
@@ -27,6 +28,9 @@ EXPORTERS = (
 )
 #: Generated observations on which the export compares torch's and ONNX's decisions.
 DEFAULT_CHECK_STATES = 64
+#: The pointer VLM's tie tolerance (``packlab.vlm.candidate.onnx_export.TIE_TOLERANCE``, which
+#: imports torch; a test checks the two agree): torch scores closer than this are a tie.
+TIE_TOLERANCE = 1e-4
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -84,4 +88,31 @@ def run_export(args: argparse.Namespace) -> int:
     for name, spec in card.graphs.items():
         print(f"{name}: {args.model_dir / spec.file}")
     print(f"card: {args.model_dir / 'onnx.json'}")
+    print(check_summary(card.kind, card.extra))
     return 0
+
+
+def check_summary(kind: str, extra: dict[str, Any]) -> str:
+    """One line on the torch-vs-ONNX check the export ran (kept in onnx.json's ``extra``): what
+    was compared, on how many states, the largest difference, and that it passed (a failed
+    check is the command's one-line error and writes no card). docs/onnx.md explains it."""
+    if kind == "rl-agent":
+        states = int(extra.get("check_states", 0))
+        if not states:
+            return "check: skipped (--check-states 0): ONNX Runtime was not compared with torch"
+        return (
+            f"check: torch vs ONNX Runtime, the greedy row on {states} generated states: "
+            f"same row on all {states}; max |logit difference| "
+            f"{float(extra['max_abs_logit_diff']):.2e}: pass"
+        )
+    check = extra.get("check", {})
+    states = int(check.get("states", 0))
+    if not states:
+        return "check: skipped (--check-states 0): ONNX Runtime was not compared with torch"
+    ties = int(check.get("ties", 0))
+    tied = f", {ties} picks between placements tied within {TIE_TOLERANCE:g}" if ties else ""
+    return (
+        f"check: torch vs ONNX Runtime, the listed pick on {states} generated states: "
+        f"same pick on {int(check.get('argmax_equal', 0))}{tied}; max |score difference| "
+        f"{float(check.get('max_abs_diff', 0.0)):.2e}: pass"
+    )
