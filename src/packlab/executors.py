@@ -36,11 +36,13 @@ stopping the workers (Ray tasks are cancelled).
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing as mp
 import os
 import pickle
 import signal
 import sys
+import threading
 import time
 import traceback
 from collections import deque
@@ -248,6 +250,7 @@ def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
     parent = os.getppid()
+    die_with_parent(parent)
     ctx = Context(None, lambda payload: conn.send((_REPORT, payload)))
     while True:
         try:
@@ -269,6 +272,39 @@ def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
             return
         except Exception as exc:  # noqa: BLE001 - the result cannot be pickled
             conn.send((_RAISED, _portable(exc)))
+
+
+#: Linux's prctl option that delivers a signal to a process when its parent dies.
+_PR_SET_PDEATHSIG = 1
+#: How often a worker without prctl checks that its parent is alive.
+_ORPHAN_CHECK_S = 1.0
+
+
+def die_with_parent(parent: int) -> None:
+    """End this worker when ``parent`` dies, whatever the worker is doing at the time.
+
+    The parent stops its workers itself on any exit it can see (an exception, SIGINT, SIGTERM:
+    ``packlab.core.stop``), but not on SIGKILL or a crash; a worker busy in an item (a long
+    episode, a C loop) would not notice until the item ends. On Linux the kernel sends SIGKILL
+    the moment the parent dies (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread checks the
+    parent's pid every second and exits the process.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0:
+                if os.getppid() != parent:  # died before the prctl took effect
+                    os._exit(1)
+                return
+        except (OSError, AttributeError):
+            pass  # no prctl in this libc: fall back to the watchdog
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_ORPHAN_CHECK_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="packlab-orphan-watch", daemon=True).start()
 
 
 def _context() -> mp.context.ForkContext | mp.context.SpawnContext:
@@ -495,7 +531,15 @@ def _run_ray(
     ray = _import_ray()
     started_here = not ray.is_initialized()
     if started_here:
+        # ray.init replaces the SIGINT and SIGTERM handlers with its own (log, shut down, exit
+        # with the signal's number); keep the caller's (packlab.core.stop), so a stop request
+        # runs this function's cleanup and the command exits with its documented code.
+        handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        if threading.current_thread() is threading.main_thread():
+            for signum, handler in handlers.items():
+                if handler is not None:
+                    signal.signal(signum, handler)
     pending: dict[Any, T] = {}
     try:
         work_ref = ray.put(work)  # once, not once per item (the bench's cases, a dataset config)
@@ -534,6 +578,7 @@ __all__ = [
     "Results",
     "Work",
     "WorkerLost",
+    "die_with_parent",
     "progress_bar",
     "run_items",
     "share_cores",

@@ -16,7 +16,8 @@ import sys
 from typing import Any, cast
 
 from packlab.cli.parser import PacklabParser
-from packlab.core.errors import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_USAGE, PacklabError, RunAborted
+from packlab.core.errors import EXIT_ABORTED, EXIT_USAGE, PacklabError, RunAborted
+from packlab.core.stop import StopRequested, exit_code_of, stop_handlers
 
 #: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -98,7 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)  # argparse's own errors: one line, exit code 2 (cli.parser)
     try:
-        return int(args.func(args) or 0)
+        # SIGTERM too (a scheduler's stop): the command's cleanup runs as for Ctrl-C (core.stop).
+        with stop_handlers():
+            return int(args.func(args) or 0)
     except RunAborted as exc:
         print(f"packlab {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ABORTED
@@ -112,12 +115,13 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"packlab {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        how = str(exc) if isinstance(exc, StopRequested) else "interrupted"
         print(
-            f"packlab {args.command}: interrupted; rerun the same command to resume",
+            f"packlab {args.command}: {how}; rerun the same command to resume",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        return exit_code_of(exc)  # EXIT_INTERRUPTED for SIGINT, EXIT_TERMINATED for SIGTERM
 
 
 def _os_error_line(exc: OSError) -> str:

@@ -73,4 +73,5 @@ EXIT_EPISODE_ERRORS = (
 )
 EXIT_USAGE = 2  # bad input or configuration: nothing was run or written half-way
 EXIT_ABORTED = 3  # the run stopped early (circuit breaker, run deadline); finished records are kept
-EXIT_INTERRUPTED = 130  # Ctrl-C; rerun the same command to resume
+EXIT_INTERRUPTED = 130  # SIGINT (Ctrl-C); rerun the same command to resume
+EXIT_TERMINATED = 143  # SIGTERM (a scheduler or supervisor stopped it); rerun to resume

@@ -1,0 +1,89 @@
+"""Stop requests: SIGINT and SIGTERM to a long-running command end it cleanly.
+
+A terminal's Ctrl-C reaches the whole process group, but schedulers and supervisors (``timeout``,
+systemd, a container runtime, a job scheduler's cancel) signal the main process alone. Python's
+default SIGTERM action ends the process at once, with no ``finally`` block run: a process
+pool's workers would be left running as orphans. Inside :func:`stop_handlers` both
+signals raise :class:`StopRequested` in the main thread, so every cleanup path that already
+handles Ctrl-C (stop the workers, close the record file, log the invocation) runs for SIGTERM
+too, and the command exits with ``128 + signal number`` (130 for SIGINT, 143 for SIGTERM).
+
+A second signal while the first is being handled ends the process at once with the signal's
+default action: a user who asks twice means it. Worker processes do not depend on this
+cleanup: each is tied to its parent's life (``packlab.executors``), so even a SIGKILL of the
+main process leaves none behind.
+
+SIGINT is handled even when the process started with it ignored, which a non-interactive
+shell does for the commands it starts in the background (``cmd &`` in a script): a scheduler
+that stops such a job with SIGINT would otherwise not stop it at all.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
+
+#: The signals that ask a command to stop.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopRequested(KeyboardInterrupt):
+    """A stop signal arrived. A KeyboardInterrupt, so code written for Ctrl-C cleans up the same
+    way, and a policy's ``except Exception`` cannot swallow it."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's convention for a process ended by a signal: 128 + its number."""
+        return EXIT_TERMINATED if self.signum == signal.SIGTERM else EXIT_INTERRUPTED
+
+
+_stopping = False
+
+
+def _on_stop_signal(signum: int, frame: FrameType | None) -> None:
+    global _stopping
+    if _stopping:
+        # Asked again while cleaning up: end now. Workers die with this process (executors).
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
+    _stopping = True
+    raise StopRequested(signum)
+
+
+@contextmanager
+def stop_handlers() -> Iterator[None]:
+    """While inside, SIGINT and SIGTERM raise :class:`StopRequested` in the main thread; the
+    previous handlers come back on leaving (a test calling the CLI in-process keeps its own).
+    A no-op outside the main thread: Python delivers signals to the main thread only."""
+    global _stopping
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _stopping = False
+    previous = {signum: signal.signal(signum, _on_stop_signal) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def exit_code_of(interrupt: KeyboardInterrupt) -> int:
+    """128 + the signal for a StopRequested; 130 (SIGINT) for a plain KeyboardInterrupt."""
+    if isinstance(interrupt, StopRequested):
+        return interrupt.exit_code
+    return EXIT_INTERRUPTED
+
+
+__all__ = ["STOP_SIGNALS", "StopRequested", "exit_code_of", "stop_handlers"]
