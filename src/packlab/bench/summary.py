@@ -38,6 +38,7 @@ from typing import TypedDict
 
 from msgspec import UNSET, Struct
 
+from packlab.bench.decision_times import decision_times
 from packlab.bench.describe import difficulty_order
 from packlab.bench.intervals import (
     BOOTSTRAP_SEED,
@@ -51,6 +52,7 @@ from packlab.core.records import (
     SUMMARY_FORMAT,
     CaseCells,
     Cell,
+    DecisionTimes,
     EpisodeError,
     EpisodeOk,
     EpisodeRecord,
@@ -100,7 +102,7 @@ def _timing(t: Timing, name: str) -> float:
     return 0.0 if value is UNSET or value is None else float(value)
 
 
-def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
+def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> PolicyCounts:
     steps = [s for r in mine for s in r.steps]
     decisions = sum(int(_timing(r.timing, "decisions")) for r in mine)
     policy_s = math.fsum(_timing(r.timing, "policy_s") for r in mine)
@@ -121,7 +123,19 @@ def _counts(mine: list[EpisodeOk], n_errors: int) -> PolicyCounts:
         step_ms=1000.0 * env_s / decisions if decisions else None,
         episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
         **_perception_counts(mine),
+        **_decision_counts(mine, levels),
     )
+
+
+class _DecisionCounts(TypedDict, total=False):
+    """The ``PolicyCounts`` field of runs whose records time each decision (issue 38)."""
+
+    decision_times: dict[str, DecisionTimes]
+
+
+def _decision_counts(mine: list[EpisodeOk], levels: Sequence[str]) -> _DecisionCounts:
+    times = decision_times(mine, levels)
+    return {} if times is None else {"decision_times": times}
 
 
 class _PerceptionCounts(TypedDict, total=False):
@@ -238,7 +252,11 @@ def summarize(
         table[p], per_case[p] = _policy_cells(value, p, seeds, difficulties)
 
     counts = {
-        p: _counts([r for r in ok if r.policy == p], sum(1 for r in errors if r.policy == p))
+        p: _counts(
+            [r for r in ok if r.policy == p],
+            sum(1 for r in errors if r.policy == p),
+            difficulties,
+        )
         for p in policies
     }
     run: _RunFields = {}

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from msgspec import UNSET
 
+from packlab.bench.decision_times import decision_time_table
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
 from packlab.core.records import Cell, RunSummary
 from packlab.metrics import AVERAGE, METRICS
@@ -172,6 +173,13 @@ def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) 
             "",
         ]
     parts += ["### Run details", "", details_table(summary), ""]
+    if any(summary.counts[p].decision_times is not UNSET for p in summary.policies):
+        parts += [
+            "### Decision time (ms per decision, wall; CPU: the process's)",
+            "",
+            decision_time_table(summary, display_name),
+            "",
+        ]
     return "\n".join(parts)
 
 

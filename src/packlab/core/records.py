@@ -171,6 +171,12 @@ class StepRecord(Struct, frozen=True):
     executed: tuple[float, float, float, float] | UnsetType = UNSET
     #: Issue 15, perceived observation only: errors of the perception this step decided on.
     perception: PerceptionErrors | UnsetType = UNSET
+    #: Issue 38: the policy's ``act`` for this step, wall seconds and CPU seconds of the whole
+    #: process (every thread of a model runtime counts). Written by ``run_episode`` (the bench,
+    #: the data engine's teachers); absent from older records and from steps driven by other
+    #: loops (the Gymnasium env), which time no decision.
+    decision_s: float | UnsetType = UNSET
+    decision_cpu_s: float | UnsetType = UNSET
 
 
 class MetricsRecord(Struct, frozen=True):
@@ -294,6 +300,22 @@ class CaseCells(Struct, frozen=True):
     overall: Cell
 
 
+class DecisionTimes(Struct, frozen=True):
+    """How long a method's decisions took in one group of cases (a level, or ``all``), from the
+    steps' ``decision_s`` / ``decision_cpu_s`` (``packlab.bench.decision_times``)."""
+
+    decisions: int
+    mean_ms: float
+    p95_ms: float  # 95th percentile, linear interpolation between order statistics
+    max_ms: float
+    cpu_mean_ms: float
+    cpu_max_ms: float
+    #: Where the slowest decision was made: ``case_id``, run seed and step index.
+    worst_case_id: str
+    worst_seed: int
+    worst_step: int
+
+
 class PolicyCounts(Struct, frozen=True):
     """A method's counters in a run (``packlab.bench.summary`` says what each counts)."""
 
@@ -317,6 +339,9 @@ class PolicyCounts(Struct, frozen=True):
     dims_error_mm: float | None | UnsetType = UNSET
     yaw_error_deg: float | None | UnsetType = UNSET
     heightmap_mae_mm: float | None | UnsetType = UNSET
+    #: Issue 38: per-decision time by level and over ``all`` levels; absent when no record of
+    #: the method has per-step decision times (records written before issue 38).
+    decision_times: dict[str, DecisionTimes] | UnsetType = UNSET
 
 
 class ErrorEntry(Struct, frozen=True):
@@ -694,6 +719,7 @@ __all__ = [
     "Cell",
     "DatasetCounts",
     "DatasetInfo",
+    "DecisionTimes",
     "DifficultyCounts",
     "EpisodeError",
     "EpisodeOk",

@@ -576,6 +576,10 @@ class EpisodeResult:
     metrics: EpisodeMetrics
     poses: dict[InternalId, Pose | None] = field(default_factory=dict)
     policy_time_s: float = 0.0
+    #: Each step's decision (the policy's ``act``): wall and process CPU seconds, by step; empty
+    #: when the steps were driven by a loop that did not time them.
+    decision_s: tuple[float, ...] = ()
+    decision_cpu_s: tuple[float, ...] = ()
     #: Perceived mode only (else None): steps with a re-plan event (``StepResult.replan``).
     replans: int | None = None
     #: Perceived mode only (else None): objects perception did not find, set aside unpacked.
@@ -585,6 +589,11 @@ class EpisodeResult:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
         # after every step without records growing by steps x boxes.
         steps = [s.to_record() for s in self.steps]
+        if len(self.decision_s) == len(steps):
+            steps = [
+                {**rec, "decision_s": round(wall, 6), "decision_cpu_s": round(cpu, 6)}
+                for rec, wall, cpu in zip(steps, self.decision_s, self.decision_cpu_s)
+            ]
         if all(s.positions_mm is not None for s in self.steps):
             moved = pose_updates(
                 [s.positions_mm for s in self.steps], [s.quaternions for s in self.steps]
@@ -634,11 +643,13 @@ def run_episode(
     episode = Episode(backend, physics, perceiver=perceiver, execution=execution, sides=sides)
     observation = episode.reset(case, seed)
     policy.reset(case, seed)
-    policy_time = 0.0
+    decision_wall: list[float] = []
+    decision_cpu: list[float] = []
     while not episode.done:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         action = policy.act(observation)
-        policy_time += time.perf_counter() - t0
+        decision_wall.append(time.perf_counter() - t0)
+        decision_cpu.append(time.process_time() - c0)
         episode.step(action)
         if not episode.done:
             observation = episode.observe()
@@ -650,7 +661,9 @@ def run_episode(
         steps=tuple(episode.steps),
         metrics=episode.metrics(),
         poses=episode.final_poses(),
-        policy_time_s=policy_time,
+        policy_time_s=math.fsum(decision_wall),
+        decision_s=tuple(decision_wall),
+        decision_cpu_s=tuple(decision_cpu),
         replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
         missed=None if perceiver is None else episode.missed,
     )
