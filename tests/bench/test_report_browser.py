@@ -120,10 +120,8 @@ def test_report_renders_and_replays_in_chromium(report, browser, tmp_path):
     # The table: one row per method, sortable by a click on a column header.
     rows = browser.find_elements(By.CSS_SELECTOR, "#results-table tbody tr")
     assert [r.find_elements(By.TAG_NAME, "td")[0].text for r in rows] == ["DBLF", "test-sloppy"]
-    average_overall = len(data["groups"]) * len(data["metrics"])  # the last column
-    overall = browser.find_element(
-        By.CSS_SELECTOR, f"#results-table th[data-col='{average_overall}']"
-    )
+    overall = browser.find_element(By.ID, "results-headline")  # Average Overall, column 1
+    assert overall.get_attribute("data-col") == "1" and overall.text == "Overall"
     overall.click()
     overall.click()  # descending: the better method first
     first = browser.find_element(By.CSS_SELECTOR, "#results-table tbody tr td").text
@@ -197,3 +195,105 @@ def _replay_shot(browser, path: Path) -> None:
     time.sleep(0.3)  # let WebGL finish the frame
     section.screenshot(str(path))
     assert path.stat().st_size > 10_000
+
+
+#: The default bench's 11 rows as the page names them (long names make the widest table).
+DEFAULT_ROWS = (
+    ("dblf", "DBLF"), ("hm", "HM"), ("mta", "MTA"), ("ffp", "FFP"), ("sdf", "SDF-Pack"),
+    ("plan-fast", "Plan (completion + lookahead, fast)"), ("vlm", "PackLab-VLM"),
+    ("irbpp", "IR-BPP"), ("tapnet", "TAP-Net"), ("random", "Random"),
+    ("oracle", "Oracle (gt plan)"),
+)  # fmt: skip
+
+
+def _eleven_rows(data: dict, tmp_path: Path) -> Path:
+    """The small run's page with its DBLF row cloned into the default 11 rows (means shifted so
+    each row differs), every cell with its interval."""
+    import copy
+
+    from packlab.viz.report_html import render_report_html
+
+    wide = copy.deepcopy(data)
+    base = data["methods"][0]
+    wide["methods"] = []
+    for k, (policy, name) in enumerate(DEFAULT_ROWS):
+        row = copy.deepcopy(base)
+        row.update(policy=policy, name=name)
+        row["cells"] = [
+            None if c is None else [c[0] * (0.5 + k / 20), *c[1:]] for c in row["cells"]
+        ]
+        wide["methods"].append(row)
+    wide["replay"] = [5, 4]
+    path = tmp_path / "eleven.html"
+    path.write_text(render_report_html(wide, "2026-01-01 00:00:00 UTC"), encoding="utf-8")
+    return path
+
+
+#: Every header cell of the results table: text, colspan, data-group, left and right (px).
+_HEADER_CELLS = """
+return Array.from(document.querySelectorAll('#results-table thead th')).map(function (th) {
+  var r = th.getBoundingClientRect();
+  return {text: th.textContent, span: th.colSpan, group: th.getAttribute('data-group'),
+          top: th.classList.contains('group'), left: r.left, right: r.right};
+});
+"""
+
+
+def test_average_overall_is_on_screen_at_1400_px_and_levels_span_their_columns(
+    report, browser, tmp_path
+):
+    """The default 11 rows at a 1400 px window: the Average Overall header's right edge is in
+    the viewport without scrolling; each level header spans exactly its sub-columns."""
+    _, data = report
+    browser.get(_eleven_rows(data, tmp_path).as_uri())
+    _wait(browser, "window.packlabReport && window.packlabReport.ready")
+    assert browser.execute_script("return window.packlabReport.errors") == []
+    assert browser.execute_script("return window.innerWidth") == 1400
+    # Nothing scrolled: the page and the table's own scroll box are at their left edge.
+    assert browser.execute_script(
+        "return [window.scrollX, document.querySelector('#results .scroll').scrollLeft]"
+    ) == [0, 0]
+    viewport = browser.execute_script("return document.documentElement.clientWidth")
+    headline = browser.find_element(By.ID, "results-headline")
+    right = browser.execute_script("return arguments[0].getBoundingClientRect().right", headline)
+    assert 0 < right <= viewport
+    group = browser.execute_script(
+        "return document.querySelector('#results-table th.group').textContent"
+    )
+    assert (group, headline.text) == ("Average", "Overall")  # Average's first column
+
+    cells = browser.execute_script(_HEADER_CELLS)
+    tops = [c for c in cells if c["top"]]
+    subs = [c for c in cells if c["group"] and not c["top"]]
+    assert [t["text"] for t in tops] == ["Average", "Easy", "Hard"]  # the tiny suite's levels
+    for top in tops:
+        mine = [c for c in subs if c["group"] == top["group"]]
+        assert top["span"] == len(mine) == len(data["metrics"])
+        assert top["left"] <= min(c["left"] for c in mine) + 0.5
+        assert top["right"] >= max(c["right"] for c in mine) - 0.5
+        others = [c for c in subs if c["group"] != top["group"]]
+        assert all(
+            c["right"] <= top["left"] + 0.5 or c["left"] >= top["right"] - 0.5 for c in others
+        )
+    # Rows best first by Average Overall, the oracle last.
+    names = browser.execute_script(
+        "return Array.from(document.querySelectorAll('#results-table tbody tr'))"
+        ".map(r => r.cells[0].textContent)"
+    )
+    assert names[-1] == "Oracle (gt plan)" and names[0] == "Random"
+    # Only Average Overall shows its interval until asked; the toggle shows every cell's.
+    shown = "document.querySelectorAll('#results-table tbody td .sd').length && " \
+        "Array.from(document.querySelectorAll('#results-table tbody td .sd'))" \
+        ".filter(s => s.offsetParent !== null).length"  # fmt: skip
+    assert browser.execute_script(f"return {shown}") == len(DEFAULT_ROWS)
+    browser.find_element(By.ID, "t-intervals").click()
+    n_cells = len(DEFAULT_ROWS) * len(data["groups"]) * len(data["metrics"])
+    assert browser.execute_script(f"return {shown}") == n_cells
+    # The replay opens on the rows the data name (the best method, the best heuristic).
+    assert browser.execute_script(
+        "return [window.packlabReport.panes['pane-a'].m, window.packlabReport.panes['pane-b'].m]"
+    ) == [5, 4]
+    browser.find_element(By.ID, "results").screenshot(
+        str(_shots(tmp_path) / "report_results_11.png")
+    )
+    assert _severe(browser) == []

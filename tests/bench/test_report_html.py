@@ -89,11 +89,11 @@ def test_the_page_carries_the_bootstrap_intervals(run_dir):
         assert cell[2:] == [pytest.approx(low), pytest.approx(high)]
         assert cell[2] <= cell[0] <= cell[3]
     assert data["intervals"][0]["resamples"] == found.resamples
-    assert any("95 % bootstrap interval over cases" in n for n in data["notes"])
+    # One calm headline, the best method with its interval; no note repeats the table.
     mean = summary.table["dblf"][groups[-1]].overall.mean
     low, high = found.bounds("dblf", groups[-1], "overall")
-    assert any(n.startswith("DBLF: ") and f"{mean:.3f} [{low:.3f}, {high:.3f}]" in n
-               for n in data["notes"])  # fmt: skip
+    assert data["headline"] == f"Best: DBLF, Average Overall {mean:.3f} [{low:.3f}, {high:.3f}]."
+    assert not any(n.startswith("DBLF") for n in data["notes"])
 
 
 def test_replays_hold_what_the_records_hold(run_dir, sloppy):
@@ -290,7 +290,7 @@ def test_compare_html_has_one_row_per_run_and_method(tiny_suite, tmp_path, capsy
     assert [r["label"] for r in data["runs"]] == ["A", "B"]
     assert all(len(c) == 4 for m in data["methods"] for c in m["cells"] if c is not None)
     # every row after the first against the first, with its verdict
-    assert sum("minus A: DBLF" in n for n in data["notes"]) == 3
+    assert sum("minus A: DBLF" in n for n in data["differences"]) == 3
     assert len(data["episodes"]) == 2 * 2 * 4 and len(data["cases"]) == 4
     assert main([*argv, "--html", str(tmp_path / "x.html")]) == EXIT_OK
     assert (tmp_path / "x.html").is_file()

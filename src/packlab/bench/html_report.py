@@ -8,15 +8,17 @@ extra) nothing is written and the caller gets ``ReportUnavailable`` to turn into
 
 The 95 % bootstrap intervals (``packlab.bench.summary.run_intervals``) go into the page's data:
 each method's cells carry ``[mean, std, low, high]`` (the page's script reads the first two),
-``intervals`` holds them in summary.json's layout per run, and the notes list every method's
-Overall with its interval per level and on average (and, for a comparison, the paired
-differences to the first row), so the page states how sure each mean is.
+``intervals`` holds them in summary.json's layout per run. The page opens on one calm line, the
+best method and its Average Overall with its interval (``headline_text``); its notes are kept
+for what needs the reader's attention (failed episodes, replays missing or approximate). A
+comparison adds the paired differences to the first row under its table. The replay opens on
+the best method against the best heuristic (``replay_pair``).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -31,12 +33,14 @@ from packlab.bench.compare import (
 from packlab.bench.options import COMPARE_HTML, REPORT_HTML
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
-from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
+from packlab.bench.summary import RunIntervals, run_intervals
 from packlab.bench.table import headline
+from packlab.bench.terminal import CEILING, ranked_policies
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary, to_builtins
 from packlab.core.types import Case
 from packlab.metrics import AVERAGE, METRICS
+from packlab.policies.heuristics import SCORERS
 from packlab.viz.labels import display_name, group_title
 from packlab.viz.report_data import Method, ReportRun, method_name, report_data, row_colours
 from packlab.viz.report_html import ReportUnavailable, render_report_html
@@ -62,30 +66,37 @@ def _groups(summary: RunSummary) -> list[str]:
     return groups + [AVERAGE] if len(groups) > 1 else groups
 
 
-def interval_notes(summary: RunSummary, intervals: RunIntervals) -> list[str]:
-    """One note per method: Overall's mean and 95 % interval per level and on average."""
-    notes = [
-        (
-            f"Overall with its {intervals.confidence * 100:.0f} % bootstrap interval over cases "
-            f"({intervals.resamples} resamples, seed {intervals.seed}; cases resampled within "
-            "each level; seeds also resampled within each case where marked). The table's ± is "
-            "the spread over run seeds, not an interval."
-        )
-    ]
-    for p in summary.policies:
-        row = intervals.policies.get(p)
-        parts = []
-        for g in _groups(summary):
-            cells = summary.table[p].get(g)
-            mean = None if cells is None else cells.overall.mean
-            bounds = intervals.bounds(p, g, "overall")
-            if mean is not None and bounds is not None:
-                parts.append(f"{group_title(g)} {mean:.3f} [{bounds[0]:.3f}, {bounds[1]:.3f}]")
-        marked = (
-            " (seeds resampled)" if row is not None and row.resampled != RESAMPLED_CASES else ""
-        )
-        notes.append(f"{display_name(p)}{marked}: " + ("; ".join(parts) or "no interval"))
-    return notes
+def headline_text(
+    summary: RunSummary, intervals: RunIntervals, ceilings: Collection[str] = (CEILING,)
+) -> str:
+    """The page's first line: the best method (the oracle, a ceiling, aside: ``ceilings`` are
+    its rows) and its Overall with its 95 % interval; the table below says the rest ("" when
+    nothing was scored)."""
+    groups = _groups(summary)
+    ranked = [p for p in ranked_policies(summary) if p not in ceilings]
+    if not groups or not ranked:
+        return ""
+    best, last = ranked[0], groups[-1]
+    cells = summary.table[best].get(last)
+    mean = None if cells is None else cells.overall.mean
+    if mean is None:
+        return ""
+    bounds = intervals.bounds(best, last, "overall")
+    shown = f"{mean:.3f}" if bounds is None else f"{mean:.3f} [{bounds[0]:.3f}, {bounds[1]:.3f}]"
+    return f"Best: {display_name(best)}, {group_title(last)} Overall {shown}."
+
+
+def replay_pair(ranked: Sequence[int], policies: Sequence[str]) -> list[int]:
+    """The replay's opening panes, as row indices: the best row (``ranked``: rows best first,
+    the oracle left out) on the left, the best heuristic's on the right (the next best row
+    when the best is itself the best heuristic, or there is none)."""
+    if not ranked:
+        return [0, 1 if len(policies) > 1 else 0]
+    best = ranked[0]
+    others = list(ranked[1:])
+    heuristic = next((i for i in others if policies[i] in SCORERS), None)
+    right = heuristic if heuristic is not None else (others[0] if others else best)
+    return [best, right]
 
 
 def difference_notes(merged: RunSummary) -> list[str]:
@@ -145,13 +156,16 @@ def run_html(
         for p, colour in zip(policies, colours)
     ]
     intervals = run_intervals(summary)
+    ranked = [policies.index(p) for p in ranked_policies(summary) if p != CEILING]
     data = report_data(
         [ReportRun("", summary, tuple(records), tuple(cases))],
         methods,
         title=f"packlab bench report: {head.suite or 'cases'}",
         subtitle=headline(summary),
+        headline=headline_text(summary, intervals),
         initial_case=pick_showcase_case(summary, cases),
-        notes=[*interval_notes(summary, intervals), *([] if cases else [NO_CASES])],
+        replay=replay_pair(ranked, policies),
+        notes=[] if cases else [NO_CASES],
     )
     data = with_intervals(data, [summary], [intervals])
     return render_report_html(data, generated or now_stamp())
@@ -201,17 +215,19 @@ def compare_html(
     ]
     listed = ", ".join(f"{n} ({r.run_dir})" for n, r in zip(names, runs))
     intervals = [run_intervals(s) for s in summaries]
+    rows = [m.name for m in methods]
+    ceilings = {m.name for m in methods if m.policy == CEILING}
+    ranked = [rows.index(r) for r in ranked_policies(merged) if r not in ceilings]
     data = report_data(
         report_runs,
         methods,
         title="packlab bench compare: " + ", ".join(names),
         subtitle=f"{headline(merged)}; runs: {listed}",
+        headline=headline_text(merged, run_intervals(merged), ceilings),
         initial_case=pick_showcase_case(summaries[0], runs[0].cases),
-        notes=[
-            *interval_notes(merged, run_intervals(merged)),
-            *difference_notes(merged),
-            *(f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases),
-        ],
+        replay=replay_pair(ranked, [m.policy for m in methods]),
+        notes=[f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases],
+        differences=difference_notes(merged),
     )
     data = with_intervals(data, summaries, intervals)
     return render_report_html(data, generated or now_stamp())
@@ -236,7 +252,9 @@ __all__ = [
     "ReportUnavailable",
     "build_html_report",
     "compare_html",
+    "headline_text",
     "now_stamp",
+    "replay_pair",
     "run_html",
     "write_compare_html",
     "write_run_html",

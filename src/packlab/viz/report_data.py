@@ -246,8 +246,16 @@ def report_data(
     subtitle: str,
     initial_case: str | None = None,
     notes: Sequence[str] = (),
+    headline: str = "",
+    replay: Sequence[int] = (),
+    differences: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Everything the page shows, as one JSON-able dict (see the module docstring)."""
+    """Everything the page shows, as one JSON-able dict (see the module docstring).
+
+    ``headline``: the page's one calm first line; ``notes``: what needs the reader's attention
+    (the data's own notes are added); ``replay``: the rows the two replay panes open on
+    (default the first two); ``differences``: a comparison's paired differences, one line
+    each, shown under its table."""
     first = runs[0].summary
     cases, known = _case_table(runs)
     case_index = {c["id"]: i for i, c in enumerate(cases)}
@@ -266,7 +274,9 @@ def report_data(
         "format": REPORT_DATA_FORMAT,
         "title": title,
         "subtitle": subtitle,
+        "headline": headline,
         "notes": [*notes, *data_notes(cases, episodes)],
+        "differences": list(differences),
         "runs": [{"label": run.label, "backend": run.summary.backend or None} for run in runs],
         "seeds": list(first.seeds),
         "levels": list(first.difficulties),
@@ -279,7 +289,15 @@ def report_data(
         "cases": cases,
         "episodes": episodes,
         "initial_case": initial_case if initial_case in case_index else None,
+        "replay": _replay_rows(replay, len(methods)),
     }
+
+
+def _replay_rows(rows: Sequence[int], n_methods: int) -> list[int]:
+    """Two row indices for the replay panes: ``rows`` where valid, else the first two rows."""
+    if len(rows) == 2 and all(0 <= r < n_methods for r in rows):
+        return [int(r) for r in rows]
+    return [0, 1 if n_methods > 1 else 0]
 
 
 def data_notes(

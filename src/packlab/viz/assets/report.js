@@ -78,15 +78,21 @@
   }
 
   // -- header ------------------------------------------------------------------------------
+  // One calm line on top (the best method and its Average Overall with its interval); the
+  // notes list only what needs the reader's attention (failures, replays missing).
   function renderHeader() {
     document.getElementById("title").textContent = D.title;
     document.getElementById("subtitle").textContent = D.subtitle;
     var meta = document.querySelector('meta[name="packlab-generated"]');
     document.getElementById("generated").textContent = "Generated " + meta.content;
+    var line = document.getElementById("headline");
+    line.textContent = D.headline || "";
+    line.style.display = D.headline ? "" : "none";
     var notes = document.getElementById("notes");
     D.notes.forEach(function (n) {
       notes.appendChild(el("li", { text: n }));
     });
+    notes.style.display = D.notes.length ? "" : "none";
   }
 
   // -- results and details tables ----------------------------------------------------------
@@ -104,21 +110,61 @@
     var caption = document.querySelector("#results > p.muted");
     var any = D.methods.some(function (m) { return m.cells.some(hasInterval); });
     if (!caption || !any) return; // old summaries keep the page's own "± sd" caption
-    caption.textContent = "Mean over seeds [95 % bootstrap interval over cases; \"± sd\": a cell " +
-      "without one shows the sample std across seeds]; bold: the best method of each column " +
-      "(the oracle aside). Click a column header to sort.";
+    caption.textContent = "Mean over seeds; the headline column (" + headlineTitle() + " Overall) " +
+      "with its 95 % bootstrap interval over cases [low, high]: hover any cell for its own, or " +
+      "tick \"intervals in every cell\". Rows best first (the oracle, a ceiling, last); bold: " +
+      "the best method of each column (the oracle aside). Click a column header to sort.";
+  }
+
+  // The results table's columns: Method, then the headline group (Average, or the only level)
+  // and the levels, Overall first in each, so the headline column is the second one and on
+  // screen without scrolling. col.cell indexes a method's cells (groups x metrics, data order).
+  function resultsLayout() {
+    var groups = D.groups.map(function (_, gi) { return gi; });
+    if (groups.length > 1) groups.unshift(groups.pop());
+    var metrics = D.metrics.map(function (_, mi) { return mi; });
+    var overall = D.metrics.findIndex(function (m) { return m[0] === "overall"; });
+    if (overall > 0) metrics.unshift(metrics.splice(overall, 1)[0]);
+    var cols = [];
+    groups.forEach(function (gi, k) {
+      metrics.forEach(function (mi, j) {
+        cols.push({ group: gi, metric: mi, cell: gi * D.metrics.length + mi, first: j === 0,
+          headline: k === 0 && j === 0 });
+      });
+    });
+    return { groups: groups, metrics: metrics, cols: cols };
+  }
+  function headlineTitle() {
+    var g = D.groups[resultsLayout().groups[0]];
+    return g ? g[1] : "";
+  }
+  // Rows best first by the headline column; the oracle (a ceiling) and unscored rows last.
+  function rankedMethods(cell) {
+    function key(m) {
+      var c = m.cells[cell], mean = c ? c[0] : null;
+      return [m.policy === "oracle" ? 1 : 0, mean === null ? 1 : 0, mean === null ? 0 : -mean];
+    }
+    return D.methods.map(function (m, i) { return [key(m), i, m]; }).sort(function (a, b) {
+      for (var k = 0; k < 3; k++) if (a[0][k] !== b[0][k]) return a[0][k] - b[0][k];
+      return a[1] - b[1];
+    }).map(function (x) { return x[2]; });
   }
   function renderResults() {
     resultsCaption();
+    var layout = resultsLayout();
     var table = document.getElementById("results-table");
-    var top = el("tr", {}, [el("th", { text: "" })]);
-    var sub = el("tr", {}, [el("th", { text: "Method", "data-col": 0 })]);
-    var col = 1;
-    D.groups.forEach(function (g) {
-      top.appendChild(el("th", { text: g[1], colspan: String(D.metrics.length) }));
-      D.metrics.forEach(function (m) {
-        sub.appendChild(el("th", { text: m[1], "data-col": String(col++) }));
-      });
+    // Two header rows: each group's cell spans exactly its metric columns (colspan).
+    var top = el("tr", {}, [el("th", { text: "Method", rowspan: "2", "data-col": "0" })]);
+    var sub = el("tr");
+    layout.groups.forEach(function (gi) {
+      top.appendChild(el("th", { text: D.groups[gi][1], colspan: String(layout.metrics.length),
+        cls: "group group-start", "data-group": D.groups[gi][0] }));
+    });
+    layout.cols.forEach(function (col, i) {
+      var th = el("th", { text: D.metrics[col.metric][1], "data-col": String(i + 1),
+        "data-group": D.groups[col.group][0], cls: col.first ? "group-start" : "" });
+      if (col.headline) th.id = "results-headline";
+      sub.appendChild(th);
     });
     table.appendChild(el("thead", {}, [top, sub]));
     var best = D.methods[0] ? D.methods[0].cells.map(function () { return -Infinity; }) : [];
@@ -129,20 +175,39 @@
       });
     });
     var body = el("tbody");
-    D.methods.forEach(function (m) {
+    var first = layout.cols.length ? layout.cols[0].cell : 0;
+    rankedMethods(first).forEach(function (m) {
       var name = el("td", { "data-v": m.name }, [swatch(m.colour), m.name + (m.counts.errors ? " *" : "")]);
       var row = el("tr", {}, [name]);
-      m.cells.forEach(function (c, i) {
-        var mean = c ? c[0] : null;
+      layout.cols.forEach(function (col) {
+        var c = m.cells[col.cell], mean = c ? c[0] : null;
+        var cls = [col.first ? "group-start" : "", col.headline ? "headline" : "",
+          mean !== null && mean === best[col.cell] && m.policy !== "oracle" ? "best" : ""];
         var cell = td(mean === null ? "-" : fmt(mean), mean === null ? -1 : mean,
-          mean !== null && mean === best[i] && m.policy !== "oracle" ? "best" : "");
-        if (mean !== null) cell.appendChild(spread(c));
+          cls.filter(Boolean).join(" "));
+        if (mean !== null) {
+          var extra = spread(c);
+          cell.appendChild(extra);
+          cell.title = D.groups[col.group][1] + " " + D.metrics[col.metric][1] + ": " + fmt(mean) + extra.textContent;
+        }
         row.appendChild(cell);
       });
       body.appendChild(row);
     });
     table.appendChild(body);
     makeSortable(table);
+    document.getElementById("t-intervals").addEventListener("change", function (e) {
+      table.classList.toggle("all-intervals", e.target.checked);
+    });
+    renderDifferences();
+  }
+  // A comparison's paired differences to its first row (one line each), under the table.
+  function renderDifferences() {
+    var box = document.getElementById("differences"), lines = D.differences || [];
+    box.style.display = lines.length ? "" : "none";
+    if (!lines.length) return;
+    box.appendChild(el("h3", { text: "Paired differences (" + headlineTitle() + " Overall)" }));
+    box.appendChild(el("ul", { cls: "muted" }, lines.map(function (t) { return el("li", { text: t }); })));
   }
 
   function renderDetails() {
@@ -669,8 +734,10 @@
     renderReplayControls();
     var jobs = [renderBoxes()];
     if (D.cases.length && D.methods.length) {
-      new Pane("pane-a", 0);
-      new Pane("pane-b", D.methods.length > 1 ? 1 : 0);
+      // The best method against the best heuristic (report_data's "replay"; old pages: rows 0, 1).
+      var pair = D.replay || [0, D.methods.length > 1 ? 1 : 0];
+      new Pane("pane-a", pair[0]);
+      new Pane("pane-b", pair[1]);
       replay.c = initialCase();
       jobs.push(openEpisode(replay.c, D.seeds[0], null));
     }
