@@ -13,7 +13,9 @@ paired interval (``*``: the interval excludes 0), objects perception missed per 
 re-plans per episode in that mode; with more modes also each further mode minus the first
 (paired the same way). Then, per mode, the perception errors over every estimate
 (dims, yaw), every scan (heightmap MAE), with their counts, the missed-object rate and the share
-of scans that needed a re-scan.
+of scans that needed a re-scan. A run with no perception (exact observation, e.g. noisy
+execution alone, or an exact run given as a mode) says so instead of printing rates of nothing.
+A directory without episodes.jsonl is one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -31,24 +33,43 @@ from packlab.viz.labels import display_name
 LEVELS = ("easy", "medium", "hard")
 
 
+class BadRun(ValueError):
+    """A run directory the script cannot read."""
+
+
 def _episodes(argument: str) -> list[dict]:
     """Every ok episode record of the comma-separated run directories."""
     out = []
     for directory in argument.split(","):
-        with open(Path(directory) / "episodes.jsonl", encoding="utf-8") as lines:
-            out += [r for r in map(json.loads, lines) if r.get("status") == "ok"]
+        path = Path(directory) / "episodes.jsonl"
+        if not path.is_file():
+            raise BadRun(f"{str(path)!r}: no such file; give `packlab bench --out` directories")
+        with open(path, encoding="utf-8") as lines:
+            out += [r for r in map(json.loads, filter(str.strip, lines)) if r.get("status") == "ok"]
     return out
 
 
-def _strata(records: list[dict], policy: str) -> list[dict[str, dict[str, float]]]:
+def _levels(records: list[dict]) -> list[str]:
+    """The bench's levels first, in their order, then any other difficulty the runs hold."""
+    seen = {r["difficulty"] for r in records}
+    return [lv for lv in LEVELS if lv in seen] + sorted(seen - set(LEVELS))
+
+
+def _strata(
+    records: list[dict], policy: str, levels: list[str]
+) -> list[dict[str, dict[str, float]]]:
     """Per level: case id -> seed -> Overall, for one policy."""
-    by_level: dict[str, dict[str, dict[str, float]]] = {level: {} for level in LEVELS}
+    by_level: dict[str, dict[str, dict[str, float]]] = {level: {} for level in levels}
     for r in records:
-        if r["policy"] == policy:
+        if r["policy"] == policy and r["difficulty"] in by_level:
             by_level[r["difficulty"]].setdefault(r["case_id"], {})[str(r["seed"])] = r["metrics"][
                 "overall"
             ]
-    return [by_level[level] for level in LEVELS]
+    return [by_level[level] for level in levels]
+
+
+def _share(part: int, whole: int) -> str:
+    return f"{part} of {whole} ({100 * part / whole:.2f} %)" if whole else f"{part} of 0"
 
 
 def _varies(strata) -> bool:
@@ -89,9 +110,10 @@ def _table(exact: list[dict], modes: dict[str, list[dict]]) -> None:
     )
     print("|---|---|" + "---|" * (len(labels) + len(others)) + "---|---|---|")
     policies = list(dict.fromkeys(r["policy"] for r in modes[first]))
+    levels = _levels(exact + [r for records in modes.values() for r in records])
     for policy in policies:
-        base = _strata(exact, policy)
-        runs = [_strata(modes[label], policy) for label in labels]
+        base = _strata(exact, policy, levels)
+        runs = [_strata(modes[label], policy, levels) for label in labels]
         print(
             f"| {display_name(policy)} | {_score(base)} | "
             + " | ".join(_score(s) for s in runs)
@@ -117,6 +139,8 @@ def _errors(records: list[dict]) -> None:
                 values["heightmap MAE mm (per scan)"].append(seen["heightmap_mae_mm"])
             scans += 1
             rescans += seen.get("scans", 1) > 1
+    if not scans:
+        print("- no perception in this run (exact observation): no perception errors to show")
     for name, v in values.items():
         a = np.array(v)
         print(
@@ -125,22 +149,29 @@ def _errors(records: list[dict]) -> None:
         )
     missed = sum(r["metrics"].get("missed", 0) for r in records)
     objects = sum(r["metrics"]["n_objects"] for r in records)
-    print(f"- objects missed (set aside): {missed} of {objects} ({100 * missed / objects:.2f} %)")
-    print(f"- steps that needed a re-scan: {rescans} of {scans} ({100 * rescans / scans:.2f} %)")
+    print(f"- objects missed (set aside): {_share(missed, objects)}")
+    if scans:
+        print(f"- steps that needed a re-scan: {_share(rescans, scans)}")
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str]) -> int:
     if len(argv) < 2 or any("=" not in a for a in argv[1:]):
-        sys.exit(__doc__)
-    exact = _episodes(argv[0])
-    modes = {a.split("=", 1)[0]: _episodes(a.split("=", 1)[1]) for a in argv[1:]}
+        print(__doc__, file=sys.stderr)
+        return 2
+    try:
+        exact = _episodes(argv[0])
+        modes = {a.split("=", 1)[0]: _episodes(a.split("=", 1)[1]) for a in argv[1:]}
+    except BadRun as exc:
+        print(f"robustness_table: error: {exc}", file=sys.stderr)
+        return 2
     seeds = sorted({r["seed"] for r in exact})
     print(f"Average Overall, {len({r['case_id'] for r in exact})} cases, seeds {seeds}\n")
     _table(exact, modes)
     for label, records in modes.items():
         print(f"\nPerception ({label}):")
         _errors(records)
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(main(sys.argv[1:]))
