@@ -13,7 +13,7 @@ from packlab.bench.config import RunConfig
 from packlab.bench.runner import run_bench
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from bench_helpers import write_tiny_suite  # noqa: E402
+from bench_helpers import write_tiny_suite
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "robustness_table.py"
 
