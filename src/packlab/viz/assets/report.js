@@ -224,7 +224,8 @@
     });
     table.appendChild(el("thead", {}, [head]));
     var body = el("tbody");
-    D.methods.forEach(function (m) {
+    var layout = resultsLayout(); // the same row order as the results table above it
+    rankedMethods(layout.cols.length ? layout.cols[0].cell : 0).forEach(function (m) {
       var row = el("tr", {}, [td(m.name)]);
       cols.forEach(function (c) {
         var v = m.counts[c[0]];
