@@ -324,7 +324,8 @@ class PrefixCachedGenerator:
             input_ids=enc.input_ids[a:b].view(1, -1).to(self.device),
             position_ids=prompt.positions[:, :, a:b],
             mm_token_type_ids=enc.mm_token_type_ids[a:b].view(1, -1).to(self.device),
-            past_key_values=self._cache,
+            # transformers 5.24 renamed past_key_values (removed in 5.40) to cache (pyproject pins).
+            cache=self._cache,
             use_cache=True,
             logits_to_keep=1,
             **kwargs,
@@ -393,7 +394,7 @@ class PrefixCachedGenerator:
             out = self.model(
                 input_ids=torch.tensor([[tok]], device=self.device),
                 position_ids=step_pos,
-                past_key_values=self._cache,
+                cache=self._cache,
                 use_cache=True,
             )
             logits = out.logits[0, -1]

@@ -155,15 +155,11 @@ def _trainable_model(cfg: SFTConfig, vlm: VLM):
     """The model in training mode: checkpointing and LoRA applied as configured."""
     model = vlm.model
     if cfg.gradient_checkpointing:
-        # transformers 5 renamed it activation checkpointing; older versions only have the old name.
-        if hasattr(model, "activation_checkpointing_enable"):
-            model.activation_checkpointing_enable(
-                activation_checkpointing_kwargs={"use_reentrant": False}
-            )
-        else:
-            model.gradient_checkpointing_enable(
-                gradient_checkpointing_kwargs={"use_reentrant": False}
-            )
+        # The transformers the vlm extra pins names it activation checkpointing (the old
+        # gradient_checkpointing_enable warns, and goes in v6).
+        model.activation_checkpointing_enable(
+            activation_checkpointing_kwargs={"use_reentrant": False}
+        )
         model.config.use_cache = False
     if cfg.lora:
         model = _apply_lora(model, cfg)
