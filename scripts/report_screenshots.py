@@ -4,9 +4,11 @@ Usage:
     python scripts/report_screenshots.py RUN/report.html --out docs/img/report \\
         [--case bench-hard-00006 --left sdf --right dblf --step 12]
 
-Writes OUT/report_results.png (the tables), report_boxes.png, report_cases.png (the case
-browser), report_replay.png (the replay opened on the final packing of --case, default the
-page's own pick: its typical hard case, the best method against the best heuristic) and report_replay_step<N>.png (the same at step N with the buffer drawn in 3D).
+Writes OUT/report_header.png (the page's top: title and headline line), report_results.png
+(the tables), report_boxes.png, report_cases.png (the case browser), report_replay.png (the
+replay opened on the final packing of --case, default the page's own pick: its typical hard
+case, the best method against the best heuristic) and report_replay_step<N>.png (the same at
+step N with the buffer drawn in 3D).
 Needs the test extra (selenium) and Debian's chromium + chromium-driver; no display.
 """
 
@@ -51,8 +53,8 @@ def _wait(driver: webdriver.Chrome, script: str, timeout: float = 60.0) -> None:
     raise TimeoutError(script)
 
 
-def _shot(driver: webdriver.Chrome, element_id: str, path: Path) -> Path:
-    element = driver.find_element(By.ID, element_id)
+def _shot(driver: webdriver.Chrome, element_id: str, path: Path, by: str = By.ID) -> Path:
+    element = driver.find_element(by, element_id)
     driver.execute_script("arguments[0].scrollIntoView()", element)
     time.sleep(SETTLE_S)
     element.screenshot(str(path))
@@ -66,6 +68,7 @@ def screenshots(page: Path, out: Path, args: argparse.Namespace) -> list[Path]:
         driver.get(page.resolve().as_uri())
         _wait(driver, "window.packlabReport && window.packlabReport.ready")
         written = [
+            _shot(driver, "header", out / "report_header.png", By.TAG_NAME),
             _shot(driver, "results", out / "report_results.png"),
             _shot(driver, "boxes", out / "report_boxes.png"),
             _shot(driver, "browser", out / "report_cases.png"),
