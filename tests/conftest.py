@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 import pytest
+from browser_note import pytest_terminal_summary  # noqa: F401  (a hook: one line when skipped)
 from layered_cases import make_layered_case
 
 from packlab.core.types import Case
