@@ -17,7 +17,7 @@ from typing import Any, cast
 
 from packlab.cli.parser import PacklabParser
 from packlab.core.errors import EXIT_ABORTED, EXIT_USAGE, PacklabError, RunAborted
-from packlab.core.stop import StopRequested, exit_code_of, stop_handlers
+from packlab.core.stop import StopRequested, end_descendants, exit_code_of, stop_handlers
 
 #: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -116,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"packlab {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
+        end_descendants()  # what the command's own cleanup did not reach (core.stop)
         how = str(exc) if isinstance(exc, StopRequested) else "interrupted"
         print(
             f"packlab {args.command}: {how}; rerun the same command to resume",

@@ -23,8 +23,10 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
+from pathlib import Path
 from types import FrameType
 
 from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
@@ -79,6 +81,57 @@ def stop_handlers() -> Iterator[None]:
             signal.signal(signum, handler)
 
 
+def _descendants(pid: int) -> list[int]:
+    """The processes ``pid`` started and theirs (Linux: read from /proc; elsewhere none)."""
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return []
+    children: dict[int, list[int]] = {}
+    for entry in proc.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:  # ended meanwhile
+            continue
+        # The name is in parentheses and may hold anything: the fields start after the last ')'.
+        fields = stat.rsplit(")", 1)[1].split()
+        if fields[0] != "Z":
+            children.setdefault(int(fields[1]), []).append(int(entry.name))
+    found: list[int] = []
+    todo = [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def end_descendants(grace_s: float = 1.0) -> int:
+    """End every process this one started that still runs, and theirs: SIGTERM, then SIGKILL
+    for any left after ``grace_s``. Returns how many there were.
+
+    The last step of a stopped command. Executors stop their own workers, but a library's
+    helper processes can outlive an interruption that lands while they start (a forkserver
+    still importing torch for a vectorised environment that was never built, so never closed),
+    and would otherwise end seconds after the command or never.
+    """
+    pids = _descendants(os.getpid())
+    for pid in pids:
+        with suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGTERM)
+    until = time.monotonic() + grace_s
+    left = pids
+    while left and time.monotonic() < until:
+        time.sleep(0.05)
+        still = set(_descendants(os.getpid()))
+        left = [pid for pid in left if pid in still]
+    for pid in left:
+        with suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
+    return len(pids)
+
+
 def exit_code_of(interrupt: KeyboardInterrupt) -> int:
     """128 + the signal for a StopRequested; 130 (SIGINT) for a plain KeyboardInterrupt."""
     if isinstance(interrupt, StopRequested):
@@ -86,4 +139,10 @@ def exit_code_of(interrupt: KeyboardInterrupt) -> int:
     return EXIT_INTERRUPTED
 
 
-__all__ = ["STOP_SIGNALS", "StopRequested", "exit_code_of", "stop_handlers"]
+__all__ = [
+    "STOP_SIGNALS",
+    "StopRequested",
+    "end_descendants",
+    "exit_code_of",
+    "stop_handlers",
+]

@@ -1,0 +1,83 @@
+"""packlab.core.stop in this process: what a stop signal raises, the exit codes, handlers put
+back, and the last-resort end of processes a command left running. The end-to-end behaviour of
+each command under real signals is tests/test_stop_signals.py."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
+from packlab.core.stop import StopRequested, end_descendants, exit_code_of, stop_handlers
+
+
+@pytest.mark.parametrize(
+    ("signum", "code"), [(signal.SIGTERM, EXIT_TERMINATED), (signal.SIGINT, EXIT_INTERRUPTED)]
+)
+def test_a_stop_signal_raises_stop_requested_with_its_exit_code(signum, code):
+    with pytest.raises(StopRequested) as caught, stop_handlers():
+        os.kill(os.getpid(), signum)
+        time.sleep(5)  # the handler raises as soon as the interpreter runs it
+    assert caught.value.signum == signum
+    assert exit_code_of(caught.value) == code
+    assert isinstance(caught.value, KeyboardInterrupt)  # Ctrl-C's cleanup paths run
+
+
+def test_a_plain_keyboard_interrupt_is_exit_130():
+    assert exit_code_of(KeyboardInterrupt()) == EXIT_INTERRUPTED == 130
+    assert EXIT_TERMINATED == 128 + signal.SIGTERM
+
+
+def test_the_previous_handlers_come_back():
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    with stop_handlers():
+        assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, before[0])
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_sigint_is_handled_even_when_inherited_ignored():
+    """A shell starts `cmd &` with SIGINT ignored; the command must still stop on it."""
+    code = (
+        "import os, signal, time\n"
+        "from packlab.core.stop import StopRequested, stop_handlers\n"
+        "assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN\n"
+        "try:\n"
+        "    with stop_handlers():\n"
+        "        os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
+        "except StopRequested as e:\n"
+        "    raise SystemExit(e.exit_code)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == EXIT_INTERRUPTED, done.stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_end_descendants_ends_a_child_that_ignores_sigterm():
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); time.sleep(60)",
+        ]
+    )
+    try:
+        time.sleep(0.5)  # let it install its handler
+        started = time.monotonic()
+        assert end_descendants(grace_s=0.5) == 1
+        assert child.wait(timeout=5) == -signal.SIGKILL
+        assert time.monotonic() - started < 5
+    finally:
+        if child.poll() is None:
+            child.kill()
