@@ -98,22 +98,22 @@ def test_train_candidate_hands_generated_cases_to_the_recipe(train_file, tmp_pat
     assert [c.episode_id for c in seen] == [c.episode_id for c in load_cases(train_file)]
 
 
-def test_manual_seeds_pass_but_not_a_reference_benchmark_row():
+def test_hand_made_cases_pass_but_not_a_reference_benchmark_row():
     """Hand-made cases (seeds below 2**50, e.g. test fixtures) may drive a training loop; a
     reference-layout row of the ``test`` split is the reference's benchmark and is refused."""
-    case = dataclasses.replace(load_suite(BENCH)[0], seed=17, episode_id="hand-1")
+    case = generate_cases("easy", 1, 17, False, domain="manual")[0]
     assert seed_domain(case.seed) == "manual"
     assert require_training_cases([case], "hand.jsonl") == [case]
     row = dataclasses.replace(case, origin=CaseOrigin("test", 0))
-    with pytest.raises(ConfigError, match=r"hand\.jsonl: case 'hand-1' \(seed 17\).*reference"):
+    with pytest.raises(ConfigError, match=r"hand\.jsonl: case .* reference"):
         require_training_cases([row], "hand.jsonl")
     reference = load_cases(ROOT / "tests" / "data" / "reference_bench")
-    with pytest.raises(ConfigError, match="reference benchmark row"):
+    with pytest.raises(ConfigError, match="content of reference PackLab-Bench case 'easy_000000'"):
         require_training_cases(reference, "reference_bench", "tuning")
 
 
 def test_a_seed_outside_every_domain_is_refused():
-    case = dataclasses.replace(load_suite(BENCH)[0], seed=-5)
+    case = dataclasses.replace(generate_cases("easy", 1, 2, False, domain="manual")[0], seed=-5)
     with pytest.raises(ConfigError, match="in no packlab seed domain, refused for tuning"):
         require_training_cases([case], "odd.jsonl", "tuning")
 
