@@ -97,6 +97,19 @@ def test_seed_domains_are_disjoint():
     assert set(DOMAINS) >= {"bench", "train"}
 
 
+def test_generated_ids_carry_their_user_seed():
+    """Issue 36: training (seed 4402) and selection (seed 7413) cases must not share ids, since
+    states are matched to cases by id; the bench's frozen suite ids keep their shape."""
+    a = generate_cases("easy", 2, seed=4402, validate=False, domain="train")
+    b = generate_cases("easy", 2, seed=7413, validate=False, domain="train")
+    assert [c.episode_id for c in a] == ["train-s4402-easy-00000", "train-s4402-easy-00001"]
+    assert not {c.episode_id for c in a} & {c.episode_id for c in b}
+    assert (
+        generate_cases("hard", 1, 3, False, domain="manual")[0].episode_id == "manual-s3-hard-00000"
+    )
+    assert generate_cases("hard", 1, 3, False)[0].episode_id == "bench-hard-00000"
+
+
 def test_generate_cases_is_deterministic_and_round_trips():
     a = generate_cases("medium", 4, seed=5, validate=False)
     b = generate_cases("medium", 4, seed=5, validate=False)

@@ -36,6 +36,7 @@ from packlab.core.records import (
 from packlab.datagen import format as fmt
 from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig, RunOptions
 from packlab.datagen.generator import SlotOutcome, fill_slot
+from packlab.datagen.seeds import id_prefix
 from packlab.datagen.validate import replay
 from packlab.executors import Context, Lost, WorkerLost, progress_bar, run_items
 from packlab.vlm.prompt.render import PROMPT_VERSION
@@ -102,8 +103,9 @@ def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
     ``random``-family case is not validated (it has no plan); its teacher's run is the episode."""
     assert cfg.seed is not None, "DatasetConfig resolves its seed on creation"
     outcome = fill_slot(
-        cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation, f"{TRAIN_DOMAIN}-"
-    )
+        cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation,
+        id_prefix(TRAIN_DOMAIN, cfg.seed),
+    )  # fmt: skip
     if cfg.teacher == "oracle" or outcome.case is None:
         return outcome
     v = cfg.validation

@@ -26,6 +26,7 @@ from packlab.datagen.random_family import draw_random_boxes
 from packlab.datagen.removal import PlacementOrder, layer_order, reverse_removal
 from packlab.datagen.scenario import Scenario, sample_scenario
 from packlab.datagen.seeds import case_seed, case_streams, domain_tag
+from packlab.datagen.seeds import id_prefix as seed_id_prefix
 from packlab.datagen.validate import Trajectory, check_case
 
 
@@ -256,7 +257,8 @@ def generate_cases(
     checks and, with ``validate``, the replay validation (mujoco by default, see
     ``ValidationConfig``). ``domain`` picks the seed space (see ``packlab.datagen.seeds``): the
     bench's default keeps suites disjoint from training data. Episode ids are
-    ``{id_prefix}{difficulty}-{slot:05d}`` with ``id_prefix`` defaulting to ``"{domain}-"``.
+    ``{id_prefix}{difficulty}-{slot:05d}`` with ``id_prefix`` defaulting to
+    ``seeds.id_prefix(domain, seed)`` (``train-s4402-``; ``bench-`` for the frozen suites).
     """
     difficulty_spec(difficulty)
     domain_tag(domain)
@@ -264,7 +266,7 @@ def generate_cases(
         raise ConfigError(f"n = {n}, start = {start}: must not be negative")
     cfg = config or CaseConfig()
     val = validation or ValidationConfig()
-    prefix = f"{domain}-" if id_prefix is None else id_prefix
+    prefix = seed_id_prefix(domain, seed) if id_prefix is None else id_prefix
     cases = []
     for slot in range(start, start + n):
         outcome = fill_slot(seed, domain, difficulty, slot, cfg, val, prefix, replay_plan=validate)

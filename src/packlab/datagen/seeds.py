@@ -37,6 +37,16 @@ def domain_tag(domain: str) -> int:
         ) from None
 
 
+def id_prefix(domain: str, user_seed: int) -> str:
+    """The episode id prefix of generated cases: ``{domain}-s{user_seed}-`` (e.g.
+    ``train-s4402-easy-00000``), so that two user seeds never share an id and states matched to
+    cases by id cannot mix sets. The bench domain keeps ``bench-``: its cases are the frozen
+    suite files, whose ids are part of published records (``scripts/make_bench_suite.py
+    --check`` rebuilds them byte for byte)."""
+    domain_tag(domain)
+    return "bench-" if domain == "bench" else f"{domain}-s{int(user_seed)}-"
+
+
 def case_seed(user_seed: int, domain: str, difficulty: str, slot: int, attempt: int = 0) -> int:
     """The case seed of one dataset or suite slot (``attempt`` > 0 after rejected tries)."""
     if user_seed < 0:
