@@ -81,7 +81,7 @@ def stop_handlers() -> Iterator[None]:
             signal.signal(signum, handler)
 
 
-def _descendants(pid: int) -> list[int]:
+def descendants(pid: int) -> list[int]:
     """The processes ``pid`` started and theirs (Linux: read from /proc; elsewhere none)."""
     proc = Path("/proc")
     if not proc.is_dir():
@@ -116,7 +116,7 @@ def end_descendants(grace_s: float = 1.0) -> int:
     still importing torch for a vectorised environment that was never built, so never closed),
     and would otherwise end seconds after the command or never.
     """
-    pids = _descendants(os.getpid())
+    pids = descendants(os.getpid())
     for pid in pids:
         with suppress(ProcessLookupError, PermissionError):
             os.kill(pid, signal.SIGTERM)
@@ -124,7 +124,7 @@ def end_descendants(grace_s: float = 1.0) -> int:
     left = pids
     while left and time.monotonic() < until:
         time.sleep(0.05)
-        still = set(_descendants(os.getpid()))
+        still = set(descendants(os.getpid()))
         left = [pid for pid in left if pid in still]
     for pid in left:
         with suppress(ProcessLookupError, PermissionError):
@@ -142,6 +142,7 @@ def exit_code_of(interrupt: KeyboardInterrupt) -> int:
 __all__ = [
     "STOP_SIGNALS",
     "StopRequested",
+    "descendants",
     "end_descendants",
     "exit_code_of",
     "stop_handlers",
