@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from datagen_helpers import make_dataset, tiny_config
 
-from packlab.bench.config import SCORERS
+from packlab.core.choices import HEURISTICS
 from packlab.cases import case_to_dict
 from packlab.core.errors import ConfigError
 from packlab.datagen import DIFFICULTIES, CaseConfig, DatasetConfig, build_case, generate_cases
@@ -92,7 +92,7 @@ def test_random_slots_are_taken_without_replay():
 @pytest.mark.parametrize("difficulty", ["easy", "medium"])
 def test_every_heuristic_and_plan_fast_run_on_a_random_case(difficulty):
     case = _cases(difficulty, 1, user_seed=8)[0]
-    for name in (*SCORERS, "plan-fast"):
+    for name in (*HEURISTICS, "plan-fast"):
         result = run_episode(case, make_policy(name), 0, backend="geometric")
         m = result.metrics
         assert len(result.steps) == len(case.objects)
