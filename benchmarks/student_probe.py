@@ -35,7 +35,8 @@ from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 from packlab.vlm.candidate.collect import Labeller
-from packlab.vlm.candidate.states import append_states, listed_of, observation_of, read_states
+from packlab.vlm.candidate.states import append_states, listed_of, observation_of
+from packlab.vlm.candidate.states_guard import checked_states
 
 N_GLOBALS = 3
 LEVELS = ("easy", "medium", "hard")
@@ -64,7 +65,7 @@ def scores(net: torch.nn.Module, x: torch.Tensor, m: torch.Tensor) -> torch.Tens
 def _arrays(files, level_fit: bool, hard: bool):
     xs, ts, labels, held = [], [], [], []
     for f in files:
-        for s in read_states(Path(f)):
+        for s in checked_states(Path(f)):  # training data: rows of suite cases are refused
             if s.label < 0:
                 continue
             t = np.zeros(len(s.listed), np.float32)

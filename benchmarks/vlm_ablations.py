@@ -49,7 +49,8 @@ from packlab.datagen.guard import require_training_cases
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 from packlab.vlm.candidate.relabel import relabel
-from packlab.vlm.candidate.states import STATES_FILE, append_states, read_states
+from packlab.vlm.candidate.states import STATES_FILE, append_states
+from packlab.vlm.candidate.states_guard import checked_states
 from packlab.vlm.candidate.train import LOG, PointerTrainConfig, train_pointer
 
 TEACHER_OF = {"plan": "plan", "blank": "plan", "json": "plan", "shuffle": "plan",
@@ -82,8 +83,10 @@ def _states_for(variant: str, args: argparse.Namespace, out: Path) -> Path:
         return Path(args.states)
     path = out / STATES_FILE
     if not path.is_file():
-        cases = {c.episode_id: c for c in training_cases(args.cases)}
-        append_states(path, relabel(read_states(Path(args.states)), teacher, cases))
+        given = training_cases(args.cases)
+        cases = {c.episode_id: c for c in given}
+        # Each row must be the given case with its id, by content (states_guard).
+        append_states(path, relabel(checked_states(Path(args.states), given), teacher, cases))
     return path
 
 

@@ -31,10 +31,13 @@ python benchmarks/student_probe.py train "$OUT/probe-r0.pt" "$OUT/vlm/r0/states.
 [ -f "$OUT/vlm/r1/states.jsonl" ] || { mkdir -p "$OUT/vlm/r1"; python benchmarks/student_probe.py \
     dagger "$OUT/probe-r0.pt" "$OUT/vlm/r1/states.jsonl" --k 16 --per-level 150 --seed 4403; }
 
-# 3. The VLM continued on rounds 0 + 1.
+# 3. The VLM continued on rounds 0 + 1 (every state row checked against the cases it was
+#    collected on, by id and content: round 1's are the probe's own, user seed 4403).
+[ -f "$OUT/r1-cases.jsonl" ] || cases "$OUT/r1-cases.jsonl" 150 4403
 python scripts/vlm_continue.py --model "$OUT/vlm/r0/train/final" \
     --states "$OUT/vlm/r0/states.jsonl" "$OUT/vlm/r1/states.jsonl" \
-    --cases "$OUT/train-cases.jsonl" --out "$OUT/vlm/r1/train" --steps 700 --lr 5e-4 --minutes 18
+    --cases "$OUT/train-cases.jsonl" --states-cases "$OUT/r1-cases.jsonl" \
+    --out "$OUT/vlm/r1/train" --steps 700 --lr 5e-4 --minutes 18
 
 # 4. RL agents: imitation of the same labels, then MaskablePPO from it; two seeds each.
 cat "$OUT/vlm/r0/states.jsonl" "$OUT/vlm/r1/states.jsonl" > "$OUT/states-r0r1.jsonl"

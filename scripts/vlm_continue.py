@@ -3,7 +3,8 @@
 Usage:
     python scripts/vlm_continue.py --model runs/student/vlm/r0/train/final \
         --states runs/student/vlm/r0/states.jsonl runs/student/vlm/r1/states.jsonl \
-        --cases runs/student/train-cases.jsonl --out runs/student/vlm/r1/train \
+        --cases runs/student/train-cases.jsonl --states-cases runs/student/r1-cases.jsonl \
+        --out runs/student/vlm/r1/train \
         --steps 700 --lr 5e-4 --minutes 18
 
 ``packlab train candidate`` collects each DAgger round with the model itself acting. This script
@@ -21,6 +22,7 @@ from packlab.cases import load_cases
 from packlab.datagen.guard import require_training_cases
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.saved import load_pointer
+from packlab.vlm.candidate.states_guard import require_training_states
 from packlab.vlm.candidate.train import PointerTrainConfig, train_pointer
 
 
@@ -29,6 +31,13 @@ def main() -> None:
     p.add_argument("--model", required=True)
     p.add_argument("--states", nargs="+", required=True)
     p.add_argument("--cases", required=True)
+    p.add_argument(
+        "--states-cases",
+        nargs="*",
+        default=[],
+        help="more case files the states were collected on (e.g. a DAgger round's own cases); "
+        "every state row must be of a case of --cases or of these, by id and content",
+    )
     p.add_argument("--out", required=True)
     p.add_argument("--steps", type=int, default=700)
     p.add_argument("--lr", type=float, default=5e-4)
@@ -37,6 +46,10 @@ def main() -> None:
     p.add_argument("--note", default="", help="recorded in the model card")
     a = p.parse_args()
     cases = require_training_cases(load_cases(a.cases), a.cases)
+    # The states are checked too, row by row, by their cases' content: not a suite's, and each
+    # the case of --cases with its id (states of other cases under the same ids are refused).
+    more = [c for f in a.states_cases for c in require_training_cases(load_cases(f), f)]
+    require_training_states(a.states, cases + more)
     _, evals = split_cases(cases, 3, 0, 5)
     meta = load_pointer(a.model).vlm.meta
     cfg = PointerTrainConfig(

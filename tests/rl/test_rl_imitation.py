@@ -11,6 +11,7 @@ pytest.importorskip("sb3_contrib")
 
 import torch
 
+from packlab.cases.fingerprint import case_fingerprint
 from packlab.cli.main import main
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
@@ -163,8 +164,9 @@ def test_cli_imitates_from_states_then_trains_from_init(hard_case, tmp_path):
     for observation, _ in _observations(hard_case, steps=8):
         listed = propose(observation)
         lines.append(
-            make_state(hard_case.episode_id, "hard", observation, listed, "t", 1, "teacher")
-        )
+            make_state(hard_case.episode_id, "hard", observation, listed, "t", 1, "teacher",
+                       case_sha256=case_fingerprint(hard_case))
+        )  # fmt: skip
     append_states(states, lines)
     out = tmp_path / "imit"
     args = ["train", "rl-imitate", "--agent", "irbpp", "--states", str(states)]
@@ -185,7 +187,8 @@ def test_states_of_non_training_cases_are_refused(hard_case, tmp_path):
     from packlab.cli.train_rl import demos_from_states
 
     observation, _ = _observations(hard_case, steps=1)[0]
-    state = make_state("bench-hard-00001", "hard", observation, propose(observation), "t", 0, "x")
+    state = make_state("bench-hard-00001", "hard", observation, propose(observation), "t", 0, "x",
+                       case_sha256=case_fingerprint(hard_case))  # fmt: skip
     append_states(tmp_path / "s.jsonl", [state])
     with pytest.raises(ConfigError, match="training-domain"):
         demos_from_states(tmp_path / "s.jsonl")

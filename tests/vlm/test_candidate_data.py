@@ -9,6 +9,7 @@ import msgspec
 import numpy as np
 import pytest
 
+from packlab.cases.fingerprint import case_fingerprint
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.datagen.generator import generate_cases
@@ -133,6 +134,8 @@ def test_collect_writes_labelled_states_and_resumes(cases, tmp_path):
     assert n == len(states) > 0 and len(seen) == 2
     assert {s.case_id for s in states} == {c.episode_id for c in cases[:2]}
     assert all(0 <= s.label < len(s.listed) and s.teacher == "sdf" for s in states)
+    prints = {c.episode_id: case_fingerprint(c) for c in cases}
+    assert all(s.case_sha256 == prints[s.case_id] for s in states)  # issue 36: content hash
     assert done_cases(out) == {c.episode_id for c in cases[:2]}
     again = collect(cases[:3], out, "sdf", "teacher", workers=1, progress=False)
     after = list(read_states(out))

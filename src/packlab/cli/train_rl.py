@@ -21,7 +21,8 @@ from packlab.rl.extra import RLExtraMissing, import_rl
 from packlab.rl.features import FeatureSpec
 from packlab.rl.imitation import Demo, imitation_samples
 from packlab.viz.rl_curves import write_rl_curves
-from packlab.vlm.candidate.states import listed_of, observation_of, read_states
+from packlab.vlm.candidate.states import listed_of, observation_of
+from packlab.vlm.candidate.states_guard import checked_states
 
 TRAINER_MODULE = "packlab.rl.train"
 
@@ -75,17 +76,16 @@ def demos_from_states(path: Path, cases: list[Case] | None = None) -> list[Any]:
     """Candidate-mode labelled states (``packlab.vlm.candidate.states``) as imitation demos:
     the teacher's pick ``listed[label]`` and, where the file has one, ``soft`` over listed.
 
-    The states keep no case seeds, so the training-data guard runs on their cases as follows:
-    with ``cases`` (the cases the states were collected on) every state's case must be one of
-    them and they pass :func:`require_training_cases`; without, every case id must carry the
-    training domain's id prefix (``train-``), which bench suites never do.
+    Every row is checked by its case's content fingerprint
+    (:func:`packlab.vlm.candidate.states_guard.checked_states`): a row of a suite case is
+    refused, and with ``cases`` (the cases the states were collected on, which pass
+    :func:`require_training_cases`) a row whose case is not among them or is another case
+    under the same id is refused. Without ``cases`` every case id must also carry the training
+    domain's id prefix (``train-``), which bench suites never do.
     """
-    known = {c.episode_id for c in cases} if cases is not None else None
     demos = []
-    for state in read_states(path):
-        if known is not None and state.case_id not in known:
-            raise ConfigError(f"{path}: case {state.case_id!r} is not among --cases")
-        if known is None and not state.case_id.startswith(TRAIN_ID_PREFIX):
+    for state in checked_states(path, cases):
+        if cases is None and not state.case_id.startswith(TRAIN_ID_PREFIX):
             raise ConfigError(
                 f"{path}: case {state.case_id!r} is not a training-domain id; pass --cases with "
                 "the generated cases the states were collected on"

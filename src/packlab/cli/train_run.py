@@ -16,6 +16,8 @@ from packlab.datagen.stats import dataset_cases
 from packlab.viz.plots import plot_loss_curve
 from packlab.viz.pointer_curves import write_curves
 from packlab.vlm.candidate.recipe import DAGGER_MODULE, DaggerConfig
+from packlab.vlm.candidate.states import STATES_FILE
+from packlab.vlm.candidate.states_guard import require_training_states
 
 #: The trainer's module (vlm extra), imported when the command runs.
 TRAINER_MODULE = "packlab.vlm.train.sft"
@@ -55,6 +57,9 @@ def run_candidate(args: argparse.Namespace) -> int:
     cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
     source = resolve_cases(args.cases)
     cases = require_training_cases(source.cases, source.origin)
+    # A resumed run reuses the states already in its rounds' files (collection skips their
+    # case ids): refuse them now, before any work, if they are not of these cases.
+    require_training_states(sorted(Path(cfg.out).glob(f"r*/{STATES_FILE}")), cases)
     dagger = train_cli._torch_side(DAGGER_MODULE)
     final = dagger.run_dagger(cfg, cases, write_curves)
     print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")

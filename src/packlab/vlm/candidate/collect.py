@@ -22,6 +22,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from packlab.cases.fingerprint import case_fingerprint
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
@@ -49,6 +50,7 @@ class Labeller:
 
     def reset(self, case: Case, seed: int) -> None:
         self._case = case
+        self._case_sha256 = case_fingerprint(case)  # every row names its case by content too
         self.teacher.reset(case, seed)
         self._fallback = make_policy("sdf")
         self._fallback.reset(case, seed)
@@ -65,7 +67,7 @@ class Labeller:
         case, teacher = self._case, self.teacher.teacher
         state = make_state(
             case.episode_id, case.difficulty, observation, told.listed, teacher, told.label,
-            self.source, told.soft, told.added,
+            self.source, told.soft, told.added, self._case_sha256,
         )  # fmt: skip
         self.states.append(state)
         if self.actor is not None:

@@ -23,6 +23,7 @@ from packlab.vlm.candidate.collect import collect
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.recipe import DaggerConfig
 from packlab.vlm.candidate.states import STATES_FILE
+from packlab.vlm.candidate.states_guard import require_training_states
 from packlab.vlm.candidate.train import OnLog, PointerTrainConfig, train_pointer
 
 
@@ -62,6 +63,8 @@ def run_dagger(cfg: DaggerConfig, cases: Sequence[Case], on_log: OnLog | None = 
         source = "teacher" if r == 0 else f"student-r{r}"
         collect(round_cases, out / f"r{r}" / STATES_FILE, cfg.teacher, source, actor,
                 ProposerConfig(k=cfg.k), workers=cfg.workers)  # fmt: skip
+        # Collection adds only the cases missing from a file (by id): check every row by content.
+        require_training_states(train_cfg.states, cases)
         final = Path(train_cfg.out) / "final"
         if not (final / "pointer_head.safetensors").is_file():
             final = train_pointer(train_cfg, evals, on_log)

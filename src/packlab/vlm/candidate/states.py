@@ -12,7 +12,11 @@ kept for counting and skipped by the trainer. ``soft`` is the teacher's preferen
 listed lines when it has one (:class:`packlab.policies.listed.TeacherLabel`), else empty.
 
 Format ``packlab-states-2`` added ``soft`` and ``teacher_added``; files of format 1 read as
-before (empty ``soft``, nothing added).
+before (empty ``soft``, nothing added). Format ``packlab-states-3`` added ``case_sha256``, the
+content fingerprint of the state's case (:func:`packlab.cases.fingerprint.case_fingerprint`), so
+that a trainer can check a row against its case and against the bench suites by content, not
+by the case id alone (:mod:`packlab.vlm.candidate.states_guard`); older files read with it
+empty, and the trainers refuse them until it is added (``scripts/states_add_case_hash.py``).
 """
 
 from __future__ import annotations
@@ -29,9 +33,9 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Container, Observation, ShownItem
 from packlab.policies.candidates import Candidate
 
-STATES_FORMAT = "packlab-states-2"
+STATES_FORMAT = "packlab-states-3"
 #: Formats this reader accepts (older ones lack fields that have defaults).
-READABLE_FORMATS = ("packlab-states-1", STATES_FORMAT)
+READABLE_FORMATS = ("packlab-states-1", "packlab-states-2", STATES_FORMAT)
 STATES_FILE = "states.jsonl"
 
 
@@ -78,6 +82,8 @@ class LabelledState(msgspec.Struct, frozen=True, kw_only=True):
     source: str  # "teacher" or "student-r<round>" (who chose the actions that led here)
     soft: tuple[float, ...] = ()  # teacher's preference over listed (sums to 1); empty: label
     teacher_added: bool = False  # the last listed line is the teacher's pick, added to the list
+    #: The case's content fingerprint (sha256 hex); empty in files of formats 1 and 2.
+    case_sha256: str = ""
 
 
 def encode_heightmap(heightmap: np.ndarray) -> str:
@@ -100,6 +106,7 @@ def make_state(
     source: str,
     soft: Iterable[float] = (),
     teacher_added: bool = False,
+    case_sha256: str = "",
 ) -> LabelledState:
     c = observation.container
     return LabelledState(
@@ -122,6 +129,7 @@ def make_state(
         source=source,
         soft=tuple(float(v) for v in soft),
         teacher_added=teacher_added,
+        case_sha256=case_sha256,
     )
 
 
