@@ -10,7 +10,8 @@ Each case set is written once under ``OUT/cases/`` and run with ``packlab bench`
 only: per level the mean Overall with a 95 % bootstrap interval over cases (each case's mean over
 the run seeds first), the policy's mean milliseconds per decision on that level (one worker
 process, i.e. one core), and for ``plan`` the paired difference to every other row (bootstrap
-over cases; a row differs only when the interval excludes zero).
+over cases; a row differs only when the interval excludes zero); then each policy's decision time
+per level as mean / p95 / max milliseconds (from the steps' own timings), so a heavy tail shows.
 
 Case sets (fresh sets use seeds used nowhere else, in the ``train`` seed domain, never the
 bench's; the full-visibility sets set every case's ``buffer_size`` to its number of objects):
@@ -33,8 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from packlab.bench.decision_times import decision_times
+from packlab.bench.records import read_records
 from packlab.bench.suites import load_suite
 from packlab.cases import save_cases
+from packlab.core.records import EpisodeOk
 from packlab.core.types import Case
 from packlab.datagen import generate_cases
 from packlab.datagen.config import CaseConfig
@@ -140,6 +144,7 @@ def report_set(name: str, run_dir: Path) -> str:
             decisions = sum(c["decisions"] for c in rows)
             ms.append(f"{1000 * sum(c['policy_s'] for c in rows) / max(decisions, 1):.0f}")
         lines.append(f"| {policy} | " + " | ".join(cells) + f" | {' / '.join(ms)} |")
+    lines += ["", *decision_tails(run_dir)]
     if "plan" in records:
         lines += ["", "Paired difference, plan minus each row (95 % bootstrap over cases):", ""]
         plan = records["plan"]
@@ -154,6 +159,31 @@ def report_set(name: str, run_dir: Path) -> str:
             verdict = "higher" if lo > 0 else ("lower" if hi < 0 else "no difference")
             lines.append(f"- vs {policy}: {d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] ({verdict})")
     return "\n".join(lines) + "\n"
+
+
+def decision_tails(run_dir: Path) -> list[str]:
+    """Per policy and level: mean / p95 / max ms per decision (wall), from the steps' own
+    ``decision_s`` (records written before they existed show "-"): the mean alone hides the
+    steps a robot cell would wait seconds for."""
+    by_policy: dict[str, list[EpisodeOk]] = {}
+    for r in read_records(run_dir / "episodes.jsonl"):
+        if isinstance(r, EpisodeOk):
+            by_policy.setdefault(r.policy, []).append(r)
+    lines = [
+        "Decision time, ms (wall, one core): mean / p95 / max per level",
+        "",
+        "| Method | " + " | ".join(LEVELS) + " |",
+        "| --- |" + " ---: |" * len(LEVELS),
+    ]
+    for policy, recs in sorted(by_policy.items()):
+        times = decision_times(recs, LEVELS) or {}
+        cells = [
+            "-" if lv not in times
+            else f"{times[lv].mean_ms:.0f} / {times[lv].p95_ms:.0f} / {times[lv].max_ms:.0f}"
+            for lv in LEVELS
+        ]  # fmt: skip
+        lines.append(f"| {policy} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _mean(cases: dict[str, dict]) -> float:
