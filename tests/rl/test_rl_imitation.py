@@ -15,6 +15,7 @@ from packlab.cases.fingerprint import case_fingerprint
 from packlab.cli.main import main
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
+from packlab.core.provenance import dir_sha256, file_sha256
 from packlab.core.types import Action
 from packlab.datagen.generator import generate_cases
 from packlab.policies import make_policy
@@ -171,7 +172,9 @@ def test_cli_imitates_from_states_then_trains_from_init(hard_case, tmp_path):
     out = tmp_path / "imit"
     args = ["train", "rl-imitate", "--agent", "irbpp", "--states", str(states)]
     assert main([*args, "--out", str(out), "--epochs", "2", "--seed", "3"]) == 0
-    assert load_agent(out).card.cases.startswith("imitation:")
+    card = load_agent(out).card
+    assert card.cases == "imitation" and card.seed == 3 and card.selection is None
+    assert card.states == [{"path": "states.jsonl", "sha256": file_sha256(states)}]
     cases = tmp_path / "cases.jsonl"
     from packlab.cases import save_cases
 
@@ -181,6 +184,12 @@ def test_cli_imitates_from_states_then_trains_from_init(hard_case, tmp_path):
     run += ["--eval-cases", "1", "--out", str(tmp_path / "run"), "--init", str(out)]
     assert main(run) == 0
     assert (tmp_path / "run" / "final" / "model.zip").is_file()
+    ppo = load_agent(tmp_path / "run" / "final").card
+    assert ppo.init == {"path": "imit", "sha256": dir_sha256(out)}  # a name, not a path
+    assert ppo.cases == "cases.jsonl" and ppo.seed == 0
+    assert (
+        ppo.selection is not None and ppo.selection["n"] == 1 and "best/" in ppo.selection["rule"]
+    )
 
 
 def test_states_of_non_training_cases_are_refused(hard_case, tmp_path):

@@ -104,10 +104,11 @@ def run_rl_imitate(args: argparse.Namespace) -> int:
     except RLExtraMissing as e:
         raise PacklabError(str(e)) from None
     cfg = ImitationConfig(**config_kwargs(args, "train rl-imitate", ImitationConfig))
-    cases = training_cases(args.cases)[0] if args.cases else None
+    cases, source = training_cases(args.cases) if args.cases else (None, {})
     demos = demos_from_states(Path(args.states), cases)
     samples = imitation_samples(demos, FeatureSpec.default(cfg.agent, cfg.k))
-    res = fit.imitate(samples, cfg, str(args.states))
+    named = (source.get("cases", ""), source.get("cases_sha256", ""))
+    res = fit.imitate(samples, cfg, str(args.states), named)
     print(
         f"{cfg.agent}: {res.n_samples:,} samples from {len(demos):,} states, {cfg.epochs} epochs "
         f"in {res.wall_time_s:.0f} s; loss {res.losses[0]:.3f} -> {res.losses[-1]:.3f}, "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
@@ -30,13 +31,22 @@ class AgentCard:
     env_steps: int = 0
     wall_time_s: float = 0.0
     cores: int = 0
-    cases: str = ""  # the training cases' source
+    cases: str = ""  # the training cases' source: suite:/recipe: name or a file name, no path
     cases_sha256: str = ""
     held_out: dict[str, float] = field(default_factory=dict)  # level -> mean Overall, and avg
     format: str = CARD_FORMAT
     #: What its item rows hold (:data:`packlab.rl.features.FEATURES_VERSION`); a card written
     #: before the field existed is version 1.
     features: int = FEATURES_VERSION
+    # How the model was made (packlab.core.provenance; issue 36). Cards written before these
+    # fields read with them empty. Paths are relative to the run directory or names only.
+    seed: int | None = None
+    commit: str | None = None  # git rev-parse HEAD of the packlab checkout; None outside one
+    dirty: bool | None = None  # tracked files differed from that commit
+    init: dict[str, str] | None = None  # the checkpoint started from: path (name), sha256
+    states: list[dict[str, str]] = field(default_factory=list)  # imitation: path, sha256
+    #: The cases the kept model was chosen on: sha256 (content, order-free), n, rule.
+    selection: dict[str, Any] | None = None
 
     @property
     def spec(self) -> FeatureSpec:

@@ -22,6 +22,7 @@ import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from packlab.core.errors import ConfigError
+from packlab.core.provenance import card_path, card_source, provenance
 from packlab.rl.card import AgentCard
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.rl.envs import ListedActionEnv
@@ -133,8 +134,15 @@ def new_model(cfg: ImitationConfig, out: Path) -> Any:
     return make_model(rl_cfg, venv, out)
 
 
-def imitate(samples: Sequence[Sample], cfg: ImitationConfig, source: str = "") -> ImitationResult:
-    """Behaviour-clone a new agent on ``samples`` and save it under ``cfg.out`` (a model dir)."""
+def imitate(
+    samples: Sequence[Sample],
+    cfg: ImitationConfig,
+    source: str = "",
+    cases: tuple[str, str] = ("", ""),
+) -> ImitationResult:
+    """Behaviour-clone a new agent on ``samples`` and save it under ``cfg.out`` (a model dir).
+    ``source``: the states file; ``cases``: (source, cases_sha256) of the cases the states were
+    checked against, if any."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     out = Path(cfg.out)
@@ -148,11 +156,15 @@ def imitate(samples: Sequence[Sample], cfg: ImitationConfig, source: str = "") -
         n_items=FeatureSpec.default(cfg.agent, cfg.k).n_items,  # type: ignore[arg-type]
         reward="overall",
         wall_time_s=round(result.wall_time_s, 1),
-        cases=f"imitation:{source}" if source else "imitation",
+        cases=card_source(cases[0], out) if cases[0] else "imitation",
+        cases_sha256=cases[1],
+        # No selection: the model after the last epoch is kept.
+        **provenance(out, cfg.seed, states=[source] if source else []),
     )
     save_model_dir(model, out, card)
     export_model_dirs(out)
-    record = {"config": asdict(cfg), "source": source, "n_samples": result.n_samples}
+    record = {"config": asdict(cfg), "n_samples": result.n_samples}
+    record |= {"source": card_path(source, out) if source else ""}
     record |= {"losses": result.losses, "accuracy": result.accuracy}
     (out / "imitation.json").write_text(json.dumps(record, indent=1) + "\n")
     return result

@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMoni
 
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
+from packlab.core.provenance import card_source, provenance, selection_record
 from packlab.core.types import Case
 from packlab.rl.card import MODEL_FILE, AgentCard, read_card, write_card
 from packlab.rl.config import RLTrainConfig
@@ -162,6 +163,11 @@ class _Run:
             else {"env_steps": 0, "wall_s": 0.0, "best_avg": -1.0, "best": {}}
         )
         self.state_wall = float(self.state["wall_s"])
+        # Once per run: the commit, the init checkpoint's digest and the selection set.
+        rule = "best/: the highest held-out avg Overall at an evaluation; final/: the last"
+        self.provenance = provenance(
+            out, cfg.seed, init=cfg.init or None, selection=selection_record(held, rule)
+        )
         self.last: dict[str, float] = {}  # scores of the latest evaluation
 
     def card(self, steps: int, wall: float, scores: dict[str, float]) -> AgentCard:
@@ -172,9 +178,10 @@ class _Run:
             env_steps=steps,
             wall_time_s=round(wall, 1),
             cores=os.cpu_count() or 0,
-            cases=self.source["cases"],
+            cases=card_source(self.source["cases"], self.out),
             cases_sha256=self.source["cases_sha256"],
             held_out=scores,
+            **self.provenance,
         )
 
     def log_untrained(self, model: Any) -> None:

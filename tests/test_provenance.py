@@ -1,0 +1,81 @@
+"""Model cards record how a model was made without naming a machine's paths (issue 36)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from packlab.bench.suites import load_suite
+from packlab.core.provenance import (
+    card_path,
+    card_source,
+    dir_sha256,
+    file_sha256,
+    git_state,
+    init_record,
+    provenance,
+    selection_record,
+)
+from packlab.rl.card import AgentCard, read_card, write_card
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_card_paths_are_relative_to_the_run_or_names_only(tmp_path):
+    run = tmp_path / "runs" / "student" / "irbpp-ppo-s0"
+    assert card_path(run / "best" / "model.zip", run) == "best/model.zip"
+    assert card_path(tmp_path / "runs" / "student" / "train-cases.jsonl", run) == (
+        "train-cases.jsonl"
+    )
+    assert card_path("/home/someone/x/states.jsonl", run) == "states.jsonl"
+    assert card_source("suite:packlab-bench-v1", run) == "suite:packlab-bench-v1"
+    assert card_source("recipe:packdata-20k", run) == "recipe:packdata-20k"
+
+
+def test_the_commit_is_this_checkout_s_and_none_outside_one(tmp_path):
+    commit, dirty = git_state(ROOT)
+    assert commit is not None and len(commit) == 40 and isinstance(dirty, bool)
+    assert git_state(tmp_path) == (None, None)
+
+
+def test_the_selection_set_is_recorded_by_content_and_size():
+    cases = load_suite("packlab-bench-v1")[:6]
+    renamed = [dataclasses.replace(c, episode_id=f"x{i}", seed=i) for i, c in enumerate(cases)]
+    a = selection_record(cases, "best held-out")
+    assert a == selection_record(list(reversed(renamed)), "best held-out")
+    assert a["n"] == 6 and len(a["sha256"]) == 64 and a["rule"] == "best held-out"
+
+
+def test_the_init_checkpoint_is_a_name_and_a_digest(tmp_path):
+    init = tmp_path / "elsewhere" / "irbpp-im-s0"
+    init.mkdir(parents=True)
+    (init / "model.zip").write_bytes(b"weights")
+    record = init_record(init, tmp_path / "run")
+    assert record == {"path": "irbpp-im-s0", "sha256": dir_sha256(init)}
+    (init / "model.zip").write_bytes(b"other weights")
+    assert init_record(init, tmp_path / "run")["sha256"] != record["sha256"]  # type: ignore[index]
+    assert init_record(None, tmp_path) is None
+
+
+def test_an_rl_card_holds_the_fields_and_no_absolute_path(tmp_path):
+    states = tmp_path / "data" / "states.jsonl"
+    states.parent.mkdir()
+    states.write_text("{}\n")
+    run = tmp_path / "run"
+    prov = provenance(run, 7, states=[states], selection=selection_record([], "none"))
+    card = AgentCard("irbpp", 16, "overall", cases=card_source(str(tmp_path / "c.jsonl"), run),
+                     cases_sha256="ab" * 32, **prov)  # fmt: skip
+    run.mkdir()
+    write_card(run, card)
+    text = (run / "card.json").read_text()
+    assert str(tmp_path) not in text and "runs/" not in text
+    back = read_card(run)
+    assert back == card and back.seed == 7 and back.cases == "c.jsonl"
+    assert back.states == [{"path": "states.jsonl", "sha256": file_sha256(states)}]
+    assert {"seed", "commit", "dirty", "init", "states", "selection"} <= set(json.loads(text))
+
+
+def test_a_shipped_card_without_the_fields_still_reads():
+    card = read_card(ROOT / "src" / "packlab" / "data" / "models" / "irbpp")
+    assert card.seed is None and card.init is None and card.states == []
