@@ -88,7 +88,7 @@ def test_train_rl_accepts_generated_training_cases(train_file):
 def test_train_candidate_hands_generated_cases_to_the_recipe(train_file, tmp_path, monkeypatch):
     seen = []
 
-    def run_dagger(cfg, cases, on_log):
+    def run_dagger(cfg, cases, on_log, named=None):
         seen.extend(cases)
         return Path(cfg.out) / "final"
 

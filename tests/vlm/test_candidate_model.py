@@ -17,6 +17,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
 from packlab.core.errors import ConfigError
+from packlab.core.provenance import file_sha256
 from packlab.datagen.generator import generate_cases
 from packlab.policies.candidates import ProposerConfig, propose
 from packlab.policies.listed import ListedTeacher
@@ -206,6 +207,14 @@ def test_training_resumes_exactly(states, tmp_path):
     assert half.vlm.meta["trained_steps"] == 3
     resumed = load_pointer(train_pointer(replace(cfg, stop_after=None)))
     assert resumed.vlm.meta["trained_steps"] == 6
+    card = whole.vlm.meta  # issue 36: how it was made, without a machine's paths
+    assert card["seed"] == 0 and card["init"] is None and card["dirty"] in (True, False, None)
+    assert card["states"] == [{"path": "states.jsonl", "sha256": file_sha256(path)}]
+    assert card["selection"]["n"] == 0 and "last update" in card["selection"]["rule"]
+    assert (
+        card["pointer_train"]["states"] == ["states.jsonl"] and "out" not in card["pointer_train"]
+    )
+    assert str(tmp_path) not in json.dumps(card)
 
     ref, got, mid = whole.state_dict(), resumed.state_dict(), half.state_dict()
     assert ref.keys() == got.keys()

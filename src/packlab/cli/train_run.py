@@ -10,6 +10,7 @@ from pathlib import Path
 from packlab.bench.suites import resolve_cases
 from packlab.cli import train as train_cli
 from packlab.cli.options import config_kwargs
+from packlab.core.provenance import cases_record
 from packlab.datagen.format import INFO_FILE
 from packlab.datagen.guard import require_training_cases
 from packlab.datagen.stats import dataset_cases
@@ -61,6 +62,7 @@ def run_candidate(args: argparse.Namespace) -> int:
     # case ids): refuse them now, before any work, if they are not of these cases.
     require_training_states(sorted(Path(cfg.out).glob(f"r*/{STATES_FILE}")), cases)
     dagger = train_cli._torch_side(DAGGER_MODULE)
-    final = dagger.run_dagger(cfg, cases, write_curves)
+    named = cases_record(source.origin, source.sha256, cfg.out)
+    final = dagger.run_dagger(cfg, cases, write_curves, named)
     print(f"final model: {final} (log and curves under {cfg.out}/r*/train)")
     return 0

@@ -27,7 +27,9 @@ from packlab.vlm.candidate.states_guard import require_training_states
 from packlab.vlm.candidate.train import OnLog, PointerTrainConfig, train_pointer
 
 
-def _round_config(cfg: DaggerConfig, r: int) -> PointerTrainConfig:
+def _round_config(
+    cfg: DaggerConfig, r: int, named: dict[str, str] | None = None
+) -> PointerTrainConfig:
     out = Path(cfg.out)
     return PointerTrainConfig(
         states=tuple(str(out / f"r{k}" / STATES_FILE) for k in range(r + 1)),
@@ -46,19 +48,30 @@ def _round_config(cfg: DaggerConfig, r: int) -> PointerTrainConfig:
         seed=cfg.seed + r,
         minutes=cfg.minutes_per_round,
         threads=cfg.threads,
-        meta={"teacher": cfg.teacher, "dagger_round": r, "dagger_rounds": cfg.rounds},
+        meta={
+            "teacher": cfg.teacher,
+            "dagger_round": r,
+            "dagger_rounds": cfg.rounds,
+            "cases": named or {},  # the training cases by name and digest, for the card
+        },
     )
 
 
-def run_dagger(cfg: DaggerConfig, cases: Sequence[Case], on_log: OnLog | None = None) -> Path:
-    """Run (or resume) every round; the final model is copied to ``out/final``."""
+def run_dagger(
+    cfg: DaggerConfig,
+    cases: Sequence[Case],
+    on_log: OnLog | None = None,
+    named: dict[str, str] | None = None,
+) -> Path:
+    """Run (or resume) every round; the final model is copied to ``out/final``. ``named``:
+    the cases' ``source`` and ``sha256`` as the card records them (``cases_record``)."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "dagger.json").write_text(json.dumps(asdict(cfg), indent=1) + "\n")
     rounds, evals = split_cases(cases, cfg.cases_per_round, cfg.rounds, cfg.eval_cases_per_level)
     final = None
     for r, round_cases in enumerate(rounds):
-        train_cfg = _round_config(cfg, r)
+        train_cfg = _round_config(cfg, r, named)
         actor = None if r == 0 else ("vlm", {"model": train_cfg.model, "threads": 1})
         source = "teacher" if r == 0 else f"student-r{r}"
         collect(round_cases, out / f"r{r}" / STATES_FILE, cfg.teacher, source, actor,

@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.provenance import card_path, provenance, selection_record
 from packlab.core.types import Case
 from packlab.policies.candidates import STUDENT_K, ProposerConfig
 from packlab.vlm.candidate.compose import Answer, Instructions
@@ -234,6 +235,32 @@ def _evaluate(
         on_log(log, Path(cfg.out) / "curves.png")
 
 
+#: The config fields that are paths: recorded as card paths (packlab.core.provenance), not as
+#: given (a scratch ``runs/...`` or absolute path would name one machine's files).
+_PATH_FIELDS = ("out", "states", "model")
+
+
+def _portable_config(cfg: PointerTrainConfig) -> dict[str, Any]:
+    kept = {k: v for k, v in asdict(cfg).items() if k not in ("meta", *_PATH_FIELDS)}
+    model = cfg.model if cfg.model.startswith("tiny:") else card_path(cfg.model, cfg.out)
+    return {**kept, "model": model, "states": [card_path(p, cfg.out) for p in cfg.states]}
+
+
+def _provenance(cfg: PointerTrainConfig, eval_cases: Sequence[Case]) -> dict[str, Any]:
+    init = None if cfg.model.startswith("tiny:") else cfg.model
+    rule = (
+        "none: the model after the last update is kept; these cases are only monitored "
+        "(closed-loop Overall in log.csv)"
+    )
+    return provenance(
+        cfg.out,
+        cfg.seed,
+        init=init,
+        states=cfg.states,
+        selection=selection_record(eval_cases, rule),
+    )
+
+
 def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
     return {
         "proposer": asdict(ProposerConfig(k=cfg.k)),
@@ -244,7 +271,7 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
         "pool": cfg.pool,
         "answer": cfg.answer,
         "shuffle": cfg.shuffle,
-        "pointer_train": {k: v for k, v in asdict(cfg).items() if k != "meta"},
+        "pointer_train": _portable_config(cfg),
         **cfg.meta,
     }
 
@@ -280,7 +307,8 @@ def train_pointer(
     bar.close()
     st.model.eval()
     card = {**_card(cfg), "trained_steps": st.step, "train_seconds": round(st.seconds, 1),
-            "train_states": len(train), "heldout_states": len(held_list)}  # fmt: skip
+            "train_states": len(train), "heldout_states": len(held_list),
+            **_provenance(cfg, eval_cases)}  # fmt: skip
     final = save_pointer(st.model, out / "final", card)
     if cfg.answer == "index":  # so that the model plays under the default runtime (ONNX)
         export_onnx(final, check_states=TRAIN_CHECK_STATES)
