@@ -106,9 +106,13 @@ def init_record(
 
 def files_record(
     paths: Iterable[str | os.PathLike[str]], run_dir: str | os.PathLike[str]
-) -> list[dict[str, str]]:
-    """Each input file (e.g. labelled states) by card name and sha256."""
-    return [{"path": card_path(p, run_dir), "sha256": file_sha256(p)} for p in paths]
+) -> list[dict[str, str | None]]:
+    """Each input file (e.g. labelled states) by card name and sha256 (None: a source that is
+    not a file, e.g. a label an API caller gave)."""
+    return [
+        {"path": card_path(p, run_dir), "sha256": file_sha256(p) if Path(p).is_file() else None}
+        for p in paths
+    ]
 
 
 def cases_record(source: str, sha256: str, run_dir: str | os.PathLike[str]) -> dict[str, str]:

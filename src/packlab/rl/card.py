@@ -44,7 +44,7 @@ class AgentCard:
     commit: str | None = None  # git rev-parse HEAD of the packlab checkout; None outside one
     dirty: bool | None = None  # tracked files differed from that commit
     init: dict[str, str] | None = None  # the checkpoint started from: path (name), sha256
-    states: list[dict[str, str]] = field(default_factory=list)  # imitation: path, sha256
+    states: list[dict[str, str | None]] = field(default_factory=list)  # imitation: path, sha256
     #: The cases the kept model was chosen on: sha256 (content, order-free), n, rule.
     selection: dict[str, Any] | None = None
 
