@@ -118,7 +118,8 @@ def without_timing(value: Any) -> Any:
         return {
             k: without_timing(v)
             for k, v in value.items()
-            if k != "timing" and not k.endswith(("_s", "_ms"))
+            # worst_*: where a run's slowest decision was made, which the clock decides too
+            if k != "timing" and not k.endswith(("_s", "_ms")) and not k.startswith("worst_")
         }
     if isinstance(value, (list, tuple)):
         return [without_timing(v) for v in value]

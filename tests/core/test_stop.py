@@ -81,3 +81,42 @@ def test_end_descendants_ends_a_child_that_ignores_sigterm():
     finally:
         if child.poll() is None:
             child.kill()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_caller_keeps_the_processes_it_had_before_the_command(monkeypatch, capsys):
+    """The CLI run in-process (a test session with its Ray cluster, a notebook) and stopped must
+    end only what the command started: ending the caller's own processes took a test session's
+    Ray cluster down with it."""
+    from packlab.cli import main as cli
+
+    theirs = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    ours: list[subprocess.Popen] = []
+
+    def command(args):
+        ours.append(subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]))
+        raise KeyboardInterrupt
+
+    try:
+        parser = cli.build_parser()
+        args = parser.parse_args(["inspect-data", "x"])
+        monkeypatch.setattr(args, "func", command)
+        monkeypatch.setattr(cli, "build_parser", lambda: _Fixed(args))
+        assert cli.main(["inspect-data", "x"]) == EXIT_INTERRUPTED
+        assert ours[0].wait(timeout=5) is not None  # the command's own child was ended
+        assert theirs.poll() is None  # the caller's was kept
+    finally:
+        for proc in (theirs, *ours):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+class _Fixed:
+    """A parser stand-in that returns parsed arguments whose ``func`` a test replaced."""
+
+    def __init__(self, args):
+        self.args = args
+
+    def parse_args(self, argv):
+        return self.args

@@ -12,12 +12,19 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
 import sys
 from typing import Any, cast
 
 from packlab.cli.parser import PacklabParser
 from packlab.core.errors import EXIT_ABORTED, EXIT_USAGE, PacklabError, RunAborted
-from packlab.core.stop import StopRequested, end_descendants, exit_code_of, stop_handlers
+from packlab.core.stop import (
+    StopRequested,
+    descendants,
+    end_descendants,
+    exit_code_of,
+    stop_handlers,
+)
 
 #: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -98,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     is one line ``packlab <cmd>: error: ...`` and exit code 2; a stopped run (RunAborted) 3."""
     parser = build_parser()
     args = parser.parse_args(argv)  # argparse's own errors: one line, exit code 2 (cli.parser)
+    before = set(descendants(os.getpid()))  # a caller's own processes, never ours to end
     try:
         # SIGTERM too (a scheduler's stop): the command's cleanup runs as for Ctrl-C (core.stop).
         with stop_handlers():
@@ -116,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"packlab {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
-        end_descendants()  # what the command's own cleanup did not reach (core.stop)
+        end_descendants(keep=before)  # what the command's own cleanup did not reach
         how = str(exc) if isinstance(exc, StopRequested) else "interrupted"
         print(
             f"packlab {args.command}: {how}; rerun the same command to resume",

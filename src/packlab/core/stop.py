@@ -24,7 +24,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from types import FrameType
@@ -107,16 +107,19 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-def end_descendants(grace_s: float = 1.0) -> int:
-    """End every process this one started that still runs, and theirs: SIGTERM, then SIGKILL
-    for any left after ``grace_s``. Returns how many there were.
+def end_descendants(grace_s: float = 1.0, keep: Collection[int] = ()) -> int:
+    """End every process this one started that still runs, and theirs, except those in ``keep``
+    (the ones that were there before the command: a caller that runs the CLI in-process, a test
+    session with its Ray cluster, must keep its own): SIGTERM, then SIGKILL for any left after
+    ``grace_s``. Returns how many there were.
 
     The last step of a stopped command. Executors stop their own workers, but a library's
     helper processes can outlive an interruption that lands while they start (a forkserver
     still importing torch for a vectorised environment that was never built, so never closed),
     and would otherwise end seconds after the command or never.
     """
-    pids = descendants(os.getpid())
+    kept = set(keep)
+    pids = [pid for pid in descendants(os.getpid()) if pid not in kept]
     for pid in pids:
         with suppress(ProcessLookupError, PermissionError):
             os.kill(pid, signal.SIGTERM)
