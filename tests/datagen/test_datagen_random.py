@@ -10,8 +10,8 @@ import pyarrow.parquet as pq
 import pytest
 from datagen_helpers import make_dataset, tiny_config
 
-from packlab.core.choices import HEURISTICS
 from packlab.cases import case_to_dict
+from packlab.core.choices import HEURISTICS
 from packlab.core.errors import ConfigError
 from packlab.datagen import DIFFICULTIES, CaseConfig, DatasetConfig, build_case, generate_cases
 from packlab.datagen.config import ObjectLimits, ValidationConfig
