@@ -13,7 +13,13 @@ import time
 import pytest
 
 from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
-from packlab.core.stop import StopRequested, end_descendants, exit_code_of, stop_handlers
+from packlab.core.stop import (
+    StopRequested,
+    descendants,
+    end_descendants,
+    exit_code_of,
+    stop_handlers,
+)
 
 
 @pytest.mark.parametrize(
@@ -65,6 +71,7 @@ def test_sigint_is_handled_even_when_inherited_ignored():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_end_descendants_ends_a_child_that_ignores_sigterm():
+    before = descendants(os.getpid())  # the session's own (a Ray cluster) must survive
     child = subprocess.Popen(
         [
             sys.executable,
@@ -75,7 +82,7 @@ def test_end_descendants_ends_a_child_that_ignores_sigterm():
     try:
         time.sleep(0.5)  # let it install its handler
         started = time.monotonic()
-        assert end_descendants(grace_s=0.5) == 1
+        assert end_descendants(grace_s=0.5, keep=before) == 1
         assert child.wait(timeout=5) == -signal.SIGKILL
         assert time.monotonic() - started < 5
     finally:
