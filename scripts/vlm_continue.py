@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 
 from packlab.cases import cases_sha256, load_cases
-from packlab.core.provenance import cases_record
 from packlab.datagen.guard import require_training_cases
+from packlab.policies.provenance import cases_record
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.saved import load_pointer
 from packlab.vlm.candidate.states_guard import require_training_states
@@ -59,7 +59,7 @@ def main() -> None:
         shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr, warmup=20,
         seed=a.seed, threads=1, minutes=a.minutes, eval_every=350,
         # The card records the model continued from as "init" (name + sha256) and the cases
-        # by name and content digest: no scratch path (packlab.core.provenance).
+        # by name and content digest: no scratch path (packlab.policies.provenance).
         meta={"teacher": meta.get("teacher", ""), "note": a.note,
               "cases": cases_record(a.cases, cases_sha256(cases), a.out)},
     )  # fmt: skip

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from packlab.bench.suites import load_suite
-from packlab.core.provenance import (
+from packlab.policies.provenance import (
     card_path,
     card_source,
     dir_sha256,

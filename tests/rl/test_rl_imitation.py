@@ -15,11 +15,11 @@ from packlab.cases.fingerprint import case_fingerprint
 from packlab.cli.main import main
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
-from packlab.core.provenance import dir_sha256, file_sha256
 from packlab.core.types import Action
 from packlab.datagen.generator import generate_cases
 from packlab.policies import make_policy
 from packlab.policies.candidates import propose
+from packlab.policies.provenance import dir_sha256, file_sha256
 from packlab.rl.agent import load_agent
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.rl.envs import ListedActionEnv

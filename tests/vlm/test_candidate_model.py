@@ -17,10 +17,10 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
 from packlab.core.errors import ConfigError
-from packlab.core.provenance import file_sha256
 from packlab.datagen.generator import generate_cases
 from packlab.policies.candidates import ProposerConfig, propose
 from packlab.policies.listed import ListedTeacher
+from packlab.policies.provenance import file_sha256
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 from packlab.vlm.candidate.collect import Labeller

@@ -10,10 +10,10 @@ from pathlib import Path
 from packlab.bench.suites import resolve_cases
 from packlab.cli import train as train_cli
 from packlab.cli.options import config_kwargs
-from packlab.core.provenance import cases_record
 from packlab.datagen.format import INFO_FILE
 from packlab.datagen.guard import require_training_cases
 from packlab.datagen.stats import dataset_cases
+from packlab.policies.provenance import cases_record
 from packlab.viz.plots import plot_loss_curve
 from packlab.viz.pointer_curves import write_curves
 from packlab.vlm.candidate.recipe import DAGGER_MODULE, DaggerConfig

@@ -22,7 +22,7 @@ import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from packlab.core.errors import ConfigError
-from packlab.core.provenance import card_path, card_source, provenance
+from packlab.policies.provenance import card_path, card_source, provenance
 from packlab.rl.card import AgentCard
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.rl.envs import ListedActionEnv

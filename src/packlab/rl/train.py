@@ -32,8 +32,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMoni
 
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
-from packlab.core.provenance import card_source, provenance, selection_record
 from packlab.core.types import Case
+from packlab.policies.provenance import card_source, provenance, selection_record
 from packlab.rl.card import MODEL_FILE, AgentCard, read_card, write_card
 from packlab.rl.config import RLTrainConfig
 from packlab.rl.envs import ListedActionEnv

@@ -7,7 +7,7 @@ case's content fingerprint (``case_sha256``, format ``packlab-states-3``) and a 
 * a row without one (a file written before the field existed): add it with
   ``scripts/states_add_case_hash.py`` against the cases the states were collected on;
 * a row whose case is a bundled suite's or the reference benchmark's
-  (:mod:`packlab.datagen.known_cases`);
+  (:mod:`packlab.cases.known`);
 * with the cases given: a row whose case id is not among them, or whose fingerprint is not that
   of the case with its id (stale or mismatched states).
 
@@ -20,10 +20,9 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from packlab.cases.fingerprint import case_fingerprint
+from packlab.cases.known import INSTEAD, suite_match
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
-from packlab.datagen.guard import INSTEAD
-from packlab.datagen.known_cases import suite_match
 from packlab.vlm.candidate.states import LabelledState, read_states
 
 #: How to give an old states file its case hashes (appended to that refusal).

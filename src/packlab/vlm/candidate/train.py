@@ -27,9 +27,9 @@ from tqdm import tqdm
 
 from packlab.core.choices import PointerMap, require_choice
 from packlab.core.errors import ConfigError
-from packlab.core.provenance import card_path, provenance, selection_record
 from packlab.core.types import Case
 from packlab.policies.candidates import STUDENT_K, ProposerConfig
+from packlab.policies.provenance import card_path, provenance, selection_record
 from packlab.vlm.candidate.compose import Answer, Instructions
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
@@ -235,7 +235,7 @@ def _evaluate(
         on_log(log, Path(cfg.out) / "curves.png")
 
 
-#: The config fields that are paths: recorded as card paths (packlab.core.provenance), not as
+#: The config fields that are paths: recorded as card paths (packlab.policies.provenance), not as
 #: given (a scratch ``runs/...`` or absolute path would name one machine's files).
 _PATH_FIELDS = ("out", "states", "model")
 
