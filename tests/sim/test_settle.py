@@ -99,9 +99,8 @@ def test_a_pile_that_cannot_settle_within_tiny_caps_is_flagged_and_counted():
     assert summary.counts["oracle"].max_residual_linear_mps == flagged.metrics.residual_linear_mps
     table = render_markdown(summary)
     assert "| unsettled steps | not at rest |" in table
-    oracle_row = [line for line in table.splitlines() if line.startswith("| Oracle")][
-        -1
-    ]  # run details
+    details = table.split("### Run details", 1)[1].split("###", 1)[0]
+    oracle_row = next(line for line in details.splitlines() if line.startswith("| Oracle"))
     assert f"| {flagged.metrics.unsettled_steps} | 1 |" in oracle_row
 
 
