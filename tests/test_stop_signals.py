@@ -67,6 +67,18 @@ def _alive(pid: int) -> bool:
     return state != "Z"  # a zombie has exited; only its parent's wait is missing
 
 
+def _names(pids: set[int]) -> str:
+    """The command lines of the processes still alive, for a failure message."""
+    alive = []
+    for pid in sorted(p for p in pids if _alive(p)):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        alive.append(f"{pid} {cmd[:80]}")
+    return "; ".join(alive) or "none"
+
+
 def _wait_until(condition: Callable[[], bool], timeout_s: float, what: str) -> None:
     until = time.monotonic() + timeout_s
     while not condition():
@@ -99,9 +111,12 @@ def _stop_mid_run(
         sent = time.monotonic()
         os.kill(proc.pid, signum)  # the main process alone, not its group
         out, err = proc.communicate(timeout=60)
-        _wait_until(
-            lambda: not any(_alive(p) for p in workers), STOP_WITHIN_S, "the workers to end"
-        )
+        try:
+            _wait_until(
+                lambda: not any(_alive(p) for p in workers), STOP_WITHIN_S, "the workers to end"
+            )
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; still running: {_names(workers)}") from None
         stopped_in = time.monotonic() - sent
     finally:
         if proc.poll() is None:

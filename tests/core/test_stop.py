@@ -16,6 +16,7 @@ from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
 from packlab.core.stop import (
     StopRequested,
     descendants,
+    describe_stop,
     end_descendants,
     exit_code_of,
     stop_handlers,
@@ -127,3 +128,18 @@ class _Fixed:
 
     def parse_args(self, argv):
         return self.args
+
+
+def test_a_stop_signal_re_raised_as_a_plain_keyboard_interrupt_keeps_its_exit_code():
+    """Ray's waits turn any exception from a signal handler into a plain KeyboardInterrupt."""
+    with pytest.raises(KeyboardInterrupt) as caught, stop_handlers():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except StopRequested:
+            raise KeyboardInterrupt from None
+    assert not isinstance(caught.value, StopRequested)
+    assert exit_code_of(caught.value) == EXIT_TERMINATED
+    assert describe_stop(caught.value) == "stopped by SIGTERM"
+    with stop_handlers():  # a new command starts with no signal received
+        assert exit_code_of(KeyboardInterrupt()) == EXIT_INTERRUPTED

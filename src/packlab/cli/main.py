@@ -19,8 +19,8 @@ from typing import Any, cast
 from packlab.cli.parser import PacklabParser
 from packlab.core.errors import EXIT_ABORTED, EXIT_USAGE, PacklabError, RunAborted
 from packlab.core.stop import (
-    StopRequested,
     descendants,
+    describe_stop,
     end_descendants,
     exit_code_of,
     stop_handlers,
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
         end_descendants(keep=before)  # what the command's own cleanup did not reach
-        how = str(exc) if isinstance(exc, StopRequested) else "interrupted"
+        how = describe_stop(exc)
         print(
             f"packlab {args.command}: {how}; rerun the same command to resume",
             file=sys.stderr,

@@ -50,16 +50,20 @@ class StopRequested(KeyboardInterrupt):
 
 
 _stopping = False
+#: The stop signal received inside ``stop_handlers`` (None: none yet). Kept apart from the
+#: exception because library code between the handler and the command may re-raise it as a plain
+#: KeyboardInterrupt (Ray's waits do), which would lose which signal it was.
+_received: int | None = None
 
 
 def _on_stop_signal(signum: int, frame: FrameType | None) -> None:
-    global _stopping
+    global _stopping, _received
     if _stopping:
         # Asked again while cleaning up: end now. Workers die with this process (executors).
         signal.signal(signum, signal.SIG_DFL)
         os.kill(os.getpid(), signum)
         return
-    _stopping = True
+    _stopping, _received = True, signum
     raise StopRequested(signum)
 
 
@@ -68,11 +72,11 @@ def stop_handlers() -> Iterator[None]:
     """While inside, SIGINT and SIGTERM raise :class:`StopRequested` in the main thread; the
     previous handlers come back on leaving (a test calling the CLI in-process keeps its own).
     A no-op outside the main thread: Python delivers signals to the main thread only."""
-    global _stopping
+    global _stopping, _received
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    _stopping = False
+    _stopping, _received = False, None
     previous = {signum: signal.signal(signum, _on_stop_signal) for signum in STOP_SIGNALS}
     try:
         yield
@@ -139,13 +143,25 @@ def exit_code_of(interrupt: KeyboardInterrupt) -> int:
     """128 + the signal for a StopRequested; 130 (SIGINT) for a plain KeyboardInterrupt."""
     if isinstance(interrupt, StopRequested):
         return interrupt.exit_code
+    if _received is not None:  # a stop signal came back as a plain KeyboardInterrupt
+        return StopRequested(_received).exit_code
     return EXIT_INTERRUPTED
+
+
+def describe_stop(interrupt: KeyboardInterrupt) -> str:
+    """ "stopped by SIGTERM" (or SIGINT) for a stop signal, "interrupted" for a plain Ctrl-C."""
+    if isinstance(interrupt, StopRequested):
+        return str(interrupt)
+    if _received is not None:
+        return str(StopRequested(_received))
+    return "interrupted"
 
 
 __all__ = [
     "STOP_SIGNALS",
     "StopRequested",
     "descendants",
+    "describe_stop",
     "end_descendants",
     "exit_code_of",
     "stop_handlers",
