@@ -55,6 +55,7 @@ from tqdm import tqdm
 
 from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError, RunAborted
+from packlab.core.stop import descendants, end_processes
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -530,11 +531,13 @@ def _run_ray(
     kills the worker processes running them)."""
     ray = _import_ray()
     started_here = not ray.is_initialized()
+    before_ray: set[int] = set()
     if started_here:
         # ray.init replaces the SIGINT and SIGTERM handlers with its own (log, shut down, exit
         # with the signal's number); keep the caller's (packlab.core.stop), so a stop request
         # runs this function's cleanup and the command exits with its documented code.
         handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+        before_ray = set(descendants(os.getpid()))  # the caller's own children are not Ray's
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         if threading.current_thread() is threading.main_thread():
             for signum, handler in handlers.items():
@@ -567,7 +570,12 @@ def _run_ray(
         for ref in pending:
             ray.cancel(ref, force=True)
         if started_here:
+            # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds
+            # once their raylet is gone, no longer our descendants by then: end what Ray started
+            # here by pid after its own shutdown.
+            started = [p for p in descendants(os.getpid()) if p not in before_ray]
             ray.shutdown()
+            end_processes(started)
 
 
 __all__ = [

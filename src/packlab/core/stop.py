@@ -111,6 +111,31 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie has exited; only its parent's wait is missing)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def end_processes(pids: Collection[int], grace_s: float = 1.0) -> None:
+    """SIGTERM each of ``pids``, then SIGKILL those still running after ``grace_s``. Followed by
+    pid, not by parentage: a process whose parent ended meanwhile is still found."""
+    for pid in pids:
+        with suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGTERM)
+    until = time.monotonic() + grace_s
+    left = [pid for pid in pids if _alive(pid)]
+    while left and time.monotonic() < until:
+        time.sleep(0.05)
+        left = [pid for pid in left if _alive(pid)]
+    for pid in left:
+        with suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
+
+
 def end_descendants(grace_s: float = 1.0, keep: Collection[int] = ()) -> int:
     """End every process this one started that still runs, and theirs, except those in ``keep``
     (the ones that were there before the command: a caller that runs the CLI in-process, a test
@@ -124,18 +149,7 @@ def end_descendants(grace_s: float = 1.0, keep: Collection[int] = ()) -> int:
     """
     kept = set(keep)
     pids = [pid for pid in descendants(os.getpid()) if pid not in kept]
-    for pid in pids:
-        with suppress(ProcessLookupError, PermissionError):
-            os.kill(pid, signal.SIGTERM)
-    until = time.monotonic() + grace_s
-    left = pids
-    while left and time.monotonic() < until:
-        time.sleep(0.05)
-        still = set(descendants(os.getpid()))
-        left = [pid for pid in left if pid in still]
-    for pid in left:
-        with suppress(ProcessLookupError, PermissionError):
-            os.kill(pid, signal.SIGKILL)
+    end_processes(pids, grace_s)
     return len(pids)
 
 
@@ -163,6 +177,7 @@ __all__ = [
     "descendants",
     "describe_stop",
     "end_descendants",
+    "end_processes",
     "exit_code_of",
     "stop_handlers",
 ]
