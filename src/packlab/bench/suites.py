@@ -14,7 +14,6 @@ bundled bytes are what the spec produces.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections import Counter
 from collections.abc import Sequence
@@ -26,6 +25,7 @@ from packlab.bench.options import DEFAULT_SUITE
 from packlab.cases import cases_sha256, load_cases, save_cases
 from packlab.core.choices import ArrivalOrder, require_choice
 from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.fileio import file_sha256
 from packlab.core.types import Case
 from packlab.datagen import CaseConfig, generate_cases
 from packlab.datagen.stats import dataset_cases
@@ -107,14 +107,6 @@ def suite_files(name: str, directory: str | os.PathLike[str] | None = None) -> t
     """(case file, checksum file) of a suite, in ``directory`` or the bundled location."""
     base = Path(directory) if directory is not None else suite_dir()
     return base / f"{name}.jsonl", base / f"{name}.sha256"
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def read_checksum(path: Path, expected_name: str) -> str:

@@ -7,12 +7,22 @@ writer can read, so each helper applies the user's umask itself before renaming 
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """The sha256 hex digest of a file's bytes, read in 1 MiB blocks (models can be large)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def current_umask() -> int:
@@ -65,4 +75,9 @@ def create_directory_atomically(out: Path, fill: Callable[[Path], None]) -> Path
     return out
 
 
-__all__ = ["create_directory_atomically", "current_umask", "write_atomically"]
+__all__ = [
+    "create_directory_atomically",
+    "current_umask",
+    "file_sha256",
+    "write_atomically",
+]

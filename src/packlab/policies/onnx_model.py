@@ -14,7 +14,6 @@ this can fail: no ONNX Runtime, no card, another format version, a graph missing
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -22,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from packlab.core.errors import ConfigError
-from packlab.core.fileio import write_atomically
+from packlab.core.fileio import file_sha256, write_atomically
 
 #: The version of ``onnx.json`` and of the graphs' input/output contract. Bump it when either
 #: changes; a directory of another version is refused with the command that re-exports it.
@@ -51,14 +50,6 @@ class OnnxCard:
     exported_with: str  # e.g. "torch 2.13.0"
     extra: dict[str, Any] = field(default_factory=dict)  # kind-specific settings
     format: str = ONNX_FORMAT
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def write_card(directory: Path, card: OnnxCard) -> Path:

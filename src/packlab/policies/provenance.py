@@ -16,15 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from packlab.cases.fingerprint import FINGERPRINT_VERSION, case_fingerprint, set_fingerprint
+from packlab.core.fileio import file_sha256
 from packlab.core.types import Case
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def dir_sha256(path: str | os.PathLike[str]) -> str:
