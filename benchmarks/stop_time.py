@@ -28,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from packlab.core.stop import descendants
+from packlab.core.stop import descendants, is_alive
 
 GOAL_S = 5.0
 
@@ -75,13 +75,6 @@ CASES = {
 }
 
 
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def measure(case: Case, executor: str | None, signum: int) -> list[str]:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
@@ -99,10 +92,10 @@ def measure(case: Case, executor: str | None, signum: int) -> list[str]:
         os.kill(proc.pid, signum)
         proc.communicate(timeout=120)
         main_s = time.monotonic() - sent
-        while any(_alive(p) for p in started) and time.monotonic() - sent < 60:
+        while any(is_alive(p) for p in started) and time.monotonic() - sent < 60:
             time.sleep(0.02)
         all_s = time.monotonic() - sent
-        left = sum(_alive(p) for p in started)
+        left = sum(is_alive(p) for p in started)
         resumed = "-"
         if case.resumed is not None:
             again = subprocess.run(command, cwd=d, capture_output=True, text=True, check=False)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from packlab.bench.config import RunConfig
+from packlab.bench.runner import BenchOutcome, run_bench
 from packlab.cases import save_cases
 from packlab.core.types import Box, Case, Container, PlanStep
 
@@ -70,3 +72,11 @@ def write_tiny_suite(directory: Path) -> Path:
     path = directory / "tiny.jsonl"
     save_cases(tiny_cases(), path)
     return path
+
+
+def run_tiny(suite: Path, out: Path, **config) -> BenchOutcome:
+    """A quick bench run of ``suite``: DBLF, seed 0, geometric, in this process, no figures or
+    report.html; ``config`` overrides or adds RunConfig fields (modes, policies, ...)."""
+    fields = {"backend": "geometric", "policies": ("dblf",), "seeds": (0,), "workers": 1}
+    full = RunConfig(cases=str(suite), out=str(out), progress=False, **{**fields, **config})
+    return run_bench(full, figures=False, html=False)

@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 
 import msgspec
+from bench_helpers import run_tiny
 from record_helpers import ok_record, step
 
 from packlab.bench.decision_times import ALL_LEVELS, decision_times
+from packlab.bench.report import build_report
 from packlab.bench.summary import summarize
 from packlab.bench.table import render_markdown
 from packlab.core.records import summary_from_json
@@ -70,21 +72,8 @@ def test_summary_json_round_trips_and_table_md_shows_the_tail():
 
 
 def test_a_real_run_records_each_decision_and_the_report_rebuilds_the_table(tiny_suite, tmp_path):
-    from packlab.bench.config import RunConfig
-    from packlab.bench.report import build_report
-    from packlab.bench.runner import run_bench
-
     out = tmp_path / "run"
-    config = RunConfig(
-        cases=str(tiny_suite),
-        out=str(out),
-        backend="geometric",
-        policies=("dblf",),
-        seeds=(0,),
-        workers=1,
-        progress=False,
-    )
-    outcome = run_bench(config, figures=False, html=False)
+    outcome = run_tiny(tiny_suite, out)
     records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     for r in records:
         assert all(s["decision_s"] >= 0 and s["decision_cpu_s"] >= 0 for s in r["steps"])

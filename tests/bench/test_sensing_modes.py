@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from bench_helpers import run_tiny
 
 from packlab.bench.compare import compare_markdown
 from packlab.bench.config import (
@@ -14,7 +15,6 @@ from packlab.bench.config import (
     resolve,
     sensing_identity,
 )
-from packlab.bench.runner import run_bench
 from packlab.cli.bench import config_from_args
 from packlab.cli.main import build_parser
 from packlab.core.errors import ConfigError
@@ -96,24 +96,10 @@ def test_cli_flags_set_the_fields():
         parser.parse_args(["bench", "--noise", "laser"])
 
 
-def _run(tiny_suite, out, **kw):
-    config = RunConfig(
-        cases=str(tiny_suite),
-        out=str(out),
-        backend="geometric",
-        policies=("dblf",),
-        seeds=(0,),
-        workers=1,
-        progress=False,
-        **kw,
-    )
-    return run_bench(config, figures=False, html=False)
-
-
 def test_perceived_runs_record_replans_and_compare_labels_their_rows(tiny_suite, tmp_path):
-    _run(tiny_suite, tmp_path / "exact")
-    _run(tiny_suite, tmp_path / "seen", observation="perceived", noise="none")
-    _run(tiny_suite, tmp_path / "seen2", observation="perceived", noise="none")
+    run_tiny(tiny_suite, tmp_path / "exact")
+    run_tiny(tiny_suite, tmp_path / "seen", observation="perceived", noise="none")
+    run_tiny(tiny_suite, tmp_path / "seen2", observation="perceived", noise="none")
     records = [
         json.loads(line) for line in (tmp_path / "seen" / "episodes.jsonl").read_text().splitlines()
     ]

@@ -9,11 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from packlab.bench.config import RunConfig
-from packlab.bench.runner import run_bench
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from bench_helpers import write_tiny_suite
+from bench_helpers import run_tiny, write_tiny_suite
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "robustness_table.py"
 
@@ -34,17 +31,7 @@ def runs(tmp_path_factory):
         "exact": {},
         "seen": {"observation": "perceived", "noise": "none"},
     }.items():
-        config = RunConfig(
-            cases=str(suite),
-            out=str(root / name),
-            backend="geometric",
-            policies=("dblf", "ffp"),
-            seeds=(0,),
-            workers=1,
-            progress=False,
-            **kw,
-        )
-        run_bench(config, figures=False, html=False)
+        run_tiny(suite, root / name, policies=("dblf", "ffp"), **kw)
         out[name] = root / name
     return out
 

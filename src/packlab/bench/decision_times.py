@@ -28,6 +28,7 @@ ALL_LEVELS = "all"
 class _Decision:
     wall_s: float
     cpu_s: float
+    level: str
     case_id: str
     seed: int
     step: int
@@ -40,7 +41,9 @@ def _decisions(records: Iterable[EpisodeOk]) -> list[_Decision]:
             if s.decision_s is UNSET:
                 continue
             cpu = 0.0 if s.decision_cpu_s is UNSET else float(s.decision_cpu_s)
-            found.append(_Decision(float(s.decision_s), cpu, r.case_id, r.seed, s.step))
+            found.append(
+                _Decision(float(s.decision_s), cpu, r.difficulty, r.case_id, r.seed, s.step)
+            )
     return found
 
 
@@ -67,13 +70,12 @@ def decision_times(
 ) -> dict[str, DecisionTimes] | None:
     """Per level in ``levels`` (those with timed decisions) and over ``all`` of them; None when
     no record has per-step decision times."""
-    ordered = sorted(records, key=lambda r: r.key)
-    everything = _decisions(ordered)
+    everything = _decisions(sorted(records, key=lambda r: r.key))
     if not everything:
         return None
     out = {}
     for level in levels:
-        mine = _decisions(r for r in ordered if r.difficulty == level)
+        mine = [d for d in everything if d.level == level]
         if mine:
             out[level] = _stats(mine)
     out[ALL_LEVELS] = _stats(everything)

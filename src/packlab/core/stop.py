@@ -111,7 +111,7 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-def _alive(pid: int) -> bool:
+def is_alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie has exited; only its parent's wait is missing)."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
@@ -127,10 +127,10 @@ def end_processes(pids: Collection[int], grace_s: float = 1.0) -> None:
         with suppress(ProcessLookupError, PermissionError):
             os.kill(pid, signal.SIGTERM)
     until = time.monotonic() + grace_s
-    left = [pid for pid in pids if _alive(pid)]
+    left = [pid for pid in pids if is_alive(pid)]
     while left and time.monotonic() < until:
         time.sleep(0.05)
-        left = [pid for pid in left if _alive(pid)]
+        left = [pid for pid in left if is_alive(pid)]
     for pid in left:
         with suppress(ProcessLookupError, PermissionError):
             os.kill(pid, signal.SIGKILL)
@@ -179,5 +179,6 @@ __all__ = [
     "end_descendants",
     "end_processes",
     "exit_code_of",
+    "is_alive",
     "stop_handlers",
 ]
