@@ -75,14 +75,21 @@ class BlindCase:
 
 
 class OffGridPerceiver:
-    """A deterministic perceived mode: every shown size 7 mm long, 4 mm narrow, 3 mm tall."""
+    """A deterministic perceived mode: every shown size 7 mm long, 4 mm narrow, 3 mm tall, and
+    the heightmap 2 mm high wherever something stands (so a leak of the true one shows). The
+    heightmaps it returned are kept in ``seen``."""
+
+    def __init__(self) -> None:
+        self.seen: list[np.ndarray] = []
 
     def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception:
         sizes = tuple(
             (int(s[0]) + 7, max(1, int(s[1]) - 4), int(s[2]) + 3)
             for s in scene.sizes_mm[list(scene.shown)]
         )
-        return Perception(scene.heightmap.copy(), sizes)  # type: ignore[arg-type]
+        heightmap = np.where(scene.heightmap > 0, scene.heightmap + 2, 0).astype(np.int32)
+        self.seen.append(heightmap)
+        return Perception(heightmap.copy(), sizes)  # type: ignore[arg-type]
 
 
 def _case() -> Case:
@@ -90,16 +97,26 @@ def _case() -> Case:
     return make_layered_case(2, cells=(8, 6), layer_heights_mm=(100, 60), buffer_size=3)
 
 
-def _play(policy, case: Case, handed, perceiver=None, shown: list | None = None) -> list:
+def _play(
+    policy,
+    case: Case,
+    handed,
+    perceiver=None,
+    shown: list | None = None,
+    observations: list | None = None,
+    show_remaining: bool = True,
+) -> list:
     """``run_episode``'s loop, handing ``handed`` to the policy in place of ``case``; the sizes
-    the policy was shown go to ``shown``."""
-    episode = Episode("geometric", perceiver=perceiver)
+    the policy was shown go to ``shown``, the observations to ``observations``."""
+    episode = Episode("geometric", perceiver=perceiver, show_remaining=show_remaining)
     observation = episode.reset(case, 1)
     policy.reset(handed, 1)
     actions = []
     while not episode.done:
         if shown is not None:
             shown.extend(item.size_mm for item in observation.shown)
+        if observations is not None:
+            observations.append(observation)
         action = policy.act(observation)
         actions.append(action)
         episode.step(action)
@@ -135,6 +152,41 @@ def _check_blind(name: str, perceiver=None) -> None:
     assert actions == honest, f"{name} acts differently on what it is handed alone"
     if perceiver is not None:  # the true sizes never reached the policy
         assert shown and not {b.size_mm for b in case.objects} & set(shown)
+
+
+def _ids(observation) -> list:
+    return [s.internal_id for s in observation.shown]
+
+
+def test_perceived_mode_hands_no_truth_but_sizes_and_heightmap_as_perceived():
+    """What the episode hands in perceived mode: the perceived heightmap (now and in the
+    history), fresh ids at every observation that name no box of the case, no catalogue type,
+    and ``remaining`` only when the run shows it."""
+    case = _case()
+    for show_remaining in (True, False):
+        perceiver, observations = OffGridPerceiver(), []
+        _play(make_policy("dblf"), case, case, perceiver, None, observations, show_remaining)
+        case_ids = {b.internal_id for b in case.objects}
+        ids = [i for o in observations for i in _ids(o)]
+        assert not case_ids & set(ids)
+        assert len(set(ids)) == len(ids), "an id was shown at two observations"
+        assert {s.type_id for o in observations for s in o.shown} == {0}
+        assert len(perceiver.seen) == len(observations) + 1  # one more after the last step
+        for k, o in enumerate(observations):
+            np.testing.assert_array_equal(o.heightmap, perceiver.seen[k])
+            for j, past in enumerate(o.history):
+                np.testing.assert_array_equal(past.heightmap, perceiver.seen[j])
+                assert _ids(observations[j]) == [s.internal_id for s in past.shown]
+            assert o.remaining == (len(case.objects) - k if show_remaining else None)
+
+
+@pytest.mark.parametrize("name", [n for n in BENCH_POLICIES if n not in PEEKS_BY_DESIGN])
+def test_every_policy_plays_with_remaining_hidden(name):
+    """``--remaining hidden``: every policy does without the count of boxes still to come."""
+    case = _case()
+    with _policy_maker(name) as make:
+        actions = _play(make(), case, case, OffGridPerceiver(), show_remaining=False)
+    assert len(actions) == len(case.objects)
 
 
 @pytest.mark.parametrize("name", [n for n in BENCH_POLICIES if n not in PEEKS_BY_DESIGN])

@@ -187,4 +187,21 @@ class Observation:
     heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, top surface over each cell
     shown: tuple[ShownItem, ...]
     history: tuple[HistoryEntry, ...] = ()
-    remaining: int = 0  # objects not yet processed, shown ones included
+    #: Objects not yet processed, shown ones included: an extension of the reference's
+    #: observation (a robot cell knows its order's size); None when the run hides it
+    #: (``--remaining hidden``), and a policy must then do without.
+    remaining: int | None = 0
+
+    def remaining_at_least(self) -> int:
+        """``remaining`` where the run shows it, else the least it can be (the shown objects)."""
+        return len(self.shown) if self.remaining is None else self.remaining
+
+    def remaining_known(self) -> int:
+        """``remaining``; a ValueError when the run hides it (for producers of training data,
+        which record it and must not record a guess)."""
+        if self.remaining is None:
+            raise ValueError(
+                f"step {self.step_index}: the observation hides `remaining` "
+                "(--remaining hidden); this producer records it and needs it shown"
+            )
+        return self.remaining

@@ -109,7 +109,8 @@ class _Recording:
 
     def act(self, obs: Observation) -> Action | Unparsable:
         action = self.inner.act(obs)
-        self.seen.append(SeenStep(obs.step_index, obs.heightmap, obs.shown, obs.remaining, action))
+        seen = SeenStep(obs.step_index, obs.heightmap, obs.shown, obs.remaining_known(), action)
+        self.seen.append(seen)
         return action
 
 

@@ -120,7 +120,8 @@ def global_row(observation: Observation) -> np.ndarray:
     nx, ny = observation.container.cells
     row = [
         observation.step_index / COUNT_SCALE,
-        observation.remaining / COUNT_SCALE,
+        # Hidden (--remaining hidden): the least it can be, the shown objects.
+        observation.remaining_at_least() / COUNT_SCALE,
         float(hm.max()) / height,
         float(hm.mean()) / height,
         nx / SIDE_SCALE,

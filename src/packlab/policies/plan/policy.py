@@ -105,15 +105,35 @@ class PlanPolicy:
         seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
         prior = -(-self.completion.smallest_side_mm // observation.container.cell_xy_mm)
         smallest_side = min(prior, *(min(s.size_cells[:2]) for s in seen))
+        # Boxes still to come: hidden (``--remaining hidden``), as many as a guess may leave
+        # room for, i.e. more may always come.
+        unseen = (
+            self.completion.max_jokers
+            if observation.remaining is None
+            else observation.remaining - len(observation.shown)
+        )
         return find_completion(
             observation.heightmap,
             observation.shown,
             observation.container.height_mm,
-            observation.remaining - len(observation.shown),
+            unseen,
             smallest_side,
-            [s.size_mm[2] for s in {s.internal_id: s for s in seen}.values()],
+            seen_heights(observation),
             self.completion,
         )
+
+
+def seen_heights(observation: Observation) -> list[int]:
+    """The height of every box seen so far, each box once: the one each past step processed and
+    those shown now. Not by id: perceived mode shows fresh ids at every observation, and a box
+    waiting in the buffer is seen again at every step."""
+    processed = [
+        h.shown[h.action.object_id].size_mm[2]
+        for h in observation.history
+        # A step processes the box it names even when it sets it aside (out of bounds).
+        if isinstance(h.action, Action) and 0 <= h.action.object_id < len(h.shown)
+    ]
+    return processed + [s.size_mm[2] for s in observation.shown]
 
 
 _BUDGET_KEYS = {f.name for f in fields(Budget)}

@@ -114,7 +114,7 @@ def make_state(
         case_id=case_id,
         difficulty=difficulty,
         step=observation.step_index,
-        remaining=observation.remaining,
+        remaining=observation.remaining_known(),
         container_mm=c.size_mm,
         cell_xy_mm=c.cell_xy_mm,
         cell_z_mm=c.cell_z_mm,

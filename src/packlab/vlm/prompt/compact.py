@@ -179,7 +179,8 @@ def state_text(
     levels = height_levels(observation.heightmap, observation.container, block)
     shown_map = [f"Map {block}:", *map_lines(levels, options.rle)] if show_map else []
     lines = [
-        f"Step {observation.step_index + 1}, {observation.remaining} left.",
+        f"Step {observation.step_index + 1}"
+        + ("." if observation.remaining is None else f", {observation.remaining} left."),
         *shown_map,
         boxes_line(observation.shown),
         "Places:" if candidates else "Places: none fits.",

@@ -69,7 +69,7 @@ class TurnState:
     image: Any  # opaque to this module: relative path (datasets) or PIL image (inference)
     shown: tuple[ShownItem, ...]
     step_index: int  # 0-based index of the step this turn asks for
-    remaining: int  # objects not yet processed, the shown ones included
+    remaining: int | None  # objects not yet processed, the shown ones included; None: hidden
 
 
 def action_text(action: Action) -> str:
@@ -160,9 +160,14 @@ def system_prompt(container: Container, options: PromptOptions = PromptOptions()
 def user_text(turn: TurnState) -> str:
     """The text part of one user turn."""
     return (
-        f"Step {turn.step_index + 1}. Objects left (buffer included): {turn.remaining}. "
+        f"Step {turn.step_index + 1}. Objects left (buffer included): {_count(turn.remaining)}. "
         f"Buffer: {buffer_json(turn.shown)}"
     )
+
+
+def _count(remaining: int | None) -> str:
+    """A remaining count as the prompt says it ("unknown" where the run hides it)."""
+    return "unknown" if remaining is None else str(remaining)
 
 
 def _assistant_text(action: Action | Unparsable) -> str:
@@ -325,7 +330,7 @@ def turns_from_observation(
                 image=render_image(h.heightmap),
                 shown=h.shown,
                 step_index=obs.step_index - n_past + i,
-                remaining=obs.remaining + (n_past - i),
+                remaining=None if obs.remaining is None else obs.remaining + (n_past - i),
             ),
             h.action,
         )
