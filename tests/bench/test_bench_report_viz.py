@@ -134,3 +134,33 @@ def test_mujoco_replay_is_deterministic(tiny_suite, tmp_path):
     cases = {c.episode_id: c for c in run.cases}
     for rec in read_records(tmp_path / "run" / "episodes.jsonl"):
         assert replay_record(cases[rec.case_id], rec).matches_record
+
+
+def test_a_catalogue_run_replays_under_its_own_side_names(tmp_path, capsys):
+    """A recorded rotation refers to the sides the run showed: a run with the catalogue's names
+    (or one made before they were recorded) replays under them, read from its config.json."""
+    import json
+
+    from bench_helpers import run_tiny, write_tiny_suite
+
+    from packlab.bench.config import run_sides
+
+    suite = write_tiny_suite(tmp_path)
+    run_tiny(suite, tmp_path / "run", sides="catalogue", policies=("random",), seeds=(3,))
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert run_sides(saved) == "catalogue"
+    run = load_run(tmp_path / "run")
+    cases = {c.episode_id: c for c in run.cases}
+    records = list(read_records(tmp_path / "run" / "episodes.jsonl"))
+    assert all(
+        replay_record(cases[r.case_id], r, sides="catalogue").matches_record for r in records
+    )
+    # Under the other names the random policy's rotations would lay some boxes the other way.
+    assert not all(replay_record(cases[r.case_id], r).matches_record for r in records)
+    # packlab viz episode reads the names from the run directory (a figure, no warning).
+    rec = records[0]
+    code = main(
+        ["viz", "episode", str(tmp_path / "run"), "--case", rec.case_id, "--policy", "random",
+         "--out", str(tmp_path / "fig.png")]
+    )  # fmt: skip
+    assert code == 0 and "warning" not in capsys.readouterr().err

@@ -81,19 +81,24 @@ def _sensing(**settings: str) -> dict:
 
 
 def test_documented_ablations_are_labelled_rows():
-    # README's ablation: an exact run against the same run with --sides longer-first. The
-    # exact run's summary has no sensing entry, the other one no segmentation: neither leaks.
+    # README's ablation: the paper's protocol (--sides catalogue) against the default names.
+    # A run made before the side names were always recorded has no sensing entry: it named
+    # them as the catalogue does. Neither run has a segmentation: none leaks into the labels.
     lf = _summary_json({"dblf": 0.3, "hm": 0.35}) | {"sensing": _sensing(sides="longer-first")}
-    merged = merge_summaries(
-        [_summary({"dblf": 0.4, "hm": 0.38}), summary_from_json(json.dumps(lf), "s.json")],
-        ["exact", "lf"],
-    )
-    assert merged.policies == (
-        "exact (sides catalogue): DBLF",
-        "exact (sides catalogue): HM",
-        "lf (sides longer-first): DBLF",
-        "lf (sides longer-first): HM",
-    )
+    paper = _summary_json({"dblf": 0.4, "hm": 0.38}) | {"sensing": _sensing(sides="catalogue")}
+    for catalogue in (
+        _summary({"dblf": 0.4, "hm": 0.38}),
+        summary_from_json(json.dumps(paper), "s"),
+    ):
+        merged = merge_summaries(
+            [catalogue, summary_from_json(json.dumps(lf), "s.json")], ["paper", "ours"]
+        )
+        assert merged.policies == (
+            "paper (sides catalogue): DBLF",
+            "paper (sides catalogue): HM",
+            "ours (sides longer-first): DBLF",
+            "ours (sides longer-first): HM",
+        )
     perceived = _summary_json({"vlm": 0.2}) | {
         "sensing": _sensing(observation="perceived", segmentation="truth")
     }
@@ -104,11 +109,22 @@ def test_documented_ablations_are_labelled_rows():
         [summary_from_json(json.dumps(x), "s.json") for x in (perceived, depth)], ["t", "d"]
     )
     assert merged.policies == ("t (segmentation truth)", "d (segmentation depth)")
+    # A perceived run always named sides longer first, recorded or not (``depth`` has no
+    # ``sides``): against an old exact run (the catalogue's names) the names differ too ...
     merged = merge_summaries(
         [_summary({"vlm": 0.4}), summary_from_json(json.dumps(depth), "s.json")], ["e", "p"]
     )
     assert merged.policies == (
-        "e (observation exact)",
+        "e (observation exact, sides catalogue)",
+        "p (observation perceived, noise structured-light, segmentation depth, sides longer-first)",
+    )
+    # ... against an exact run of this version (longer first by default) only the modes do.
+    merged = merge_summaries(
+        [summary_from_json(json.dumps(x), "s.json") for x in (lf, depth)], ["e", "p"]
+    )
+    assert merged.policies == (
+        "e (observation exact): DBLF",
+        "e (observation exact): HM",
         "p (observation perceived, noise structured-light, segmentation depth)",
     )
 

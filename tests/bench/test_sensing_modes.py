@@ -1,4 +1,5 @@
-"""Issue 15's bench switches: --observation, --execution, --noise (opt-in, part of the identity)."""
+"""Issue 15's bench switches: --observation, --execution, --noise (opt-in, part of the identity),
+and issue 34's --sides (longer first by default; always part of the identity)."""
 
 from __future__ import annotations
 
@@ -13,24 +14,76 @@ from packlab.bench.config import (
     RunConfig,
     check_resumable,
     resolve,
+    run_sides,
+    saved_sensing,
     sensing_identity,
 )
 from packlab.cli.bench import config_from_args
 from packlab.cli.main import build_parser
+from packlab.core.choices import DEFAULT_SIDES, UNRECORDED_SIDES
 from packlab.core.errors import ConfigError
 from packlab.sim.modes import DEFAULT_NOISE
 
 
-def test_defaults_are_exact_and_leave_config_json_as_before(tiny_suite):
+def test_defaults_are_exact_with_sides_named_longer_first(tiny_suite):
     config = RunConfig(cases=str(tiny_suite))
     assert (config.observation, config.execution, config.noise) == ("exact", "exact", DEFAULT_NOISE)
+    assert config.sides == DEFAULT_SIDES == "longer-first"
     run = resolve(config)
     saved = run.to_json()
-    assert "sensing" not in saved and sensing_identity(config) is None
+    # The side names are always written: a run directory says which names its records used.
+    assert (
+        saved["sensing"]
+        == sensing_identity(config)
+        == {
+            "observation": "exact",
+            "execution": "exact",
+            "noise": DEFAULT_NOISE,
+            "sides": "longer-first",
+        }
+    )
     modes = run.episode_modes()
     assert modes.perceiver is None and modes.execution is None
-    # A run directory written before the modes existed still resumes under the defaults.
-    check_resumable({k: v for k, v in saved.items() if k != "sensing"}, saved, tiny_suite)
+    assert modes.sides == "longer-first"
+    assert run.out.name == f"bench-{run.source.label}"
+
+
+def test_old_run_directories_resume_only_under_the_catalogues_names(tiny_suite):
+    """A config.json written before the side names were always recorded has no ``sides`` (an
+    exact run: no ``sensing`` at all); it was made with the catalogue's names and resumes only
+    under them, never silently under the new default."""
+    current = resolve(RunConfig(cases=str(tiny_suite))).to_json()
+    catalogue = resolve(RunConfig(cases=str(tiny_suite), sides="catalogue")).to_json()
+    old = {k: v for k, v in catalogue.items() if k != "sensing"}
+    assert saved_sensing(None)["sides"] == UNRECORDED_SIDES == "catalogue"
+    with pytest.raises(ConfigError, match=r"'sensing.sides' = 'catalogue' here.*--sides catalogue"):
+        check_resumable(old, current, tiny_suite)
+    check_resumable(old, catalogue, tiny_suite)
+    assert run_sides(old) == "catalogue" and run_sides(None) == DEFAULT_SIDES
+    # An exact run made with --sides longer-first before it became the default resumes as is.
+    lf_before = {**old, "sensing": {**current["sensing"], "noise": "stereo"}}
+    check_resumable(lf_before, current, tiny_suite)
+    assert run_sides(lf_before) == "longer-first"
+    # Perceived runs always named sides longer first, recorded or not.
+    perceived = resolve(RunConfig(cases=str(tiny_suite), observation="perceived")).to_json()
+    old_perceived = {**perceived, "sensing": dict(perceived["sensing"])}
+    del old_perceived["sensing"]["sides"]
+    check_resumable(old_perceived, perceived, tiny_suite)
+
+
+def test_an_old_run_directory_is_refused_then_resumed_end_to_end(tiny_suite, tmp_path):
+    out = tmp_path / "old"
+    first = run_tiny(tiny_suite, out, sides="catalogue", seeds=(0,))
+    config_path = out / "config.json"
+    saved = json.loads(config_path.read_text())
+    assert saved["sensing"]["sides"] == "catalogue"
+    del saved["sensing"]  # as a version before issue 34 wrote an exact run's config.json
+    config_path.write_text(json.dumps(saved))
+    with pytest.raises(ConfigError, match="--sides catalogue resumes it"):
+        run_tiny(tiny_suite, out, seeds=(0,))
+    resumed = run_tiny(tiny_suite, out, sides="catalogue", seeds=(0,))
+    assert resumed.ran == 0 and resumed.already_done == first.planned
+    assert resumed.summary.table == first.summary.table
 
 
 def test_modes_enter_the_identity(tiny_suite):
@@ -42,16 +95,18 @@ def test_modes_enter_the_identity(tiny_suite):
         "execution": "exact",
         "noise": "stereo",
         "segmentation": "depth",
+        "sides": "longer-first",
     }
     assert perceived.episode_modes().perceiver is not None
     exact = resolve(RunConfig(cases=str(tiny_suite))).to_json()
-    with pytest.raises(ConfigError, match="'sensing' = None here"):
+    with pytest.raises(ConfigError, match="'sensing.observation' = 'exact' here"):
         check_resumable(exact, saved, tiny_suite)
 
 
 def test_each_mode_gets_its_own_default_run_directory(tiny_suite):
     """With no --out, runs of the modes one after another do not land in one directory (whose
-    identity would refuse the second); the exact default keeps its old name."""
+    identity would refuse the second); the exact default keeps its old name, the catalogue's side
+    names get their own."""
     outs = [
         resolve(RunConfig(cases=str(tiny_suite), **modes)).out
         for modes in (
@@ -68,6 +123,8 @@ def test_each_mode_gets_its_own_default_run_directory(tiny_suite):
     assert outs[1].name == f"{exact}-perceived-structured-light"
     assert outs[2].name == f"{exact}-perceived-noisy-stereo"
     assert outs[3].name == f"{exact}-noisy-structured-light"
+    catalogue = resolve(RunConfig(cases=str(tiny_suite), sides="catalogue"))
+    assert catalogue.out.name == f"{exact}-catalogue"
 
 
 @pytest.mark.parametrize(
@@ -112,8 +169,10 @@ def test_perceived_runs_record_replans_and_compare_labels_their_rows(tiny_suite,
         "execution": "exact",
         "noise": "none",
         "segmentation": "depth",
+        "sides": "longer-first",
     }
-    assert "sensing" not in json.loads((tmp_path / "exact" / "summary.json").read_text())
+    exact_sensing = json.loads((tmp_path / "exact" / "summary.json").read_text())["sensing"]
+    assert exact_sensing["sides"] == "longer-first"
     # Exact against perceived is an ablation of the same cases and seeds: rows say which is which.
     both = compare_markdown([tmp_path / "exact", tmp_path / "seen"])
     assert "| exact (observation exact) |" in both
@@ -121,19 +180,21 @@ def test_perceived_runs_record_replans_and_compare_labels_their_rows(tiny_suite,
     assert "seen2" in compare_markdown([tmp_path / "seen", tmp_path / "seen2"])
 
 
-def test_sides_named_longer_first_enter_the_identity(tiny_suite):
-    named = resolve(RunConfig(cases=str(tiny_suite), sides="longer-first"))
+def test_catalogue_side_names_stay_selectable_and_enter_the_identity(tiny_suite):
+    named = resolve(RunConfig(cases=str(tiny_suite), sides="catalogue"))
     saved = named.to_json()
     assert saved["sensing"] == {
         "observation": "exact",
         "execution": "exact",
         "noise": "structured-light",
-        "sides": "longer-first",
+        "sides": "catalogue",
     }
-    assert named.episode_modes().sides == "longer-first"
-    assert named.out.name.endswith("-longer-first")
-    exact = resolve(RunConfig(cases=str(tiny_suite))).to_json()
-    with pytest.raises(ConfigError, match="'sensing' = None here"):
-        check_resumable(exact, saved, tiny_suite)
-    with pytest.raises(ConfigError, match="sides"):
-        resolve(RunConfig(cases=str(tiny_suite), observation="perceived", sides="longer-first"))
+    assert named.episode_modes().sides == "catalogue"
+    default = resolve(RunConfig(cases=str(tiny_suite))).to_json()
+    with pytest.raises(ConfigError, match="'sensing.sides' = 'catalogue' here, 'longer-first' now"):
+        check_resumable(saved, default, tiny_suite)
+    with pytest.raises(ConfigError, match="sides = 'catalogue': perceived observation"):
+        resolve(RunConfig(cases=str(tiny_suite), observation="perceived", sides="catalogue"))
+    parser = build_parser()
+    args = parser.parse_args(["bench", "--sides", "catalogue"])
+    assert config_from_args(args).sides == "catalogue"

@@ -39,12 +39,16 @@ def test_shuffle_depends_on_case_seed_and_run_seed():
     assert a.shown == b.shown
 
 
+@pytest.mark.parametrize("sides", ["longer-first", "catalogue"])
 @pytest.mark.parametrize("seed", range(5))
-def test_oracle_is_exactly_perfect_on_geometric(seed):
+def test_oracle_is_exactly_perfect_on_geometric(seed, sides):
+    """Under either side names: the plan's rotations refer to the catalogue's (l, w), and the
+    oracle turns those of boxes shown (w, l) (``longer-first`` where l < w)."""
     case = make_layered_case(
         seed, cells=(24, 20), layer_heights_mm=(160, 120, 80), buffer_size=3, pieces=5
     )
-    result = run_episode(case, make_policy("oracle"), seed=seed, backend="geometric")
+    assert any(b.size_mm[0] < b.size_mm[1] for b in case.objects)  # the names differ here
+    result = run_episode(case, make_policy("oracle"), seed=seed, backend="geometric", sides=sides)
     assert all(s.valid for s in result.steps)
     assert result.metrics.overall == 1.0
     assert result.metrics.success_ratio == 1.0 and result.metrics.compactness == 1.0
@@ -104,7 +108,8 @@ def test_drop_height_is_eq2_and_above_rim_executes():
     ep = Episode("geometric")
     ep.reset(case, 0)
     ep.step(Action(0, 0, 0, 0))
-    second = ep.step(Action(0, 0, 1, 0))
+    # Box 1 is shown longer side first, (50, 25): rotation 1 lays its 25 mm side along x.
+    second = ep.step(Action(0, 1, 1, 0))
     assert second.valid and second.drop_mm == (25, 0, 40)  # on top of the first box, above the rim
     metrics = ep.metrics()
     # Box 1's centre is at z = 60 = the rim: inside (closed interior). H = 80 mm.

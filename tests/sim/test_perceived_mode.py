@@ -69,9 +69,8 @@ def test_prediction_is_eq2_and_deviation_follows_the_rule():
 )
 def test_noise_free_perceived_episodes_equal_exact_episodes(backend, policy):
     """A perfect sensor replays the exact episode, on a case whose catalogue lists every box
-    longer side first (perception lists the sides that way: a camera cannot see which side a
-    catalogue calls l; on other cases the policy sees the same boxes with l and w named the
-    other way round)."""
+    longer side first (perception lists the sides that way, as exact observation does by
+    default; with ``sides="catalogue"`` other cases would show l and w the other way round)."""
     case = make_layered_case(2, pieces=5)
     objects = tuple(
         replace(b, size_mm=(max(b.size_mm[:2]), min(b.size_mm[:2]), b.size_mm[2]))
@@ -106,7 +105,8 @@ def test_policy_observes_the_perception_and_replans_are_counted():
     case = make_layered_case(0, pieces=5)
     episode = Episode("geometric", perceiver=_shifted_perceiver)
     first = episode.reset(case, 0)
-    exact = Episode("geometric").reset(case, 0)
+    # The stub lengthens the catalogue's l: compare with the catalogue's names.
+    exact = Episode("geometric", sides="catalogue").reset(case, 0)
     assert [s.size_mm[0] for s in first.shown] == [s.size_mm[0] + 25 for s in exact.shown]
     assert first.shown[0].size_cells[0] == exact.shown[0].size_cells[0] + 1
     result = run_episode(case, make_policy("dblf"), 0, "geometric", perceiver=_shifted_perceiver)
@@ -201,17 +201,20 @@ def test_the_policys_rotation_refers_to_the_sides_it_was_shown():
     assert (xs.max() + 1, ys.max() + 1) == policy_view[:2]
 
 
-def test_exact_observation_can_name_sides_longer_first():
-    """``sides="longer-first"``: the exact state with the names a camera would give; a perfect
-    sensor (truth masks) then replays it step for step, and rotation 0 lays the longer side
-    along x."""
+def test_exact_observation_names_sides_longer_first_by_default():
+    """``sides="longer-first"``, the default: the exact state with the names a camera would
+    give; a perfect sensor (truth masks) then replays it step for step, and rotation 0 lays the
+    longer side along x."""
     case = make_layered_case(2, pieces=5)
     assert any(b.size_mm[0] < b.size_mm[1] for b in case.objects)  # the names matter here
-    named = run_episode(case, make_policy("dblf"), 1, "geometric", sides="longer-first")
+    named = run_episode(case, make_policy("dblf"), 1, "geometric")
+    assert _record(named) == _record(
+        run_episode(case, make_policy("dblf"), 1, "geometric", sides="longer-first")
+    )
     modes = episode_modes("perceived", "exact", "none", "truth")
     seen = run_episode(case, make_policy("dblf"), 1, "geometric", perceiver=modes.perceiver)
     assert _record(seen, drop_mode_keys=True) == _record(named)
-    episode = Episode("geometric", sides="longer-first")
+    episode = Episode("geometric")
     observation = episode.reset(case, 0)
     assert all(s.size_mm[0] >= s.size_mm[1] for s in observation.shown)
     item = next(s for s in observation.shown if s.size_cells[0] != s.size_cells[1])
@@ -220,3 +223,13 @@ def test_exact_observation_can_name_sides_longer_first():
     assert (xs.max() + 1, ys.max() + 1) == item.size_cells[:2]
     with pytest.raises(ConfigError, match="sides"):
         Episode("geometric", sides="alphabetical")
+
+
+def test_exact_observation_can_name_sides_as_the_catalogue_does():
+    """``sides="catalogue"`` (the reference paper's protocol) shows the case's own (l, w, h)."""
+    case = make_layered_case(2, pieces=5)
+    observation = Episode("geometric", sides="catalogue").reset(case, 0)
+    assert [s.size_mm for s in observation.shown] == [
+        case.box_by_id(s.internal_id).size_mm for s in observation.shown
+    ]
+    assert any(s.size_mm[0] < s.size_mm[1] for s in observation.shown)

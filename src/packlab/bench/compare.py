@@ -6,8 +6,9 @@ on the same cases, seeds, difficulties and physics backend (:data:`MUST_MATCH`);
 refused in the user's words: which setting differs, its value in both runs, what compare needs.
 The documented ablations of how a run senses and acts (:data:`ABLATIONS`: ``--sides``,
 ``--segmentation``, ``--observation``, ``--execution``, ``--noise``) may differ: each run's rows
-are then labelled with its setting, e.g. ``exact (sides catalogue): DBLF`` and ``lf (sides
-longer-first): DBLF``.
+are then labelled with its setting, e.g. ``paper (sides catalogue): DBLF`` (the reference
+paper's protocol) and ``ours (sides longer-first): DBLF``. Runs made before side names were
+always recorded read as the catalogue's (exact observation).
 Each summary.json is read as a typed ``RunSummary`` with its version checked (older ones
 migrate; see ``packlab.core.records``).
 
@@ -32,6 +33,7 @@ import msgspec
 
 from packlab.bench.intervals import Difference, paired_difference, varies_over_seeds
 from packlab.bench.table import render_markdown
+from packlab.core.choices import UNRECORDED_SIDES
 from packlab.core.errors import PacklabError
 from packlab.core.records import (
     CaseCells,
@@ -56,12 +58,14 @@ MUST_MATCH: dict[str, tuple[str, str]] = {
 #: The sensing settings (summary ``sensing``, issue 15) a comparison may vary: documented
 #: ablations, each run's rows labelled with its value. Field -> its value when not recorded
 #: (None: the setting does not apply to that run, e.g. segmentation of an exact observation).
+#: ``sides`` not recorded is the catalogue's in exact observation (runs made before it was
+#: always recorded, ``UNRECORDED_SIDES``) and longer first in perceived observation.
 ABLATIONS: dict[str, str | None] = {
     "observation": "exact",
     "execution": "exact",
     "noise": None,
     "segmentation": None,
-    "sides": "catalogue",
+    "sides": UNRECORDED_SIDES,
 }
 #: Fewest paired cases per level for an interval to be read: below it the bootstrap over cases
 #: resamples too few units (1 case: a point) and a difference is not called significant.
@@ -98,11 +102,13 @@ def sensing_settings(summary: RunSummary) -> dict[str, str | None]:
     recorded = (
         msgspec.structs.asdict(sensing)
         if isinstance(sensing, SensingModes)
-        else {}  # absent: both modes exact, sides the catalogue's
+        else {}  # absent: both modes exact, sides the catalogue's (made before issue 34)
     )
     out: dict[str, str | None] = {}
     for name, default in ABLATIONS.items():
         value = recorded.get(name, msgspec.UNSET)
+        if name == "sides" and out["observation"] == "perceived":
+            default = "longer-first"  # perception always named them so
         out[name] = default if value is msgspec.UNSET or value is None else str(value)
     if out["observation"] == "exact" and out["execution"] == "exact":
         out["noise"] = None  # a preset only the perceived and noisy modes use

@@ -17,7 +17,7 @@ import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from packlab.bench.describe import difficulty_order
 from packlab.bench.options import (
@@ -40,6 +40,7 @@ from packlab.bench.options import (
     time_limit_arg,
 )
 from packlab.bench.suites import CaseSource, resolve_cases
+from packlab.core.choices import DEFAULT_SIDES, UNRECORDED_SIDES, SideNames, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
@@ -61,8 +62,9 @@ IDENTITY_KEYS = (
     "backend",
     "difficulties",
     "physics",
-    # Written only when observation or execution is not exact (issue 15), so the config.json
-    # of an exact run, and resuming runs made before these modes existed, are unchanged.
+    # Observation, execution and side names (issue 15, 34): compared as ``saved_sensing``
+    # reads them, so directories made before the entry (or its ``sides``) was always written
+    # resume under the settings they were made with, and only under those.
     "sensing",
 )
 
@@ -89,37 +91,55 @@ def local_cores() -> int:
         return os.cpu_count() or 1
 
 
-def sensing_identity(config: RunConfig) -> dict[str, str] | None:
-    """config.json's ``sensing`` entry: None (left out) when both modes are exact and the sides
-    the catalogue's; with a ``segmentation`` key in perceived runs, ``sides`` when not the
-    catalogue's."""
-    if (
-        config.observation == "exact"
-        and config.execution == "exact"
-        and config.sides == "catalogue"
-    ):
-        return None
+def sensing_identity(config: RunConfig) -> dict[str, str]:
+    """config.json's ``sensing`` entry: the modes, the noise preset, ``segmentation`` in
+    perceived runs and always ``sides`` (see :func:`saved_sensing` for entries written before
+    it was always there)."""
     identity: dict[str, str] = {"observation": config.observation, "execution": config.execution}
     identity["noise"] = config.noise
     if config.observation == "perceived":
         identity["segmentation"] = config.segmentation
-    if config.sides != "catalogue":
-        identity["sides"] = config.sides
+    identity["sides"] = config.sides
     return identity
+
+
+def saved_sensing(entry: object) -> dict[str, str]:
+    """A config.json ``sensing`` entry as this version writes it, from any version's: left out
+    (runs made before issue 15, or exact runs made before side names were always recorded) it
+    was both modes exact; ``sides`` left out was the catalogue's in exact observation
+    (:data:`UNRECORDED_SIDES`) and longer first in perceived observation (perception always
+    named them so). ``noise`` is dropped where both modes are exact: nothing used it."""
+    out = {str(k): str(v) for k, v in entry.items()} if isinstance(entry, dict) else {}
+    out.setdefault("observation", "exact")
+    out.setdefault("execution", "exact")
+    out.setdefault("sides", UNRECORDED_SIDES if out["observation"] == "exact" else "longer-first")
+    if out["observation"] == "exact" and out["execution"] == "exact":
+        out.pop("noise", None)
+    return out
+
+
+def run_sides(saved_config: dict[str, Any] | None) -> SideNames:
+    """The side names a run's records were made with, from its config.json (None: no
+    config.json, records of this version: :data:`DEFAULT_SIDES`). Replays step the recorded
+    actions under these names: a rotation is relative to the sides the policy was shown."""
+    if saved_config is None:
+        return DEFAULT_SIDES
+    sides = saved_sensing(saved_config.get("sensing"))["sides"]
+    require_choice(sides, SideNames, "sensing.sides")
+    return cast(SideNames, sides)
 
 
 def default_out(label: str, config: RunConfig) -> Path:
     """``runs/bench-<suite>``; with a perceived or noisy mode its names are appended
-    (``runs/bench-<suite>-perceived-noisy-stereo``), so running the modes one after another
-    with no ``--out`` gives each its own run directory instead of a refused resume."""
-    sensing = sensing_identity(config)
-    if sensing is None:
-        return Path("runs") / f"bench-{label}"
-    modes = [m for m in (sensing["observation"], sensing["execution"]) if m != "exact"]
-    if not modes:  # exact modes, sides named longer first
-        return Path("runs") / f"bench-{label}-{sensing['sides']}"
-    ablation = ["truth-masks"] if sensing.get("segmentation") == "truth" else []
-    return Path("runs") / "-".join(["bench", label, *modes, sensing["noise"], *ablation])
+    (``runs/bench-<suite>-perceived-noisy-stereo``), and ``-catalogue`` with the catalogue's side
+    names, so running the modes one after another with no ``--out`` gives each its own run
+    directory instead of a refused resume."""
+    modes = [m for m in (config.observation, config.execution) if m != "exact"]
+    if not modes:
+        suffix = [] if config.sides == DEFAULT_SIDES else [config.sides]
+        return Path("runs") / "-".join(["bench", label, *suffix])
+    ablation = ["truth-masks"] if config.segmentation == "truth" else []
+    return Path("runs") / "-".join(["bench", label, *modes, config.noise, *ablation])
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,7 +169,7 @@ class ResolvedRun:
             "backend": self.config.backend,
             "difficulties": list(self.difficulties),
             "physics": self.physics,
-            **({"sensing": sensing} if (sensing := sensing_identity(self.config)) else {}),
+            "sensing": sensing_identity(self.config),
             "execution": {
                 "workers": self.workers,
                 "executor": self.config.executor,
@@ -249,6 +269,8 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
     """ConfigError unless a run directory's saved config has the same identity as this run."""
     for key in IDENTITY_KEYS:
         old, new = saved.get(key), current.get(key)
+        if key == "sensing":
+            old, new = saved_sensing(old), saved_sensing(new)
         if old == new:
             continue
         if isinstance(old, dict) and isinstance(new, dict):
@@ -261,9 +283,20 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
             what = "; ".join(diffs[:3]) + (f"; and {len(diffs) - 3} more" if len(diffs) > 3 else "")
         else:
             what = f"'{key}' = {old!r} here, {new!r} now"
+        hint = ""
+        if (
+            key == "sensing"
+            and isinstance(old, dict)
+            and isinstance(new, dict)
+            and old.get("sides") != new.get("sides")
+        ):
+            hint = (
+                f" (--sides {old.get('sides')} resumes it; runs made before side names were "
+                "recorded named them as the catalogue does)"
+            )
         raise ConfigError(
-            f"{path}: field {what}; a run directory holds one configuration: use another --out "
-            f"(or delete the directory)"
+            f"{path}: field {what}{hint}; a run directory holds one configuration: use another "
+            f"--out (or delete the directory)"
         )
 
 
@@ -290,6 +323,8 @@ __all__ = [
     "parse_seeds",
     "physics_from_json",
     "resolve",
+    "run_sides",
+    "saved_sensing",
     "sensing_identity",
     "time_limit_arg",
 ]

@@ -19,6 +19,7 @@ from typing import Any
 from packlab.core.choices import (
     DEFAULT_NOISE,
     DEFAULT_SEGMENTATION,
+    DEFAULT_SIDES,
     HEURISTICS,
     ExecutionMode,
     Executor,
@@ -188,10 +189,10 @@ class RunConfig:
     #: a robot must) or by the simulator's masks (``truth``, an ablation). Part of the identity
     #: of perceived runs.
     segmentation: Segmentation = DEFAULT_SEGMENTATION
-    #: Exact observation: how a box's sides are named, as the catalogue does (the bench's
-    #: protocol) or longer side first (as perception does: no hint of the layout's orientation).
-    #: Part of the identity when not the catalogue's.
-    sides: SideNames = "catalogue"
+    #: Exact observation: how a box's sides are named, longer side first (as perception does:
+    #: no hint of the layout's orientation) or as the catalogue does (the reference paper's
+    #: protocol). Always part of the identity; a run directory without it used the catalogue's.
+    sides: SideNames = DEFAULT_SIDES
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -264,9 +265,10 @@ def _check_sensing(config: RunConfig) -> None:
     require_choice(config.noise, NoisePreset, "noise")
     require_choice(config.segmentation, Segmentation, "segmentation")
     require_choice(config.sides, SideNames, "sides")
-    if config.observation == "perceived" and config.sides != "catalogue":
+    if config.observation == "perceived" and config.sides != "longer-first":
         raise ConfigError(
-            f"sides = {config.sides!r}: perceived observation always names sides longer first"
+            f"sides = {config.sides!r}: perceived observation always names sides longer first "
+            "(a camera cannot see which side a catalogue calls l)"
         )
     if config.observation == "exact" and config.segmentation != DEFAULT_SEGMENTATION:
         raise ConfigError(

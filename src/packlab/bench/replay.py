@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk, EpisodeRecord, StepRecord
 from packlab.core.types import Action, Case, Unparsable
@@ -34,8 +35,12 @@ class Replay:
     matches_record: bool  # replayed scores and processed objects equal the recorded ones
 
 
-def replay_record(case: Case, record: EpisodeRecord, physics: Any = None) -> Replay:
-    """Step a record's actions through a fresh episode on the record's backend."""
+def replay_record(
+    case: Case, record: EpisodeRecord, physics: Any = None, sides: SideNames = DEFAULT_SIDES
+) -> Replay:
+    """Step a record's actions through a fresh episode on the record's backend, with the side
+    names the run showed (``packlab.bench.config.run_sides``): a recorded rotation refers to
+    them."""
     if not isinstance(record, EpisodeOk):
         raise ConfigError(
             f"record {record.case_id}/{record.policy}/seed {record.seed}: "
@@ -45,7 +50,7 @@ def replay_record(case: Case, record: EpisodeRecord, physics: Any = None) -> Rep
         raise ConfigError(
             f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}"
         )
-    episode = Episode(record.backend, physics)
+    episode = Episode(record.backend, physics, sides=sides)
     episode.reset(case, record.seed)
     heightmaps, same_objects = [], True
     for step in record.steps:

@@ -153,9 +153,10 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
         RunConfig,
         "sides",
         "--sides",
-        help="exact observation: name a box's sides as the catalogue does (the bench's protocol; "
-        "the suites' generator names l after the side a box lies along x in its perfect layout) "
-        "or longer side first, as perception does; default {default}",
+        help="exact observation: name a box's sides longer side first, as perception does, or "
+        "as the catalogue does (catalogue: the reference paper's protocol; the suites' generator "
+        "names l after the side a box lies along x in its perfect layout, a hint no robot has); "
+        "perceived observation always names them longer first; default {default}",
     )
 
 
@@ -167,7 +168,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
         "out",
         "--out",
         help="run directory (default runs/bench-<suite>, plus -perceived/-noisy and the noise "
-        "preset when those modes are on); an existing one is resumed",
+        "preset when those modes are on, -catalogue with --sides catalogue); an existing one "
+        "is resumed",
     )
     add_field(
         p,

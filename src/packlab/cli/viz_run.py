@@ -16,11 +16,13 @@ from packlab.bench.config import (
     parse_policy_args,
     physics_from_json,
     resolve,
+    run_sides,
 )
 from packlab.bench.records import CASES_FILE, CONFIG_FILE, EPISODES_FILE, iter_ok, read_records
 from packlab.bench.replay import replay_record
 from packlab.cases import load_cases
 from packlab.cli.viz import RRD_DIR
+from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Case
@@ -48,6 +50,8 @@ class RecordedEpisode:
     physics: Any  # PhysicsConfig of a mujoco run (None: geometric, or no config.json)
     episodes: Path
     run_dir: Path
+    #: The side names the run showed (its config.json; none: this version's default).
+    sides: SideNames = DEFAULT_SIDES
 
 
 def _recorded_episode(args: argparse.Namespace) -> RecordedEpisode:
@@ -73,16 +77,18 @@ def _recorded_episode(args: argparse.Namespace) -> RecordedEpisode:
         raise ConfigError(f"{cases_path}: no case with episode_id {args.case!r}")
     physics = None
     cfg_path = run_dir / CONFIG_FILE
-    if record.backend == "mujoco" and cfg_path.is_file():
+    saved = json.loads(cfg_path.read_text(encoding="utf-8")) if cfg_path.is_file() else None
+    if record.backend == "mujoco" and saved is not None:
         # Replay with the engine settings the run was scored with.
-        physics = physics_from_json(json.loads(cfg_path.read_text(encoding="utf-8")).get("physics"))
-    return RecordedEpisode(record, case, physics, episodes, run_dir)
+        physics = physics_from_json(saved.get("physics"))
+    # and the side names it showed: a recorded rotation refers to them.
+    return RecordedEpisode(record, case, physics, episodes, run_dir, run_sides(saved))
 
 
 def run_episode_figure(args: argparse.Namespace) -> int:
     found = _recorded_episode(args)
     record, case = found.record, found.case
-    replay = replay_record(case, record, found.physics)
+    replay = replay_record(case, record, found.physics, found.sides)
     if not replay.matches_record:
         print(
             f"packlab viz: warning: the replay scored Overall {replay.overall:.4f}, the record "
@@ -150,7 +156,13 @@ def _rerun_record(args: argparse.Namespace) -> Exported:
     name = f"{record.case_id}_{record.policy}_seed{record.seed}.rrd"
     target = _viewer_target(args, RRD_DIR / name)
     return rerun_replay(
-        found.case, record, target, str(found.episodes), found.physics, args.resimulate
+        found.case,
+        record,
+        target,
+        str(found.episodes),
+        found.physics,
+        args.resimulate,
+        found.sides,
     )
 
 

@@ -87,10 +87,26 @@ NoisePreset = Literal["none", "structured-light", "stereo"]
 #: How perceived buffer objects are segmented (``packlab.sim.sensing``): from the ground-truth
 #: per-pixel ids (the "SAM-perfect" setting) or by connected components above the table plane.
 Segmentation = Literal["truth", "depth"]
-#: How exact observations name a box's sides: as the case's catalogue does (the bench's frozen
-#: protocol; the suites' generator names l after the side a box lies along x in its perfect
-#: layout, a hint no robot has) or longer side first, as perception names them.
+#: How exact observations name a box's sides: longer side first, as perception names them (a
+#: camera cannot see which side a catalogue calls l), or as the case's catalogue does (the
+#: reference paper's protocol; its generator, like ours, names l after the side a box lies along
+#: x in its perfect layout, a hint no robot has: 75 % of perfect placements use rotation 0).
 SideNames = Literal["catalogue", "longer-first"]
+#: The side names of every entry point that builds exact observations (bench, Gym and RL envs,
+#: the data engine, the VLM and candidate state builders, scripts): no orientation hint.
+DEFAULT_SIDES: SideNames = "longer-first"
+#: What a run or dataset recorded before side names were part of its identity used: the
+#: catalogue's names (an absent ``sides`` key reads as this, so an old run is never resumed or
+#: replayed under other names).
+UNRECORDED_SIDES: SideNames = "catalogue"
+
+
+def named_size(size: tuple[int, int, int], sides: SideNames) -> tuple[int, int, int]:
+    """A box's catalogue (l, w, h) as exact observation under ``sides`` names it: rotation r of
+    the named box is rotation ``r ^ 1`` of the catalogue's where the names differ (l < w)."""
+    l, w, h = size
+    return (max(l, w), min(l, w), h) if sides == "longer-first" else (l, w, h)
+
 
 #: The noise preset when none is named: the structured-light camera the issue targets.
 DEFAULT_NOISE: NoisePreset = "structured-light"

@@ -11,12 +11,18 @@ class OraclePolicy:
 
     The plan order is a valid placement order (every object supported), and the arrival order
     of generated cases follows it, so the earliest planned object is always in the window.
+
+    The plan's rotations refer to the catalogue's (l, w); an observation may name a box's sides
+    otherwise (``--sides longer-first``: (w, l) where l < w), and then the shown rotation that
+    puts the box where the plan does is the other one. The oracle tells which from the shown
+    size, so it replays the plan under either naming.
     """
 
     name = "oracle"
 
     def __init__(self) -> None:
         self._plan: dict[InternalId, tuple[int, PlanStep]] = {}
+        self._sizes: dict[InternalId, tuple[int, int, int]] = {}
 
     def reset(self, case: Case, seed: int) -> None:
         if case.gt_plan is None:
@@ -24,6 +30,7 @@ class OraclePolicy:
                 f"case {case.episode_id!r}: the oracle needs a gt_plan and this case has none"
             )
         self._plan = {step.internal_id: (order, step) for order, step in enumerate(case.gt_plan)}
+        self._sizes = {box.internal_id: box.size_mm for box in case.objects}
 
     def act(self, observation: Observation) -> Action:
         planned = [
@@ -35,7 +42,10 @@ class OraclePolicy:
             raise ConfigError("oracle: no shown object is in the plan")
         _, item = min(planned, key=lambda pair: pair[0])
         step = self._plan[item.internal_id][1]
-        return Action(object_id=item.shown_index, rotation=step.rotation, x=step.x, y=step.y)
+        l, w, _ = self._sizes[item.internal_id]
+        swapped = l != w and tuple(item.size_mm[:2]) == (w, l)
+        rotation = step.rotation ^ int(swapped)
+        return Action(object_id=item.shown_index, rotation=rotation, x=step.x, y=step.y)
 
 
 def make_oracle() -> OraclePolicy:

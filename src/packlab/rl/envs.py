@@ -33,7 +33,15 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
-from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, RLAgent, RLReward
+from packlab.core.choices import (
+    DEFAULT_SIDES,
+    ExecutionMode,
+    NoisePreset,
+    ObservationMode,
+    RLAgent,
+    RLReward,
+    SideNames,
+)
 from packlab.core.types import Action, Case
 from packlab.policies.candidates import STUDENT_K
 from packlab.rl.decision import SET_ASIDE  # the envs set a box aside as the agents do
@@ -82,10 +90,11 @@ class ListedActionEnv(gym.Env):
         observation: ObservationMode = "exact",
         execution: ExecutionMode = "exact",
         noise: NoisePreset = DEFAULT_NOISE,
+        sides: SideNames = DEFAULT_SIDES,
     ) -> None:
         # The bench's modes (packlab.sim.modes): the agent sees the perceived state; the reward
-        # is always judged on the true one.
-        modes = episode_modes(observation, execution, noise)
+        # is always judged on the true one. Exact observation names sides as the bench does.
+        modes = episode_modes(observation, execution, noise, sides=sides)
         if cases is None:
             cases = demo_cases_path()
         self.cases = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
@@ -102,7 +111,11 @@ class ListedActionEnv(gym.Env):
         self.action_space = spaces.Discrete(self.spec_features.n_items)
         self.backend_name = backend
         self._episode = Episode(
-            backend, physics, perceiver=modes.perceiver, execution=modes.execution
+            backend,
+            physics,
+            perceiver=modes.perceiver,
+            execution=modes.execution,
+            sides=modes.sides,
         )
         self._reward = StepReward(reward)
         self._encoded: Encoded | None = None

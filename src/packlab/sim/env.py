@@ -19,7 +19,10 @@ the environment may draw, so one policy network can train across container sizes
   preset (``info["replan"]`` per step), the buffer's boxes told apart by ``segmentation``
   (``"depth"``, the default, or the simulator's ``"truth"`` masks); objects perception missed
   are set aside unpacked; ``execution="noisy"`` (mujoco backend) executes each drop with the
-  preset's robot noise. Both modes default to ``"exact"``.
+  preset's robot noise. Both modes default to ``"exact"``. Exact observation names a box's
+  sides longer first (``sides``, the bench's default; ``"catalogue"``: the reference paper's
+  protocol, l the side the box lies along x in its perfect layout); a rotation refers to the
+  sides as shown.
 """
 
 from __future__ import annotations
@@ -34,7 +37,14 @@ import numpy as np
 from gymnasium import spaces
 
 from packlab.cases import load_cases
-from packlab.core.choices import ExecutionMode, NoisePreset, ObservationMode, Segmentation
+from packlab.core.choices import (
+    DEFAULT_SIDES,
+    ExecutionMode,
+    NoisePreset,
+    ObservationMode,
+    Segmentation,
+    SideNames,
+)
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.core.types import Action, Case
 from packlab.metrics import inside_mask, success_ratio
@@ -101,8 +111,10 @@ class PackEnv(gym.Env):
         execution: ExecutionMode = "exact",
         noise: NoisePreset = DEFAULT_NOISE,
         segmentation: Segmentation = DEFAULT_SEGMENTATION,
+        sides: SideNames = DEFAULT_SIDES,
     ) -> None:
-        modes = episode_modes(observation, execution, noise, segmentation)  # checks names first
+        # checks names first
+        modes = episode_modes(observation, execution, noise, segmentation, sides)
         if cases is None:
             cases = demo_cases_path()
         self.cases: list[Case] = (
@@ -136,7 +148,11 @@ class PackEnv(gym.Env):
         )
         self.action_space = spaces.Discrete(n_actions)
         self._episode = Episode(
-            backend, physics, perceiver=modes.perceiver, execution=modes.execution
+            backend,
+            physics,
+            perceiver=modes.perceiver,
+            execution=modes.execution,
+            sides=modes.sides,
         )
         self._case: Case | None = None
         self._reward = InsideVolume()

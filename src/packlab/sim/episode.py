@@ -14,7 +14,13 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from packlab.core.choices import PhysicsBackend, SideNames, require_choice
+from packlab.core.choices import (
+    DEFAULT_SIDES,
+    PhysicsBackend,
+    SideNames,
+    named_size,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
@@ -187,7 +193,7 @@ class Episode:
         perceiver: Perceiver | None = None,
         execution: ExecutionNoise | None = None,
         replan: ReplanRule = DEFAULT_REPLAN,
-        sides: SideNames = "catalogue",
+        sides: SideNames = DEFAULT_SIDES,
     ) -> None:
         require_choice(sides, SideNames, "sides")
         self._sides = sides
@@ -335,8 +341,7 @@ class Episode:
 
     def _named(self, size: tuple[int, int, int]) -> tuple[int, int, int]:
         """A box's sides as exact observation names them (``sides``)."""
-        l, w, h = size
-        return (max(l, w), min(l, w), h) if self._sides == "longer-first" else (l, w, h)
+        return named_size(size, self._sides)
 
     def observe(self) -> Observation:
         if self.case is None:
@@ -633,7 +638,7 @@ def run_episode(
     *,
     perceiver: Perceiver | None = None,
     execution: ExecutionNoise | None = None,
-    sides: SideNames = "catalogue",
+    sides: SideNames = DEFAULT_SIDES,
 ) -> EpisodeResult:
     """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result.
 

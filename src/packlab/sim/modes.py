@@ -16,6 +16,7 @@ import numpy as np
 from packlab.core.choices import (
     DEFAULT_NOISE,
     DEFAULT_SEGMENTATION,
+    DEFAULT_SIDES,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
@@ -71,7 +72,7 @@ class EpisodeModes:
     perceiver: Perceiver | None = None
     execution: ExecutionNoise | None = None
     #: Exact observation: the sides' names (perceived mode always names them longer first).
-    sides: SideNames = "catalogue"
+    sides: SideNames = DEFAULT_SIDES
 
 
 #: Both modes exact: what every run uses unless asked otherwise.
@@ -83,7 +84,7 @@ def episode_modes(
     execution: ExecutionMode = "exact",
     noise: NoisePreset = DEFAULT_NOISE,
     segmentation: Segmentation = DEFAULT_SEGMENTATION,
-    sides: SideNames = "catalogue",
+    sides: SideNames = DEFAULT_SIDES,
 ) -> EpisodeModes:
     """The modes by name (ConfigError naming the field for an unknown value)."""
     require_choice(observation, ObservationMode, "observation")
@@ -102,6 +103,7 @@ def episode_modes(
 __all__ = [
     "DEFAULT_NOISE",
     "DEFAULT_SEGMENTATION",
+    "DEFAULT_SIDES",
     "EXACT_MODES",
     "EpisodeModes",
     "SensingPerceiver",

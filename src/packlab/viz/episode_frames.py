@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from msgspec import UNSET, UnsetType
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames, named_size
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk, StepRecord, to_builtins
 from packlab.core.types import Case, InternalId, ShownItem
@@ -125,26 +126,32 @@ def has_step_poses(record: EpisodeOk) -> bool:
     return bool(record.steps) and all(getattr(s, "poses", UNSET) is not UNSET for s in record.steps)
 
 
-def _shown_items(case: Case, ids: tuple[InternalId, ...]) -> tuple[ShownItem, ...]:
-    """A step record's shown ids as the ShownItems the policy saw (sizes from the case)."""
+def _shown_items(
+    case: Case, ids: tuple[InternalId, ...], sides: SideNames
+) -> tuple[ShownItem, ...]:
+    """A step record's shown ids as the ShownItems the policy saw (sizes from the case, named
+    as the run named them)."""
     cell_xy, cell_z = case.container.cell_xy_mm, case.container.cell_z_mm
     items = []
     for index, iid in enumerate(ids):
         box = case.box_by_id(iid)
-        l, w, h = box.size_mm
+        size = named_size(box.size_mm, sides)
+        l, w, h = size
         cells = (-(-l // cell_xy), -(-w // cell_xy), -(-h // cell_z))
-        items.append(ShownItem(index, iid, box.size_mm, cells, box.type_id))
+        items.append(ShownItem(index, iid, size, cells, box.type_id))
     return tuple(items)
 
 
-def _recorded_step(case: Case, step: StepRecord, pos: np.ndarray, quat: np.ndarray) -> StepResult:
+def _recorded_step(
+    case: Case, step: StepRecord, pos: np.ndarray, quat: np.ndarray, sides: SideNames
+) -> StepResult:
     return StepResult(
         step_index=step.step,
         action=step.action.to_action(),
         valid=step.valid,
         reason=step.reason,
         internal_id=step.internal_id,
-        shown=_shown_items(case, step.shown),
+        shown=_shown_items(case, step.shown, sides),
         drop_mm=step.drop_mm,
         settle_steps=step.settle_steps,
         settled=step.settled,
@@ -156,7 +163,7 @@ def _recorded_step(case: Case, step: StepRecord, pos: np.ndarray, quat: np.ndarr
     )
 
 
-def _recorded_frames(case: Case, record: EpisodeOk) -> tuple[Frame, ...]:
+def _recorded_frames(case: Case, record: EpisodeOk, sides: SideNames) -> tuple[Frame, ...]:
     """Frames from a record's own per-step poses; heightmaps rasterised from them."""
     n = len(case.objects)
     pos, quat = np.full((n, 3), np.nan), np.full((n, 4), np.nan)
@@ -179,7 +186,7 @@ def _recorded_frames(case: Case, record: EpisodeOk) -> tuple[Frame, ...]:
         )
         last = k == len(record.steps) - 1
         metrics = _episode_metrics(record) if last else None
-        frames.append(Frame(_recorded_step(case, step, pos, quat), heightmap, None, metrics))
+        frames.append(Frame(_recorded_step(case, step, pos, quat, sides), heightmap, None, metrics))
     return tuple(frames)
 
 
@@ -190,10 +197,11 @@ def _episode_metrics(record: EpisodeOk) -> EpisodeMetrics:
 
 
 def _resimulated_frames(
-    case: Case, record: EpisodeOk, physics: Any
+    case: Case, record: EpisodeOk, physics: Any, sides: SideNames
 ) -> tuple[tuple[Frame, ...], bool, bool]:
-    """(frames, same steps, same scores) of the record's actions stepped again."""
-    episode = Episode(record.backend, physics)
+    """(frames, same steps, same scores) of the record's actions stepped again, under the side
+    names the run showed (a recorded rotation refers to them)."""
+    episode = Episode(record.backend, physics, sides=sides)
     episode.reset(case, record.seed)
     frames: list[Frame] = []
     same_steps = True
@@ -212,10 +220,15 @@ def _resimulated_frames(
 
 
 def replay_frames(
-    case: Case, record: EpisodeOk, physics: Any = None, resimulate: bool = False
+    case: Case,
+    record: EpisodeOk,
+    physics: Any = None,
+    resimulate: bool = False,
+    sides: SideNames = DEFAULT_SIDES,
 ) -> Replay:
     """A record's episode as frames: from its per-step poses when it has them, else (or with
-    ``resimulate``) by stepping its actions again on its backend with ``physics``."""
+    ``resimulate``) by stepping its actions again on its backend with ``physics``. ``sides``:
+    the side names the run showed (``packlab.bench.config.run_sides``)."""
     if record.case_id != case.episode_id:
         raise ConfigError(
             f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}"
@@ -223,11 +236,11 @@ def replay_frames(
     if not record.steps:
         raise ConfigError(f"record {record.case_id}/{record.policy}/seed {record.seed}: no steps")
     if has_step_poses(record) and not resimulate:
-        method, frames = RECORDED_POSES, _recorded_frames(case, record)
+        method, frames = RECORDED_POSES, _recorded_frames(case, record, sides)
         same_steps = same_scores = True  # the record's own steps and scores
     else:
         method = RESIMULATED
-        frames, same_steps, same_scores = _resimulated_frames(case, record, physics)
+        frames, same_steps, same_scores = _resimulated_frames(case, record, physics, sides)
     return Replay(
         frames,
         method,

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Case, Container
@@ -199,10 +200,12 @@ def export_replay(
     source: str,
     physics: Any = None,
     resimulate: bool = False,
+    sides: SideNames = DEFAULT_SIDES,
 ) -> Exported:
     """Send a bench record's episode to ``target``, step by step (``replay_frames`` says how
-    the steps are rebuilt: from the record's poses, or by stepping its actions again)."""
-    replay = replay_frames(case, record, physics, resimulate)
+    the steps are rebuilt: from the record's poses, or by stepping its actions again, under
+    the run's side names ``sides``)."""
+    replay = replay_frames(case, record, physics, resimulate, sides)
     info = EpisodeInfo(case, record.policy, record.seed, record.backend, source)
     name = f"{case.episode_id} {record.policy} seed {record.seed}"
     opened = open_recording(target, name, case.container, log_time=False)
