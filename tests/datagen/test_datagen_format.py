@@ -45,14 +45,17 @@ def test_steps_replay_their_episode(tiny_dataset):
         assert [s["step_index"] for s in steps] == list(range(len(case.objects)))
         assert episodes[eid]["overall"] == 1.0
         for s in steps:
-            # object_id indexes the buffer as shown that step, and the action is the plan's.
+            # object_id indexes the buffer as shown that step, and the action is the plan's,
+            # its rotation referring to the sides as shown (longer first: the plan's turned
+            # where the catalogue lists the shorter side first).
             placed = s["shown"][s["action"]["object_id"]]
             assert placed["internal_id"] == s["internal_id"]
             p = plan[s["internal_id"]]
+            l, w, _ = case.box_by_id(s["internal_id"]).size_mm
             assert (s["action"]["x"], s["action"]["y"], s["action"]["rotation"]) == (
                 p.x,
                 p.y,
-                p.rotation,
+                p.rotation ^ int(l < w),
             )
             assert len(s["shown"]) == min(case.buffer_size, s["remaining"])
             assert json.loads(s["action_text"]) == s["action"]

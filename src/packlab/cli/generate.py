@@ -161,6 +161,16 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
         help="policy whose actions the trajectories hold (e.g. plan, sdf); the oracle replays "
         "each layout's own plan; default {default}",
     )
+    add_field(
+        p,
+        DatasetConfig,
+        "sides",
+        "--sides",
+        help="how the rows name a box's sides (sizes and ground-truth actions alike): longer "
+        "side first, as a robot's perception does, or as the catalogue does (catalogue: the "
+        "reference paper's protocol, l the side a box lies along x in its perfect layout); "
+        "default {default}",
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

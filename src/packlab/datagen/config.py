@@ -16,11 +16,13 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from packlab.core.choices import (
+    DEFAULT_SIDES,
     ArrivalOrder,
     Executor,
     LayoutFamily,
     PhysicsBackend,
     SFTExport,
+    SideNames,
     require_choice,
 )
 from packlab.core.errors import ConfigError
@@ -283,6 +285,11 @@ class DatasetConfig:
     #: closed loop on each validated case, on the validation backend, and its trajectory is
     #: written whatever it scores: labels of that teacher on the states it reaches itself.
     teacher: str = "oracle"
+    #: How the rows' observations name a box's sides (``packlab.core.choices.SideNames``): longer
+    #: first, as a robot's perception does, or as the catalogue does (the reference's protocol,
+    #: l after the side a box lies along x in its perfect layout). Sizes and ground-truth
+    #: actions are written in that frame. Always saved; a dataset without it used the catalogue's.
+    sides: SideNames = DEFAULT_SIDES
 
     def __post_init__(self) -> None:
         if self.seed is None:
@@ -324,6 +331,7 @@ class DatasetConfig:
         if not 16 <= self.image_size <= 4096:
             raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
         require_choice(self.sft, SFTExport, "sft")
+        require_choice(self.sides, SideNames, "sides")
         if not self.teacher.strip():
             raise ConfigError("teacher = '': name a registered policy, e.g. oracle or plan")
         if self.case.layout == "random" and self.teacher == "oracle":

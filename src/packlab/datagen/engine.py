@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from packlab.core.choices import UNRECORDED_SIDES
 from packlab.core.errors import ConfigError
 from packlab.core.records import (
     PACKDATA_FORMAT,
@@ -104,12 +105,12 @@ def produce_slot(cfg: DatasetConfig, difficulty: str, slot: int) -> SlotOutcome:
     assert cfg.seed is not None, "DatasetConfig resolves its seed on creation"
     outcome = fill_slot(
         cfg.seed, TRAIN_DOMAIN, difficulty, slot, cfg.case, cfg.validation,
-        id_prefix(TRAIN_DOMAIN, cfg.seed),
+        id_prefix(TRAIN_DOMAIN, cfg.seed), sides=cfg.sides,
     )  # fmt: skip
     if cfg.teacher == "oracle" or outcome.case is None:
         return outcome
     v = cfg.validation
-    taught = replay(outcome.case, v.backend, v.run_seed, teacher=cfg.teacher)
+    taught = replay(outcome.case, v.backend, v.run_seed, teacher=cfg.teacher, sides=cfg.sides)
     return replace(outcome, trajectory=taught)
 
 
@@ -194,6 +195,10 @@ def prepare_output(cfg: DatasetConfig, out: str | os.PathLike[str]) -> Path:
     wanted = _config_json(cfg)
     if config_path.exists():
         stored = json.loads(config_path.read_text())
+        # Datasets made before the field existed named sides as the catalogue does: they
+        # resume only under those names, never mixed with rows named otherwise.
+        if isinstance(stored, dict):
+            stored.setdefault("sides", UNRECORDED_SIDES)
         if stored != wanted:
             diff = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
             raise ConfigError(

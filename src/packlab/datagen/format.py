@@ -65,7 +65,9 @@ _SHOWN = pa.struct(
             pa.int32(),
         ),  # index in the shown buffer (what an action's object_id refers to)
         ("internal_id", pa.int32()),
-        ("size_cm", pa.list_(pa.float64())),  # object's own (l, w, h) at rotation 0
+        # (l, w, h) as the observation names them (generator_config ``sides``); the action's
+        # rotation refers to these
+        ("size_cm", pa.list_(pa.float64())),
         ("size_cells", pa.list_(pa.int32())),  # (l, w) xy cells, h z cells
         ("type_id", pa.int32()),
     ]

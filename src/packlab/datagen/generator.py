@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Box, Case, PlanStep
 from packlab.datagen.config import (
@@ -221,10 +222,12 @@ def fill_slot(
     validation: ValidationConfig,
     id_prefix: str,
     replay_plan: bool = True,
+    sides: SideNames = DEFAULT_SIDES,
 ) -> SlotOutcome:
     """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out).
 
-    A ``random`` case has no plan to check or replay: attempt 0 is taken as it is.
+    A ``random`` case has no plan to check or replay: attempt 0 is taken as it is. The accepted
+    replay's observations name sides as ``sides`` says.
     """
     if cfg.layout == "random":
         case = slot_case(user_seed, domain, difficulty, slot, 0, cfg, id_prefix)
@@ -232,7 +235,7 @@ def fill_slot(
     rejected: list[str] = []
     for attempt in range(validation.max_attempts):
         case = slot_case(user_seed, domain, difficulty, slot, attempt, cfg, id_prefix)
-        verdict = check_case(case, validation, replay_plan=replay_plan)
+        verdict = check_case(case, validation, replay_plan=replay_plan, sides=sides)
         if verdict.accepted:
             return SlotOutcome(case, verdict.trajectory, tuple(rejected))
         rejected.append(verdict.reason)

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import Action, Case, Observation, ShownItem, Unparsable
 from packlab.datagen.config import ValidationConfig
@@ -120,11 +121,14 @@ def replay(
     run_seed: int = 0,
     physics: Any = None,
     teacher: str = "oracle",
+    sides: SideNames = DEFAULT_SIDES,
 ) -> Trajectory:
     """A closed-loop run of ``teacher`` on ``case`` (run_episode with the bench's loop); the
-    default, the oracle, replays ``case.gt_plan``."""
+    default, the oracle, replays ``case.gt_plan``. The observations recorded, and so the sizes
+    and actions a dataset writes, name sides as ``sides`` says (the oracle turns the plan's
+    catalogue rotations to match)."""
     policy = _Recording(make_policy(teacher))
-    result = run_episode(case, policy, run_seed, backend=backend, physics=physics)
+    result = run_episode(case, policy, run_seed, backend=backend, physics=physics, sides=sides)
     return Trajectory(
         case=case,
         run_seed=run_seed,
@@ -157,15 +161,20 @@ def judge(trajectory: Trajectory, min_overall: float) -> str:
 
 
 def check_case(
-    case: Case, cfg: ValidationConfig, replay_plan: bool = True, physics: Any = None
+    case: Case,
+    cfg: ValidationConfig,
+    replay_plan: bool = True,
+    physics: Any = None,
+    sides: SideNames = DEFAULT_SIDES,
 ) -> Verdict:
-    """Plan checks, then (with ``replay_plan``) the closed-loop replay on ``cfg.backend``."""
+    """Plan checks, then (with ``replay_plan``) the closed-loop replay on ``cfg.backend``, its
+    observations naming sides as ``sides`` says."""
     if plan_problems(case):
         return Verdict(False, "plan_check")
     if not replay_plan:
         return Verdict(True, "")
     try:
-        trajectory = replay(case, cfg.backend, cfg.run_seed, physics)
+        trajectory = replay(case, cfg.backend, cfg.run_seed, physics, sides=sides)
     except Exception as exc:  # noqa: BLE001 - an engine failure rejects the case; the run goes on
         return Verdict(False, f"engine_error:{type(exc).__name__}")
     reason = judge(trajectory, cfg.min_overall)
