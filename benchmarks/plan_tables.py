@@ -4,6 +4,13 @@ Usage:
     python benchmarks/plan_tables.py --out runs/plan-tables             # everything, 3 seeds
     python benchmarks/plan_tables.py --out runs/plan-tables --sets stepped,random --seeds 0
     python benchmarks/plan_tables.py --out runs/plan-tables --report    # tables only, no runs
+    python benchmarks/plan_tables.py --out runs/plan-tables --sets removal --mode stereo \
+        --policies plan-fast,irbpp --reference plan-fast                # the robot path
+
+``--mode`` runs the sets on the robot path (``honest``: perceived + noisy execution + depth
+segmentation, the buffer's boxes touching) under a sensor and robot preset, into
+``OUT/<set>-<mode>/``; with an exact run of the same set in ``OUT/<set>/`` the report adds each
+row's paired loss exact minus honest.
 
 Each case set is written once under ``OUT/cases/`` and run with ``packlab bench`` into
 ``OUT/<set>/`` (resumable: rerun the same command after a crash). The report reads the records
@@ -20,6 +27,7 @@ bench's; the full-visibility sets set every case's ``buffer_size`` to its number
 * ``layers``: packlab-bench-layers-v1 (layer by layer, shuffled within a layer);
 * ``removal-full``, ``layers-full``: the same cases with every box in view;
 * ``layered-fresh``: 60 new layered cases in layer order (the suites' recipe);
+* ``removal-fresh``: 60 new layered cases in reverse-removal order (packlab-bench-v1's);
 * ``stepped``, ``random``: 60 new cases of the stepped family and of independently drawn boxes.
 """
 
@@ -46,7 +54,12 @@ from packlab.datagen.config import CaseConfig
 LEVELS = ("easy", "medium", "hard")
 PER_LEVEL = 20
 #: Seeds of the fresh sets: used by nothing else in the repository.
-FRESH_SEEDS = {"layered-fresh": 92_501, "stepped": 92_502, "random": 92_503}
+FRESH_SEEDS = {
+    "layered-fresh": 92_501,
+    "stepped": 92_502,
+    "random": 92_503,
+    "removal-fresh": 92_504,
+}
 COMPARED = "plan,plan-fast,plan-lookahead,sdf,proposer"
 POLICIES = {
     "layers": COMPARED,
@@ -54,6 +67,7 @@ POLICIES = {
     "layers-full": "plan,plan-fast",
     "removal-full": "plan,plan-fast",
     "layered-fresh": "plan,plan-fast",
+    "removal-fresh": "plan,plan-fast",
     "stepped": COMPARED,
     "random": COMPARED,
 }
@@ -70,6 +84,7 @@ def build_cases(name: str) -> list[Case]:
         return cases
     config = {
         "layered-fresh": CaseConfig(order="layers"),
+        "removal-fresh": CaseConfig(order="removal"),
         "stepped": CaseConfig(layout="stepped"),
         "random": CaseConfig(layout="random"),
     }[name]
@@ -82,7 +97,21 @@ def build_cases(name: str) -> list[Case]:
     ]
 
 
-def run_set(name: str, out: Path, seeds: str, backend: str, policies: str) -> None:
+#: The robot path's modes: ``packlab bench`` options of each (exact: none).
+_HONEST = ["--observation", "perceived", "--execution", "noisy", "--segmentation", "depth"]
+MODES: dict[str, list[str]] = {
+    "exact": [],
+    **{preset: [*_HONEST, "--noise", preset] for preset in ("structured-light", "stereo")},
+}
+
+
+def run_dir(out: Path, name: str, mode: str) -> Path:
+    return out / (name if mode == "exact" else f"{name}-{mode}")
+
+
+def run_set(
+    name: str, out: Path, seeds: str, backend: str, policies: str, mode: str = "exact"
+) -> None:
     cases_path = out / "cases" / f"{name}.jsonl"
     if not cases_path.is_file():
         cases_path.parent.mkdir(parents=True, exist_ok=True)
@@ -90,7 +119,7 @@ def run_set(name: str, out: Path, seeds: str, backend: str, policies: str) -> No
     command = [
         sys.executable, "-m", "packlab.cli.main", "bench", "--cases", str(cases_path),
         "--policies", policies, "--seeds", seeds, "--backend", backend,
-        "--out", str(out / name), "--no-html", "--no-figures",
+        "--out", str(run_dir(out, name, mode)), "--no-html", "--no-figures", *MODES[mode],
     ]  # fmt: skip
     print("+", " ".join(command), flush=True)
     subprocess.run(command, check=True)
@@ -119,12 +148,15 @@ def _records(run_dir: Path) -> dict[str, dict[str, dict]]:
     return out
 
 
-def report_set(name: str, run_dir: Path) -> str:
-    """The markdown table of one set (see the module docstring)."""
+def report_set(
+    name: str, run_dir: Path, reference: str = "plan", exact_dir: Path | None = None
+) -> str:
+    """The markdown table of one set (see the module docstring): paired differences of
+    ``reference`` minus every other row and, given the same set's exact run, each row's loss."""
     rng = np.random.default_rng(0)
     records = _records(run_dir)
     lines = [
-        f"### {name}",
+        f"### {run_dir.name}",
         "",
         "| Method | " + " | ".join(f"{lv.capitalize()} Overall" for lv in LEVELS)
         + " | Average Overall | ms / decision (" + " / ".join(LEVELS) + ") |",
@@ -145,20 +177,33 @@ def report_set(name: str, run_dir: Path) -> str:
             ms.append(f"{1000 * sum(c['policy_s'] for c in rows) / max(decisions, 1):.0f}")
         lines.append(f"| {policy} | " + " | ".join(cells) + f" | {' / '.join(ms)} |")
     lines += ["", *decision_tails(run_dir)]
-    if "plan" in records:
-        lines += ["", "Paired difference, plan minus each row (95 % bootstrap over cases):", ""]
-        plan = records["plan"]
+    if reference in records:
+        lines += [
+            "",
+            f"Paired difference, {reference} minus each row (95 % bootstrap over cases):",
+            "",
+        ]
+        ref = records[reference]
         for policy, cases in sorted(records.items()):
-            common = sorted(set(plan) & set(cases))
-            if policy == "plan" or not common:
-                continue
-            d = np.array(
-                [np.mean(plan[c]["overall"]) - np.mean(cases[c]["overall"]) for c in common]
-            )
-            lo, hi = _bootstrap(d, rng)
-            verdict = "higher" if lo > 0 else ("lower" if hi < 0 else "no difference")
-            lines.append(f"- vs {policy}: {d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] ({verdict})")
+            if policy != reference:
+                lines.append(f"- vs {policy}: {_paired(ref, cases, rng)}")
+    exact = _records(exact_dir) if exact_dir and (exact_dir / "episodes.jsonl").is_file() else {}
+    losses = [p for p in records if p in exact]
+    if losses:
+        lines += ["", "Loss, exact minus this mode, per row (paired over cases):", ""]
+        lines += [f"- {p}: {_paired(exact[p], records[p], rng)}" for p in sorted(losses)]
     return "\n".join(lines) + "\n"
+
+
+def _paired(a: dict[str, dict], b: dict[str, dict], rng: np.random.Generator) -> str:
+    """Mean of a minus b over their common cases, its 95 % bootstrap interval and verdict."""
+    common = sorted(set(a) & set(b))
+    if not common:
+        return "no common cases"
+    d = np.array([np.mean(a[c]["overall"]) - np.mean(b[c]["overall"]) for c in common])
+    lo, hi = _bootstrap(d, rng)
+    verdict = "higher" if lo > 0 else ("lower" if hi < 0 else "no difference")
+    return f"{d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] ({verdict})"
 
 
 def decision_tails(run_dir: Path) -> list[str]:
@@ -198,6 +243,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
     p.add_argument("--policies", help="override every set's policy list")
     p.add_argument("--report", action="store_true", help="print the tables from existing runs")
+    p.add_argument(
+        "--mode", default="exact", choices=tuple(MODES), help="exact, or honest under a preset"
+    )
+    p.add_argument("--reference", default="plan", help="the row paired differences are taken from")
     args = p.parse_args(argv)
     out = Path(args.out)
     names = [n for n in args.sets.split(",") if n]
@@ -205,10 +254,13 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         p.error(f"--sets: unknown {unknown}; choose from {', '.join(POLICIES)}")
     for name in names:
+        policies = args.policies or POLICIES[name]
         if not args.report:
-            run_set(name, out, args.seeds, args.backend, args.policies or POLICIES[name])
-        if (out / name / "episodes.jsonl").is_file():
-            print(report_set(name, out / name))
+            run_set(name, out, args.seeds, args.backend, policies, args.mode)
+        here = run_dir(out, name, args.mode)
+        if (here / "episodes.jsonl").is_file():
+            exact = None if args.mode == "exact" else run_dir(out, name, "exact")
+            print(report_set(name, here, args.reference, exact))
     return 0
 
 

@@ -98,7 +98,8 @@ def test_modes_enter_the_identity(tiny_suite):
         "sides": "longer-first",
     }
     assert perceived.episode_modes().perceiver is not None
-    exact = resolve(RunConfig(cases=str(tiny_suite))).to_json()
+    # The same policies (the default list of a perceived run leaves the oracle out).
+    exact = resolve(RunConfig(cases=str(tiny_suite), policies=perceived.policies)).to_json()
     with pytest.raises(ConfigError, match="'sensing.observation' = 'exact' here"):
         check_resumable(exact, saved, tiny_suite)
 
@@ -198,3 +199,30 @@ def test_catalogue_side_names_stay_selectable_and_enter_the_identity(tiny_suite)
     parser = build_parser()
     args = parser.parse_args(["bench", "--sides", "catalogue"])
     assert config_from_args(args).sides == "catalogue"
+
+
+def test_remaining_can_be_hidden_and_is_then_part_of_the_identity(tiny_suite, tmp_path):
+    """--remaining hidden: observations carry None, the identity and default directory say so,
+    and a run made with it is not resumed as one without it; the default leaves the identity
+    as every run made before the switch wrote it."""
+    default = resolve(RunConfig(cases=str(tiny_suite)))
+    assert "remaining" not in default.to_json()["sensing"]
+    assert default.episode_modes().show_remaining
+    hidden = resolve(RunConfig(cases=str(tiny_suite), remaining="hidden"))
+    assert hidden.to_json()["sensing"]["remaining"] == "hidden"
+    assert not hidden.episode_modes().show_remaining
+    assert hidden.out.name.endswith("-remaining-hidden")
+    with pytest.raises(ConfigError, match="remaining"):
+        check_resumable(hidden.to_json(), default.to_json(), tiny_suite)
+    outcome = run_tiny(tiny_suite, tmp_path / "hidden", remaining="hidden", policies=("plan-fast",))
+    assert outcome.summary.policies == ("plan-fast",)
+    args = build_parser().parse_args(["bench", "--remaining", "hidden"])
+    assert config_from_args(args).remaining == "hidden"
+    with pytest.raises(ConfigError, match="remaining"):
+        RunConfig(remaining="unknown")  # type: ignore[arg-type]
+
+
+def test_perceived_runs_leave_the_oracle_out_of_the_default_policies(tiny_suite):
+    exact = resolve(RunConfig(cases=str(tiny_suite)))
+    seen = resolve(RunConfig(cases=str(tiny_suite), observation="perceived"))
+    assert "oracle" in exact.policies and "oracle" not in seen.policies

@@ -40,7 +40,14 @@ from packlab.bench.options import (
     time_limit_arg,
 )
 from packlab.bench.suites import CaseSource, resolve_cases
-from packlab.core.choices import DEFAULT_SIDES, UNRECORDED_SIDES, SideNames, require_choice
+from packlab.core.choices import (
+    DEFAULT_REMAINING,
+    DEFAULT_SIDES,
+    UNRECORDED_SIDES,
+    ObservationMode,
+    SideNames,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
@@ -69,16 +76,19 @@ IDENTITY_KEYS = (
 )
 
 
-def default_policies(cases: tuple[Case, ...] = ()) -> tuple[str, ...]:
+def default_policies(
+    cases: tuple[Case, ...] = (), observation: ObservationMode = "exact"
+) -> tuple[str, ...]:
     """:data:`DEFAULT_POLICIES` (packlab.bench.options): every heuristic, the planner at its fast
     budget (``plan-fast``), the shipped learned policies (:data:`LEARNED_DEFAULTS`), then random
-    and the oracle (when every case has a plan).
+    and the oracle (when every case has a plan and observation is exact: perceived mode shows
+    boxes under fresh ids, which name no step of a plan).
 
     ``plan`` at its default budget is left to ``--policies``: it would take the default run past
     five minutes on two cores; so are the other registered policies (the text-answer ``vlm-small``,
     ``endpoint``, the proposer, the RL random floors).
     """
-    if all(c.gt_plan is not None for c in cases):
+    if observation == "exact" and all(c.gt_plan is not None for c in cases):
         return DEFAULT_POLICIES
     return tuple(n for n in DEFAULT_POLICIES if n != NEEDS_PLAN)
 
@@ -100,6 +110,8 @@ def sensing_identity(config: RunConfig) -> dict[str, str]:
     if config.observation == "perceived":
         identity["segmentation"] = config.segmentation
     identity["sides"] = config.sides
+    if config.remaining != DEFAULT_REMAINING:  # absent: shown, as every run before the switch
+        identity["remaining"] = config.remaining
     return identity
 
 
@@ -135,11 +147,12 @@ def default_out(label: str, config: RunConfig) -> Path:
     names, so running the modes one after another with no ``--out`` gives each its own run
     directory instead of a refused resume."""
     modes = [m for m in (config.observation, config.execution) if m != "exact"]
+    hidden = ["remaining-hidden"] if config.remaining != DEFAULT_REMAINING else []
     if not modes:
         suffix = [] if config.sides == DEFAULT_SIDES else [config.sides]
-        return Path("runs") / "-".join(["bench", label, *suffix])
+        return Path("runs") / "-".join(["bench", label, *suffix, *hidden])
     ablation = ["truth-masks"] if config.segmentation == "truth" else []
-    return Path("runs") / "-".join(["bench", label, *modes, config.noise, *ablation])
+    return Path("runs") / "-".join(["bench", label, *modes, config.noise, *ablation, *hidden])
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,7 +202,9 @@ class ResolvedRun:
     def episode_modes(self) -> EpisodeModes:
         """The perceiver and execution noise episodes run with (both None when exact)."""
         c = self.config
-        return episode_modes(c.observation, c.execution, c.noise, c.segmentation, c.sides)
+        return episode_modes(
+            c.observation, c.execution, c.noise, c.segmentation, c.sides, c.remaining
+        )
 
     def physics_config(self) -> Any:
         """The PhysicsConfig to build backends with (None for the geometric backend)."""
@@ -243,7 +258,7 @@ def resolve(config: RunConfig) -> ResolvedRun:
     else:
         difficulties = tuple(present)
     cases = tuple(c for c in source.cases if c.difficulty in difficulties)
-    policies = config.policies or default_policies(cases)
+    policies = config.policies or default_policies(cases, config.observation)
     for name, key, _ in config.policy_args:
         if name not in policies:
             raise ConfigError(

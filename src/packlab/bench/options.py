@@ -18,6 +18,7 @@ from typing import Any
 
 from packlab.core.choices import (
     DEFAULT_NOISE,
+    DEFAULT_REMAINING,
     DEFAULT_SEGMENTATION,
     DEFAULT_SIDES,
     HEURISTICS,
@@ -26,6 +27,7 @@ from packlab.core.choices import (
     NoisePreset,
     ObservationMode,
     PhysicsBackend,
+    RemainingMode,
     Segmentation,
     SideNames,
     did_you_mean,
@@ -193,6 +195,9 @@ class RunConfig:
     #: no hint of the layout's orientation) or as the catalogue does (the reference paper's
     #: protocol). Always part of the identity; a run directory without it used the catalogue's.
     sides: SideNames = DEFAULT_SIDES
+    #: Whether observations carry ``remaining`` (``core.choices.RemainingMode``): part of the
+    #: identity when hidden.
+    remaining: RemainingMode = DEFAULT_REMAINING
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -265,6 +270,7 @@ def _check_sensing(config: RunConfig) -> None:
     require_choice(config.noise, NoisePreset, "noise")
     require_choice(config.segmentation, Segmentation, "segmentation")
     require_choice(config.sides, SideNames, "sides")
+    require_choice(config.remaining, RemainingMode, "remaining")
     if config.observation == "perceived" and config.sides != "longer-first":
         raise ConfigError(
             f"sides = {config.sides!r}: perceived observation always names sides longer first "

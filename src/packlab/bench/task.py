@@ -180,6 +180,7 @@ def run_task(
                 perceiver=modes.perceiver,
                 execution=modes.execution,
                 sides=modes.sides,
+                show_remaining=modes.show_remaining,
             )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).

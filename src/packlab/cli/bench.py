@@ -158,6 +158,15 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
         "names l after the side a box lies along x in its perfect layout, a hint no robot has); "
         "perceived observation always names them longer first; default {default}",
     )
+    add_field(
+        p,
+        RunConfig,
+        "remaining",
+        "--remaining",
+        help="whether observations carry the count of boxes still to come (an extension of "
+        "the reference's observation: a robot cell knows its order's size; hidden: the "
+        "ablation without it); default {default}",
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

@@ -99,6 +99,11 @@ DEFAULT_SIDES: SideNames = "longer-first"
 #: catalogue's names (an absent ``sides`` key reads as this, so an old run is never resumed or
 #: replayed under other names).
 UNRECORDED_SIDES: SideNames = "catalogue"
+#: Whether observations carry ``remaining`` (boxes still to come, shown ones included): an
+#: extension of the reference's observation, which has no such field; a robot cell knows its
+#: order's size. ``hidden`` (None in the observation) is the ablation without it.
+RemainingMode = Literal["shown", "hidden"]
+DEFAULT_REMAINING: RemainingMode = "shown"
 
 
 def named_size(size: tuple[int, int, int], sides: SideNames) -> tuple[int, int, int]:

@@ -39,7 +39,10 @@ class OraclePolicy:
             if s.internal_id in self._plan
         ]
         if not planned:
-            raise ConfigError("oracle: no shown object is in the plan")
+            raise ConfigError(
+                "oracle: no shown object is in the plan (it replays the plan by the case's "
+                "ids; perceived observation shows fresh ids, so it needs --observation exact)"
+            )
         _, item = min(planned, key=lambda pair: pair[0])
         step = self._plan[item.internal_id][1]
         l, w, _ = self._sizes[item.internal_id]

@@ -15,11 +15,13 @@ import numpy as np
 
 from packlab.core.choices import (
     DEFAULT_NOISE,
+    DEFAULT_REMAINING,
     DEFAULT_SEGMENTATION,
     DEFAULT_SIDES,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
+    RemainingMode,
     Segmentation,
     SideNames,
     require_choice,
@@ -73,6 +75,8 @@ class EpisodeModes:
     execution: ExecutionNoise | None = None
     #: Exact observation: the sides' names (perceived mode always names them longer first).
     sides: SideNames = DEFAULT_SIDES
+    #: Observations carry ``remaining`` (``core.choices.RemainingMode``).
+    show_remaining: bool = True
 
 
 #: Both modes exact: what every run uses unless asked otherwise.
@@ -85,6 +89,7 @@ def episode_modes(
     noise: NoisePreset = DEFAULT_NOISE,
     segmentation: Segmentation = DEFAULT_SEGMENTATION,
     sides: SideNames = DEFAULT_SIDES,
+    remaining: RemainingMode = DEFAULT_REMAINING,
 ) -> EpisodeModes:
     """The modes by name (ConfigError naming the field for an unknown value)."""
     require_choice(observation, ObservationMode, "observation")
@@ -92,11 +97,13 @@ def episode_modes(
     require_choice(noise, NoisePreset, "noise")
     require_choice(segmentation, Segmentation, "segmentation")
     require_choice(sides, SideNames, "sides")
+    require_choice(remaining, RemainingMode, "remaining")
     perceiver = SensingPerceiver(noise, segmentation) if observation == "perceived" else None
     return EpisodeModes(
         perceiver=perceiver,
         execution=execution_noise(noise) if execution == "noisy" else None,
         sides=sides,
+        show_remaining=remaining == "shown",
     )
 
 
