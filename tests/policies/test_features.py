@@ -185,20 +185,21 @@ def _column(hm: np.ndarray, rim: int, i: int, j: int) -> int:
     return int(hm[i, j]) if 0 <= i < nx and 0 <= j < ny else rim
 
 
-def _loop_features(hm, rim, x, y, fx, fy, h) -> tuple[int, int, int, int]:
-    """(space under, support, flush, contact mm^2), one cell and one edge at a time."""
+def _loop_features(hm, rim, x, y, fx, fy, h, tol=F.LEVEL_TOLERANCE_MM) -> tuple[int, ...]:
+    """(space under, support, flush, contact mm^2), one cell and one edge at a time; support and
+    flush with "the same level" spelled out as within ``tol`` mm."""
     z = max(int(hm[i, j]) for i in range(x, x + fx) for j in range(y, y + fy))
     space = support = flush = contact = 0
     for i in range(x, x + fx):
         for j in range(y, y + fy):
             space += z - int(hm[i, j])
-            support += int(hm[i, j]) == z
+            support += z - int(hm[i, j]) <= tol
             for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
                 ni, nj = i + di, j + dj
                 if x <= ni < x + fx and y <= nj < y + fy:
                     continue
                 column = _column(hm, rim, ni, nj)
-                flush += column > z
+                flush += column > z + tol
                 contact += max(0, min(z + h, column) - z) * CELL
     return space, support, flush, contact + support * CELL * CELL
 
@@ -234,3 +235,14 @@ def test_support_with_a_tolerance_matches_a_loop(seed) -> None:
         x, y, fx, fy, z = (int(a[i]) for a in (c.x, c.y, c.fx, c.fy, c.z))
         window = hm[x : x + fx, y : y + fy]
         assert int(got[i]) == int((window >= z - 2).sum())
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_mta_keeps_exact_support(seed) -> None:
+    # MTA's published rule counts support by exact equality; the maps hold levels 2 mm apart.
+    hm, shown, rim = _state(seed)
+    c = search_candidates(hm, shown, rim, CELL)
+    got = mta.contact_area_mm2(c)
+    for i in range(len(c)):
+        x, y, fx, fy, h = (int(a[i]) for a in (c.x, c.y, c.fx, c.fy, c.h))
+        assert int(got[i]) == _loop_features(hm, rim, x, y, fx, fy, h, tol=0)[3]

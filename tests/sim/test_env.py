@@ -125,3 +125,24 @@ def test_perceived_and_noisy_modes_through_gym_make():
     assert total == pytest.approx(info["metrics"]["success_ratio"])
     with pytest.raises(ConfigError, match="observation"):
         PackEnv(cases, observation="seen")
+
+
+def test_buffer_names_sides_longer_first_by_default_and_catalogue_on_request():
+    """The env's exact observation names sides as the bench does (longer first by default);
+    ``sides="catalogue"`` shows the case's own (l, w, h), the reference paper's protocol. The
+    RL training env takes the same switch."""
+    from packlab.rl.envs import ListedActionEnv
+
+    case = make_layered_case(2, pieces=5)
+    assert any(b.size_mm[0] < b.size_mm[1] for b in case.objects)
+    default, catalogue = PackEnv([case]), PackEnv([case], sides="catalogue")
+    named, _ = default.reset(seed=0)
+    own, _ = catalogue.reset(seed=0)
+    shown = named["buffer"][named["buffer_mask"] == 1]
+    assert (shown[:, 0] >= shown[:, 1]).all()
+    assert sorted(map(tuple, own["buffer"][own["buffer_mask"] == 1])) == sorted(
+        tuple(case.box_by_id(s.internal_id).size_mm) for s in catalogue._episode.observe().shown
+    )
+    assert (own["buffer"] != named["buffer"]).any()
+    assert ListedActionEnv("irbpp", [case])._episode._sides == "longer-first"
+    assert ListedActionEnv("irbpp", [case], sides="catalogue")._episode._sides == "catalogue"

@@ -7,13 +7,20 @@ the heightmap alone, with every column taken as solid from the floor to its heig
 - **space under** (cell-mm): the empty volume between the heightmap and the box's underside,
   ``sum over the footprint of (z - hm[c])``; multiply by ``cell_mm ** 2`` for mm^3, divide by
   ``fx * fy`` for the mean gap in mm. What the planner's cost calls "trapped".
-- **support** (cells): the footprint cells whose top is within ``tolerance_mm`` of ``z``, the
-  ones the box rests on. Every caller (MTA, the proposer, the RL features) uses exact equality,
-  ``tolerance_mm = 0``; on the empty floor (``z = 0``) every cell counts.
+- **support** (cells): the footprint cells whose top is the same level as ``z``
+  (:func:`same_level`, within :data:`LEVEL_TOLERANCE_MM`), the ones the box rests on. The
+  proposer and the listed lines' features use that default; MTA asks for exact equality
+  (``tolerance_mm=0``), its published rule. On the empty floor (``z = 0``) every cell counts.
 - **flushness** (cells): the side cells, one per cell edge of the footprint's boundary
   (``2 * (fx + fy)`` of them, :func:`side_cells`), whose column across the edge stands above
-  ``z``; a wall counts as a column at the rim's height (the heightmap inside a ring of walls,
-  :func:`walled`). Strictly above: a neighbour level with ``z`` touches nothing of the box.
+  ``z`` and is not the same level (:func:`above_level`); a wall counts as a column at the rim's
+  height (the heightmap inside a ring of walls, :func:`walled`). A neighbour level with ``z``
+  touches nothing of the box.
+
+"The same level" is one definition for the whole planner side (:mod:`packlab.core.levels`,
+re-exported here): heights within :data:`LEVEL_TOLERANCE_MM` (4 mm) of each other. Box heights
+are whole centimetres, so on an exact heightmap it changes nothing against exact equality; on a
+perceived one it absorbs the per-top error that survives ``flatten_tops``.
 - **contact area** (mm^2, MTA's measure): support cells times ``cell_mm ** 2``, plus for each
   side cell the z-overlap ``max(0, min(top, H) - z)`` of the box's face ``[z, top)`` with the
   column of height ``H`` across it, times ``cell_mm``. Diagonal neighbours touch only along a
@@ -40,15 +47,27 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from packlab.core.feasibility import CandidateSet, Orientation
+from packlab.core.levels import (
+    FACE_RISE_MM,
+    LEVEL_TOLERANCE_MM,
+    above_level,
+    at_or_below,
+    same_level,
+)
 from packlab.policies.windows import padded, side_neighbours, window_count_of_max, window_sum
 
 __all__ = [
+    "FACE_RISE_MM",
+    "LEVEL_TOLERANCE_MM",
+    "above_level",
+    "at_or_below",
     "contact_area_mm2",
     "contact_grid",
     "flush_cells",
     "flush_cells_at",
     "flush_grid",
     "flush_share",
+    "same_level",
     "side_cells",
     "space_under",
     "space_under_at",
@@ -120,55 +139,72 @@ def space_under_at(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: i
 # -- support ------------------------------------------------------------------------------------
 
 
-def support_grid(heightmap: np.ndarray, fx: int, fy: int, tolerance_mm: int = 0) -> np.ndarray:
-    """(X', Y') int64: footprint cells within ``tolerance_mm`` of the Eq. 2 height, per window.
+def _has_near_levels(heightmap: np.ndarray, tolerance_mm: int) -> bool:
+    """Whether two different heights of the map are within ``tolerance_mm`` of each other: only
+    then can the tolerance count a cell that exact equality would not."""
+    values = np.unique(heightmap)
+    return bool(values.size > 1 and np.diff(values.astype(np.int64)).min() <= tolerance_mm)
 
-    With no tolerance a separable count of the cells reaching the window max
-    (:func:`~packlab.policies.windows.window_count_of_max`).
+
+def support_grid(
+    heightmap: np.ndarray, fx: int, fy: int, tolerance_mm: int = LEVEL_TOLERANCE_MM
+) -> np.ndarray:
+    """(X', Y') int64: footprint cells the same level as the Eq. 2 height, per window.
+
+    When no two different heights of the map are within ``tolerance_mm`` (every exact
+    heightmap, box heights being whole centimetres) that is a separable count of the cells
+    reaching the window max (:func:`~packlab.policies.windows.window_count_of_max`), about half
+    the cost of the general window count.
     """
     hm = np.asarray(heightmap)
-    if tolerance_mm == 0:
+    if tolerance_mm == 0 or not _has_near_levels(hm, tolerance_mm):
         return window_count_of_max(hm, fx, fy)[1].astype(np.int64, copy=False)
     windows = sliding_window_view(hm, (fx, fy))  # (X', Y', fx, fy)
     z = windows.max(axis=(-2, -1))
-    low = z.astype(np.int64) - tolerance_mm
-    return (windows >= low[..., None, None]).sum(axis=(-2, -1), dtype=np.int64)
+    # Every cell of a window is <= its max, so "same level as z" is "within tolerance below z".
+    return same_level(windows, z[..., None, None], tolerance_mm).sum(axis=(-2, -1))
 
 
-def support_cells(cands: CandidateSet, tolerance_mm: int = 0) -> np.ndarray:
-    """(n,) int64: footprint cells each candidate rests on (within ``tolerance_mm`` of z)."""
+def support_cells(cands: CandidateSet, tolerance_mm: int = LEVEL_TOLERANCE_MM) -> np.ndarray:
+    """(n,) int64: footprint cells each candidate rests on (the same level as its z)."""
     hm = cands.heightmap
     return _per_group(cands, _footprint, lambda g: support_grid(hm, g.fx, g.fy, tolerance_mm))
 
 
-def support_share(cands: CandidateSet, tolerance_mm: int = 0) -> np.ndarray:
+def support_share(cands: CandidateSet, tolerance_mm: int = LEVEL_TOLERANCE_MM) -> np.ndarray:
     """(n,) float64 in [0, 1]: :func:`support_cells` over the footprint's cell count."""
     return support_cells(cands, tolerance_mm) / (cands.fx * cands.fy)
 
 
 def support_cells_at(
-    heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: int, tolerance_mm: int = 0
+    heightmap: np.ndarray,
+    x: int,
+    y: int,
+    fx: int,
+    fy: int,
+    z: int,
+    tolerance_mm: int = LEVEL_TOLERANCE_MM,
 ) -> int:
-    """Footprint cells of one box resting at ``z`` whose top is within ``tolerance_mm`` of z."""
+    """Footprint cells of one box resting at ``z`` whose top is the same level as ``z``."""
     under = np.asarray(heightmap)[x : x + fx, y : y + fy]
-    return int(np.count_nonzero(under >= int(z) - tolerance_mm))
+    return int(np.count_nonzero(same_level(under, z, tolerance_mm)))
 
 
 # -- flushness ----------------------------------------------------------------------------------
 
 
 def flush_grid(walls: np.ndarray, fx: int, fy: int, z: np.ndarray) -> np.ndarray:
-    """(X', Y') int64: side cells whose column (or wall) stands above ``z`` (X', Y').
+    """(X', Y') int64: side cells whose column (or wall) stands above ``z``'s level (X', Y').
 
     ``walls`` is :func:`walled` (the heightmap inside a ring of walls at the rim's height).
     """
     x_faces, y_faces = side_neighbours(walls, fx, fy)
     z = np.asarray(z)[..., None]
-    return (x_faces > z).sum(axis=(0, -1)) + (y_faces > z).sum(axis=(0, -1))
+    return above_level(x_faces, z).sum(axis=(0, -1)) + above_level(y_faces, z).sum(axis=(0, -1))
 
 
 def flush_cells(cands: CandidateSet, walls: np.ndarray | None = None) -> np.ndarray:
-    """(n,) int64: each candidate's side cells against a wall or a column above its z.
+    """(n,) int64: each candidate's side cells against a wall or a column above its z's level.
 
     ``walls`` (:func:`walled`) is made from the candidate set when not given.
     """
@@ -182,7 +218,7 @@ def flush_share(cands: CandidateSet, walls: np.ndarray | None = None) -> np.ndar
 
 
 def flush_cells_at(walls: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) -> int:
-    """Side cells of one box resting at ``z`` against a wall or a column above ``z``.
+    """Side cells of one box resting at ``z`` against a wall or a column above ``z``'s level.
 
     ``walls`` is :func:`walled`: cell (i, j) is entry [i + 1, j + 1].
     """
@@ -194,7 +230,7 @@ def flush_cells_at(walls: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) 
             walls[x + 1 : x + fx + 1, y + fy + 1],  # +y
         ]
     )
-    return int(np.count_nonzero(sides > z))
+    return int(np.count_nonzero(above_level(sides, z)))
 
 
 # -- contact area -------------------------------------------------------------------------------
@@ -224,7 +260,7 @@ def contact_grid(
 ) -> np.ndarray:
     """(X', Y') int64 mm^2: contact area of an (fx, fy, height_mm) box resting at ``z``.
 
-    ``support`` is :func:`support_grid` of the footprint (exact), ``walls`` :func:`walled`
+    ``support`` is :func:`support_grid` of the footprint, ``walls`` :func:`walled`
     (int32 keeps the side arithmetic in half the memory traffic; the result is the same).
     """
     z = np.asarray(z).astype(walls.dtype, copy=False)
@@ -234,15 +270,16 @@ def contact_grid(
     return support * (cell_mm * cell_mm) + side_mm * cell_mm
 
 
-def contact_area_mm2(cands: CandidateSet) -> np.ndarray:
-    """(n,) int64 mm^2: contact area of each candidate with floor, walls and boxes."""
+def contact_area_mm2(cands: CandidateSet, tolerance_mm: int = LEVEL_TOLERANCE_MM) -> np.ndarray:
+    """(n,) int64 mm^2: contact area of each candidate with floor, walls and boxes (support
+    counted within ``tolerance_mm``)."""
     hm = cands.heightmap.astype(np.int32, copy=False)
     walls = walled(hm, cands.container_height_mm).astype(np.int32)
     support: dict[tuple[int, int], np.ndarray] = {}
 
     def grid(g: Orientation) -> np.ndarray:
         if (g.fx, g.fy) not in support:
-            support[(g.fx, g.fy)] = support_grid(hm, g.fx, g.fy)
+            support[(g.fx, g.fy)] = support_grid(hm, g.fx, g.fy, tolerance_mm)
         return contact_grid(
             support[(g.fx, g.fy)], walls, g.fx, g.fy, g.z, g.height_mm, cands.cell_mm
         )

@@ -10,7 +10,8 @@ learned policy can be shown them next to the placement's own geometry
 robot observes.
 
 For a placement (footprint ``fx`` x ``fy`` at minimum cell ``(x, y)``, resting at ``z``) the
-*level* is the set of cells whose top is within :data:`TOLERANCE_MM` of ``z`` or below it, less
+*level* is the set of cells whose top is the same level as ``z`` or below it
+(:func:`packlab.policies.features.at_or_below`, the planner's one "same level" tolerance), less
 the footprint. Features (:data:`FEATURE_NAMES`, all floats, scaled to about [0, 1]):
 
 - ``run_*``: free cells in a straight line from the box's side outward on the level, along +x
@@ -23,8 +24,8 @@ the footprint. Features (:data:`FEATURE_NAMES`, all floats, scaled to about [0, 
   :data:`AREA_CAP`);
 - ``closes``: 1 when that region is empty or some subset of the other same-height boxes has
   exactly its area (a necessary condition for an exact tiling by them);
-- ``level_with``: the share of the box's ring of neighbour cells whose top equals the box's top
-  (the placement ends level with its surroundings);
+- ``level_with``: the share of the box's ring of neighbour cells whose top is the same level as
+  the box's top (the placement ends level with its surroundings);
 - ``same_count``: other shown boxes of the same height / :data:`COUNT_SCALE`;
 - ``lowest``: 1 when the box rests on the lowest level of the container.
 """
@@ -38,10 +39,8 @@ from scipy import ndimage
 
 from packlab.core.types import ShownItem
 from packlab.policies.candidates import Candidate
+from packlab.policies.features import at_or_below, same_level
 
-#: Cells within this of a level count as that level (settled tops carry mm noise; box heights
-#: come in whole centimetres), as in the planner's completion.
-TOLERANCE_MM = 4
 RUN_SCALE = 32.0
 AREA_CAP = 3.0
 COUNT_SCALE = 10.0
@@ -83,7 +82,7 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
     height = shown[c.object_index].size_mm[2]
     footprint = np.zeros(hm.shape, dtype=bool)
     footprint[c.x : c.x + c.fx, c.y : c.y + c.fy] = True
-    level = (hm <= c.z_mm + TOLERANCE_MM) & ~footprint
+    level = at_or_below(hm, c.z_mm) & ~footprint
     others = [s for s in shown if s.shown_index != c.object_index and s.size_mm[2] == height]
     sides = {int(v) for s in others for v in s.size_cells[:2]}
     closable = sides | {a + b for a in sides for b in sides} | {0}
@@ -102,7 +101,7 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
     areas = [s.size_cells[0] * s.size_cells[1] for s in others]
     closes = region == 0 or bool(_subset_areas(areas, region)[region])
     tops = hm[ring]
-    level_with = np.mean(np.abs(tops - (c.z_mm + height)) <= TOLERANCE_MM) if tops.size else 0.0
+    level_with = np.mean(same_level(tops, c.z_mm + height)) if tops.size else 0.0
     row = [
         *(r / RUN_SCALE for r in far[:2]),
         *(r / RUN_SCALE for r in far[2:]),
@@ -113,7 +112,7 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
         float(closes),
         float(level_with),
         len(others) / COUNT_SCALE,
-        float(c.z_mm <= int(hm.min()) + TOLERANCE_MM),
+        float(at_or_below(c.z_mm, int(hm.min()))),
     ]
     return np.asarray(row, dtype=np.float32)
 

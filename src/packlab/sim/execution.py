@@ -24,6 +24,7 @@ import numpy as np
 
 from packlab.core.choices import NoisePreset, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.levels import FACE_RISE_MM
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +153,7 @@ def perturb_drop(
 #: bottom: over the per-cell error of the stereo preset's heightmap (a few mm) so a neighbour
 #: level with the support never reads as a face, and far below the smallest box height (80 mm
 #: in packlab-bench-v1) so a real neighbour always does.
-SEAT_FACE_MM = 10
+SEAT_FACE_MM = FACE_RISE_MM  # the shared constant (packlab.core.levels), not a same-level test
 
 
 def seat_sides(

@@ -14,7 +14,9 @@ height, the only thing a heightmap can say):
 Support uses exact equality with z, as stated: on physics heightmaps (settled poses rounded to
 whole mm) a top 1 mm lower does not count as support. The measure is
 :func:`packlab.policies.features.contact_area_mm2`, the placement feature the proposer and the
-planner share; both terms are vectorised over every minimum cell of an orientation there.
+planner share, asked for exact support (``tolerance_mm=0``) where the planner counts support
+within the shared "same level" tolerance; both terms are vectorised over every minimum cell of
+an orientation there.
 
 Rule (lower is better, compared in this order):
 
@@ -35,12 +37,17 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.feasibility import CandidateSet
-from packlab.policies.features import contact_area_mm2
+from packlab.policies import features
 from packlab.policies.heuristics.select import Keys
 
 NAME = "mta"
 
 __all__ = ["NAME", "contact_area_cm2", "contact_area_mm2", "score"]
+
+
+def contact_area_mm2(cands: CandidateSet) -> np.ndarray:
+    """(n,) int64 mm^2: MTA's contact area, support by exact equality with z (as published)."""
+    return features.contact_area_mm2(cands, tolerance_mm=0)
 
 
 def contact_area_cm2(cands: CandidateSet) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Every box of a perfect layout rests flush on what is under it, so a perfect packing is built
 from the bottom up by closing the lowest free region without waste. This module looks at the
-lowest level of the heightmap (the cells within ``tolerance_mm`` of its minimum, split into
+lowest level of the heightmap (the cells the same level as its minimum or below, split into
 4-connected components) and asks, for each component, whether the shown boxes of one height
 tile it exactly (:func:`.cover.exact_cover`). When they do, the completion is certain to leave
 no gap at that level, and the planner commits its first box.
@@ -28,6 +28,7 @@ import numpy as np
 from scipy import ndimage
 
 from packlab.core.types import ShownItem
+from packlab.policies.features import LEVEL_TOLERANCE_MM, at_or_below, same_level
 from packlab.policies.plan.cover import JOKER, CoverResult, CoverRules, Piece, Slot, exact_cover
 
 #: 4-connectivity: two cells of a level belong together only when they share a side.
@@ -38,9 +39,10 @@ _FOUR = ndimage.generate_binary_structure(2, 1)
 class CompletionConfig:
     """How the completion search reads the heightmap and how much it may search."""
 
-    #: Cells within this of the minimum count as one level (settled tops carry mm noise;
-    #: box heights come in whole centimetres, so half of one keeps levels apart).
-    tolerance_mm: int = 4
+    #: Cells within this of the minimum count as one level: the planner's one "same level"
+    #: tolerance (:data:`packlab.policies.features.LEVEL_TOLERANCE_MM`, where the value is
+    #: argued); a field only so a test can vary it.
+    tolerance_mm: int = LEVEL_TOLERANCE_MM
     #: Node budget of one exact-cover search (one component and one height).
     max_nodes: int = 100_000
     #: A guess with jokers needs at least this many boxes of the height seen so far (history
@@ -83,11 +85,13 @@ class Completion:
         return next(s for s in self.slots if s.key != JOKER)
 
 
-def lowest_components(heightmap: np.ndarray, tolerance_mm: int) -> tuple[int, list[np.ndarray]]:
+def lowest_components(
+    heightmap: np.ndarray, tolerance_mm: int = LEVEL_TOLERANCE_MM
+) -> tuple[int, list[np.ndarray]]:
     """(the lowest level in mm, its 4-connected components as bool masks, smallest first)."""
     hm = np.asarray(heightmap)
     z0 = int(hm.min())
-    labels, n = ndimage.label(hm <= z0 + tolerance_mm, structure=_FOUR)
+    labels, n = ndimage.label(at_or_below(hm, z0, tolerance_mm), structure=_FOUR)
     masks = [labels == k for k in range(1, n + 1)]
     masks.sort(key=lambda m: (int(m.sum()), int(np.argmax(m.ravel()))))
     return z0, masks
@@ -104,7 +108,7 @@ def height_order(
     mask: np.ndarray,
     z0: int,
     shown: Sequence[ShownItem],
-    tolerance_mm: int = 4,
+    tolerance_mm: int = LEVEL_TOLERANCE_MM,
 ) -> list[int]:
     """The shown box heights (mm) in the order to try them for ``mask`` (module docstring)."""
     rim = rim_heights(heightmap, mask) - z0
@@ -113,7 +117,7 @@ def height_order(
         area[s.size_mm[2]] = area.get(s.size_mm[2], 0) + s.size_cells[0] * s.size_cells[1]
 
     def key(h: int) -> tuple[int, int, int]:
-        level_with = int(np.count_nonzero(np.abs(rim - h) <= tolerance_mm))
+        level_with = int(np.count_nonzero(same_level(rim, h, tolerance_mm)))
         return (-level_with, -area[h], h)
 
     return sorted(area, key=key)

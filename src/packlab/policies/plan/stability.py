@@ -1,7 +1,8 @@
 """A cheap static-stability test of one placement: is the box's centre over its support?
 
-A box dropped at Eq. 2's height ``z`` rests on the cells under its footprint whose top is at
-``z`` (the highest ones; every other cell leaves a gap). Treated as a rigid body on rigid
+A box dropped at Eq. 2's height ``z`` rests on the cells under its footprint whose top is the
+same level as ``z`` (the highest ones, :func:`packlab.policies.features.same_level`; every other
+cell leaves a gap). Treated as a rigid body on rigid
 supports, it stays put when the vertical line through its centre of mass (the footprint's centre,
 boxes being uniform) passes through the convex hull of those contact cells, and tips over an
 edge of that hull otherwise. On the floor (``z == 0``) every cell is contact.
@@ -17,15 +18,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-#: Tolerance (mm) for a cell to count as touching the box's underside: settled tops in mujoco
-#: carry sub-millimetre noise the heightmap rounds to the z grid.
-CONTACT_TOLERANCE_MM = 1
+from packlab.policies.features import same_level
 
 
 def contact_cells(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) -> np.ndarray:
     """(n, 2) cell coordinates (relative to the footprint's corner) that carry the box."""
     under = np.asarray(heightmap)[x : x + fx, y : y + fy]
-    return np.argwhere(under >= z - CONTACT_TOLERANCE_MM)
+    return np.argwhere(same_level(under, z))
 
 
 def centre_supported(heightmap: np.ndarray, x: int, y: int, fx: int, fy: int, z: int) -> bool:
