@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import accumulate
 
 import numpy as np
 from scipy import ndimage
@@ -86,21 +87,23 @@ def coverable_by_squares(region: np.ndarray, side: int) -> bool:
     return bool(np.array_equal(opened, region))
 
 
-def _run(line: np.ndarray | np.bool) -> int:
-    """Length of the leading run of True in a 1-D bool array (a 0-d one: 0 or 1)."""
-    stop = np.flatnonzero(~line)
-    return int(stop[0]) if stop.size else int(line.size)
-
-
 #: ``Slot.key`` of a joker: a rectangle left for boxes not yet seen.
 JOKER = -1
 
 
-def _joker_sides(run: int, sides: set[int], smallest: int) -> list[int]:
+def _joker_sides(run: int, sides: Sequence[int], smallest: int) -> list[int]:
     """Joker lengths along a run of ``run`` free cells, longest first: the whole run, or the run
-    less one side of a box still unused (room for exactly that box after the joker)."""
-    out = {run} | {run - d for d in sides if run - d >= smallest}
-    return sorted((v for v in out if v >= smallest), reverse=True)
+    less one side of a box still unused (room for exactly that box after the joker).
+    ``sides``: the distinct sides of the boxes still unused, ascending."""
+    if run < smallest:
+        return []
+    out = [run]
+    for d in sides:
+        if run - d < smallest:
+            break  # the sides ascend, so the lengths left only get shorter
+        if d:
+            out.append(run - d)
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,107 +118,242 @@ class CoverRules:
     tilings: int = 1
 
 
-class _Search:
-    """One depth-first search (state shared by the recursion; see the module docstring)."""
+#: One orientation of a piece: (rotation, fx, fy, footprint id, window mask).
+_Orient = tuple[int, int, int, int, int]
+#: One piece as the search reads it: (key, area, smaller side, bit, orientations); ``bit`` is
+#: its bit in the masks of unused pieces.
+_Rec = tuple[int, int, int, int, tuple[_Orient, ...]]
+#: What the search reads of a set of unused pieces: (those pieces in search order, their
+#: distinct sides ascending, the smallest of their smaller sides, the second smallest, the
+#: bit of the piece with the smallest, joker lengths by run as :func:`_joker_sides` gives).
+_Unused = tuple[list[_Rec], list[int], int, int, int, dict[int, list[int]]]
 
-    def __init__(self, todo: np.ndarray, pieces: Sequence[Piece], rules: CoverRules, nodes: int):
-        self.todo = todo
-        self.pieces = pieces
-        self.rules = rules
+#: A bound no run reaches: the gap test's "no rectangle is left to fill it".
+_NEVER = 1 << 62
+
+
+def _bits(cells: np.ndarray) -> int:
+    """A 2-D bool array as one int: cell (x, y) is bit ``x * (ny + 1) + y``. The extra bit per
+    row stays 0, so a run of set bits along a row ends at the row's end."""
+    padded = np.zeros((cells.shape[0], cells.shape[1] + 1), dtype=bool)
+    padded[:, :-1] = cells
+    return int.from_bytes(np.packbits(padded.ravel(), bitorder="little").tobytes(), "little")
+
+
+def _runs_along_x(region: np.ndarray) -> np.ndarray:
+    """``runs[x, y]``: the region's cells in a row along x from (x, y), that cell included."""
+    x = np.arange(region.shape[0])[:, None]
+    # the first cell at or after x of each line that is not the region's (nx when none)
+    stop = np.minimum.accumulate(np.where(region, region.shape[0], x)[::-1], axis=0)[::-1]
+    return np.asarray(stop - x)
+
+
+class _Search:
+    """One depth-first search (see the module docstring).
+
+    The cells still to do are one int, ``grid`` (:func:`_bits`), passed down as an argument:
+    ints are immutable, so backtracking restores nothing. The first empty cell is its lowest
+    set bit and the run along y there its lowest zero bit after that.
+
+    Every placement has its corner on the first empty cell, so the placed cells of each line
+    along x are a prefix of it (region gaps aside): beyond the first empty cell (x0, y) a line
+    holds only cells the region had. Hence for y in the run at (x0, y0) the free run along x is
+    the region's own, ``runs[x0, y]``, and an fx x fy rectangle at the corner is free exactly
+    when fy is at most the run along y and fx at most min(runs[x0, y0 : y0 + fy]): one look-up
+    in a prefix-minimum list, cached per corner. This is the same search, node for node, as the
+    earlier numpy one (tests/policies/plan/_cover_reference.py): node budgets decide results.
+    """
+
+    def __init__(self, region: np.ndarray, pieces: Sequence[Piece], rules: CoverRules, nodes: int):
+        nx, ny = region.shape
+        self.stride = ny + 1
+        self.runs = _runs_along_x(region)
+        self.reach: dict[int, list[int]] = {}  # corner bit -> see _reach
+        self.use_all = rules.use_all
+        self.joker_side = rules.joker_side
         self.max_nodes = nodes
         self.nodes = 0
-        # Larger pieces first: they are the hardest to fit later, so failures show early.
-        self.order = sorted(range(len(pieces)), key=lambda i: (-pieces[i].area, i))
-        self.used = [False] * len(pieces)
-        self.placed: list[Slot] = []
+        self.placed: list[tuple[int, int, int, int, int, int]] = []
         self.found: list[tuple[Slot, ...]] = []
         self.wanted = rules.tilings if rules.jokers else 1
+        # A footprint's id is fx * span + fy: fy < span for every piece and joker, so two
+        # footprints never share one (a piece wider than the grid included).
+        self.span = 1 + max(self.stride, *(max(p.length, p.width) for p in pieces))
+        self.windows: dict[int, int] = {}  # footprint id -> window mask (see _window)
+        self.columns = [0]  # columns[fx]: bit 0 of each of the first fx rows
+        # Larger pieces first: they are the hardest to fit later, so failures show early.
+        order = sorted(range(len(pieces)), key=lambda i: (-pieces[i].area, i))
+        #: Per piece in search order; a square has one orientation (its rotation is the same).
+        self.order: list[_Rec] = []
+        self.sides: list[tuple[int, int]] = []  # (length, width) in the same order
+        for rank, i in enumerate(order):
+            p = pieces[i]
+            turns = ((0, p.length, p.width), (1, p.width, p.length))
+            # (a footprint larger than the grid never fits: it needs no window)
+            orients = tuple(
+                (
+                    r,
+                    fx,
+                    fy,
+                    fx * self.span + fy,
+                    self._window(fx, fy) if fx <= nx and fy <= ny else 0,
+                )
+                for r, fx, fy in (turns if p.length != p.width else turns[:1])
+            )
+            self.order.append((p.key, p.area, min(p.length, p.width), 1 << rank, orients))
+            self.sides.append((p.length, p.width))
+        self.unused_sets: dict[int, _Unused] = {}  # mask of unused pieces -> what it holds
 
-    def run(self, left: int, unused_area: int, jokers_left: int) -> bool:
-        """Whether the cells still to do (``left`` of them) can be finished."""
+    def _window(self, fx: int, fy: int) -> int:
+        """The bits of an fx x fy rectangle with its corner at bit 0 (see :func:`_bits`): one
+        row's bits times a bit per row (no carries: a row's bits stop short of the next)."""
+        while len(self.columns) <= fx:
+            self.columns.append(self.columns[-1] | 1 << (len(self.columns) - 1) * self.stride)
+        window = self.windows[fx * self.span + fy] = ((1 << fy) - 1) * self.columns[fx]
+        return window
+
+    def _reach(self, pos: int) -> list[int]:
+        """``reach[fy]``: how long an fy-wide rectangle at the corner at bit ``pos`` may be
+        (fy at most the run along y there): the minimum of the region's runs along x under it.
+        ``reach[0]`` is the rows left, as for an empty slice of the grid."""
+        x0, y0 = divmod(pos, self.stride)
+        runs: list[int] = self.runs[x0, y0:].tolist()
+        reach = [self.runs.shape[0] - x0, *accumulate(runs, min)]
+        self.reach[pos] = reach
+        return reach
+
+    def _unused(self, mask: int) -> _Unused:
+        """What the search reads of the unused pieces whose bits are set in ``mask``."""
+        free = [rec for rec in self.order if rec[3] & mask]
+        sides = sorted({v for rec, s in zip(self.order, self.sides) if rec[3] & mask for v in s})
+        first = second = _NEVER
+        owner = 0
+        for rec in free:
+            if rec[2] < first:
+                first, second, owner = rec[2], first, rec[3]
+            elif rec[2] < second:
+                second = rec[2]
+        unused = self.unused_sets[mask] = (free, sides, first, second, owner, {})
+        return unused
+
+    def run(self, grid: int, left: int, unused_area: int, jokers_left: int, mask: int) -> bool:
+        """Whether the cells still to do (``left`` of them, set in ``grid``) can be finished with
+        the pieces whose bits are set in ``mask`` and ``jokers_left`` jokers."""
         self.nodes += 1
         if self.nodes > self.max_nodes:
             raise _OutOfBudget
         if left == 0:
-            if self.rules.use_all and unused_area:
+            if self.use_all and unused_area:
                 return False
-            self.found.append(tuple(self.placed))
+            self.found.append(tuple(Slot(*s) for s in self.placed))
             return len(self.found) >= self.wanted
-        if (unused_area < left and not jokers_left) or (self.rules.use_all and unused_area > left):
+        if (unused_area < left and not jokers_left) or (self.use_all and unused_area > left):
             return False
-        x0, y0 = divmod(int(np.argmax(self.todo.ravel())), self.todo.shape[1])
-        free = [i for i in self.order if not self.used[i]]
-        if self._pieces_at(x0, y0, free, left, unused_area, jokers_left):
+        pos = (grid & -grid).bit_length() - 1
+        here = grid >> pos
+        run_y = (here ^ (here + 1)).bit_length() - 1  # the lowest 0 bit: the run along y
+        reach = self.reach.get(pos) or self._reach(pos)
+        unused = self.unused_sets.get(mask) or self._unused(mask)
+        if self._pieces_at(grid, pos, reach, run_y, left, unused_area, jokers_left, mask, unused):
             return True
-        return bool(jokers_left) and self._jokers_at(x0, y0, free, left, unused_area, jokers_left)
-
-    def _gap_ok(self, rest: int, others: list[int], jokers_left: int) -> bool:
-        """A run of ``rest`` cells left in the first empty column must fit one more rectangle."""
-        if rest == 0:
-            return True
-        sides = [min(self.pieces[j].length, self.pieces[j].width) for j in others]
-        if jokers_left:
-            sides.append(self.rules.joker_side)
-        return bool(sides) and rest >= min(sides)
-
-    def _try(self, slot: Slot, left: int, unused_area: int, jokers_left: int) -> bool:
-        window = self.todo[slot.x : slot.x + slot.fx, slot.y : slot.y + slot.fy]
-        window[...] = False
-        self.placed.append(slot)
-        if self.run(left - slot.fx * slot.fy, unused_area, jokers_left):
-            return True
-        self.placed.pop()
-        window[...] = True
-        return False
+        return bool(jokers_left) and self._jokers_at(
+            grid, pos, reach, run_y, left, unused_area, jokers_left, mask, unused
+        )
 
     def _pieces_at(
-        self, x0: int, y0: int, free: list[int], left: int, unused_area: int, jokers_left: int
+        self,
+        grid: int,
+        pos: int,
+        reach: list[int],
+        run_y: int,
+        left: int,
+        unused_area: int,
+        jokers_left: int,
+        mask: int,
+        unused: _Unused,
     ) -> bool:
-        run_y = _run(self.todo[x0, y0:])
-        run_x = _run(self.todo[x0:, y0])
-        options = []
-        for rank, i in enumerate(free):
-            p = self.pieces[i]
-            for rotation, (fx, fy) in enumerate(((p.length, p.width), (p.width, p.length))):
-                if fx <= run_x and fy <= run_y and (rotation == 0 or p.length != p.width):
-                    # A piece that spans the whole free run in either direction first: it
-                    # leaves the rest as simple as it was (the tiling a guess is built on).
-                    spans = fy == run_y or fx == run_x
-                    options.append((not spans, rank, rotation, i, fx, fy))
-        tried: set[tuple[int, int]] = set()
-        for _, _, rotation, i, fx, fy in sorted(options):
-            if (fx, fy) in tried:
+        free, _, first, second, owner, _ = unused
+        if jokers_left:
+            # the gap may also be left for a joker
+            first, second = min(first, self.joker_side), min(second, self.joker_side)
+        run_x = reach[1]
+        # A piece that spans the whole free run in either direction first: it leaves the rest
+        # as simple as it was (the tiling a guess is built on); within each group by rank in
+        # the search order, rotation 0 before 1.
+        spanning: list[tuple[_Rec, _Orient]] = []
+        others: list[tuple[_Rec, _Orient]] = []
+        for rec in free:
+            for o in rec[4]:
+                fx, fy = o[1], o[2]
+                if fx <= run_x and fy <= run_y:
+                    (spanning if fy == run_y or fx == run_x else others).append((rec, o))
+        if not spanning and not others:
+            return False
+        x0, y0 = divmod(pos, self.stride)
+        tried: set[int] = set()
+        for rec, (rotation, fx, fy, footprint, window) in spanning + others:
+            if footprint in tried:
                 continue
-            tried.add((fx, fy))
-            if not self._gap_ok(run_y - fy, [j for j in free if j != i], jokers_left):
+            tried.add(footprint)
+            rest = run_y - fy
+            # a gap left in the run must take the smallest side of the other pieces (or a joker)
+            if rest and rest < (second if rec[3] == owner else first):
                 continue
-            if not self.todo[x0 : x0 + fx, y0 : y0 + fy].all():
-                continue
-            self.used[i] = True
-            slot = Slot(self.pieces[i].key, rotation, x0, y0, fx, fy)
-            if self._try(slot, left, unused_area - self.pieces[i].area, jokers_left):
+            if fx > reach[fy]:
+                continue  # a cell of the rectangle is not the region's
+            self.placed.append((rec[0], rotation, x0, y0, fx, fy))
+            if self.run(
+                grid ^ (window << pos),
+                left - fx * fy,
+                unused_area - rec[1],
+                jokers_left,
+                mask ^ rec[3],
+            ):
                 return True
-            self.used[i] = False
+            self.placed.pop()
         return False
 
     def _jokers_at(
-        self, x0: int, y0: int, free: list[int], left: int, unused_area: int, jokers_left: int
+        self,
+        grid: int,
+        pos: int,
+        reach: list[int],
+        run_y: int,
+        left: int,
+        unused_area: int,
+        jokers_left: int,
+        mask: int,
+        unused: _Unused,
     ) -> bool:
-        sides = {v for i in free for v in (self.pieces[i].length, self.pieces[i].width)}
-        side = self.rules.joker_side
+        _, sides, bound, _, _, lengths = unused
+        side = self.joker_side
         spare = left - unused_area  # what the jokers must fill when every piece is used
-        for fy in _joker_sides(_run(self.todo[x0, y0:]), sides, side):
-            if not self._gap_ok(_run(self.todo[x0, y0:]) - fy, free, jokers_left - 1):
+        # the gap test with every unused piece and the jokers after this one
+        if jokers_left > 1:
+            bound = min(bound, side)
+        x0, y0 = divmod(pos, self.stride)
+        fys = lengths.get(run_y)
+        if fys is None:
+            fys = lengths[run_y] = _joker_sides(run_y, sides, side)
+        for fy in fys:
+            rest = run_y - fy
+            if rest and rest < bound:
                 continue
             # the widest joker of this length whose cells are all free, then narrower ones
-            reach = _run(self.todo[x0:, y0 : y0 + fy].all(axis=1))
-            for fx in _joker_sides(reach, sides, side):
-                if self.rules.use_all and (
-                    fx * fy > spare or (jokers_left == 1 and fx * fy != spare)
-                ):
+            fxs = lengths.get(reach[fy])
+            if fxs is None:
+                fxs = lengths[reach[fy]] = _joker_sides(reach[fy], sides, side)
+            for fx in fxs:
+                area = fx * fy
+                if self.use_all and (area > spare or (jokers_left == 1 and area != spare)):
                     continue
-                if self._try(Slot(JOKER, 0, x0, y0, fx, fy), left, unused_area, jokers_left - 1):
+                window = self.windows.get(fx * self.span + fy) or self._window(fx, fy)
+                self.placed.append((JOKER, 0, x0, y0, fx, fy))
+                if self.run(
+                    grid ^ (window << pos), left - area, unused_area, jokers_left - 1, mask
+                ):
                     return True
+                self.placed.pop()
         return False
 
 
@@ -251,7 +389,7 @@ def exact_cover(
         return CoverResult(None, 0, False)
     search = _Search(todo, pieces, rules, max_nodes)
     try:
-        search.run(area, total, rules.jokers)
+        search.run(_bits(todo), area, total, rules.jokers, (1 << len(pieces)) - 1)
     except _OutOfBudget:
         if not search.found:
             return CoverResult(None, search.nodes, True)
