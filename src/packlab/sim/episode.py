@@ -40,9 +40,11 @@ from packlab.sim.execution import (
     ExecutedDrop,
     ExecutionNoise,
     perturb_drop,
+    place_command,
     seat_sides,
 )
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
+from packlab.sim.physics.place_skill import PlaceCommand, SkillReport
 from packlab.sim.pose_log import pose_updates
 from packlab.sim.replan import (
     Perceiver,
@@ -95,6 +97,10 @@ class StepResult:
     executed: ExecutedDrop | None = None
     #: Perceived mode only (else None): the perception this step's decision was made on.
     perception: Perception | None = None
+    #: Noisy execution only (else None): what the place skill had to do for this placement
+    #: (``packlab.sim.physics.place_skill.SkillReport``), and the command it was given.
+    skill: SkillReport | None = None
+    command: PlaceCommand | None = field(default=None, repr=False, compare=False)
 
     def to_record(self) -> dict[str, Any]:
         action = (
@@ -119,6 +125,7 @@ class StepResult:
             **({} if self.replan is None else {"replan": self.replan}),
             **({} if self.executed is None else {"executed": _executed_record(self.executed)}),
             **({} if self.perception is None else {"perception": _errors(self.perception)}),
+            **({} if self.skill is None else {"skill": self.skill.counts()}),
         }
 
 
@@ -153,20 +160,16 @@ def _cells(mm: int, cell: int) -> int:
 
 
 class _NoisyBackend(TransitionBackend, Protocol):
-    """A backend whose ``place`` executes noisy drops (``supports_noisy_execution``: mujoco)."""
+    """A backend that executes a robot's placement (``supports_noisy_execution``: mujoco)."""
 
-    def place(
+    def execute(
         self,
         index: int,
         rotation: int,
-        min_corner_mm: tuple[int, int, int],
-        offset_mm: tuple[float, float] = (0.0, 0.0),
-        yaw_deg: float = 0.0,
-        release_mm: float = 0.0,
-        comply_mm: float = 0.0,
-        seat_mm: float = 0.0,
-        seat_sides: tuple[int, int] = (0, 0),
-    ) -> Transition: ...
+        command: PlaceCommand,
+        offset_mm: tuple[float, float],
+        yaw_deg: float,
+    ) -> tuple[Transition, SkillReport]: ...
 
 
 class Episode:
@@ -393,19 +396,31 @@ class Episode:
         seen_before, shown_before = self.observed_heightmap, self._shown
         perception_before = self._perception if self._perceiver is not None else None
         predicted = seen_before  # what the policy expects to see next (perceived mode)
-        drop = executed = None
+        drop = executed = command = skill = None
         placed: Transition | None = None
         if not reason and isinstance(action, Action):  # no reason: an Action
             chosen, x, y = int(action.rotation), int(action.x), int(action.y)
             rotation = self._turned(int(action.object_id), chosen)
             fx, fy = self._footprint_cells(index, rotation)
+            item = shown_before[int(action.object_id)]
+            if self._execution is not None:
+                # The robot's own belief: the footprint of the size it was shown (perceived
+                # mode: the perceived size, named longer first; ``chosen`` refers to it).
+                l_cells, w_cells, _ = item.size_cells
+                fx, fy = (w_cells, l_cells) if chosen == 1 else (l_cells, w_cells)
             # The release height from what the robot sees (perceived mode: the perceived
-            # heightmap; too low, _lift_clear stops the descent on contact).
+            # heightmap; too low, the descent stops on contact).
             z = placement_height(seen_before, x, y, fx, fy)
             cell = self._case.container.cell_xy_mm
             drop = (x * cell, y * cell, z)
-            executed = self._executed_drop(index, rotation, drop)
-            placed = self._last_settle = self._place(index, rotation, drop, executed)
+            executed = self._executed_drop(index, (fx, fy), drop)
+            command = (
+                None
+                if executed is None
+                else place_command(item.size_mm, chosen, drop, seen_before, executed)
+            )
+            placed, skill = self._place(index, rotation, drop, executed, command)
+            self._last_settle = placed
             self._heightmap = placed.heightmap
             if self._perceiver is not None:
                 predicted = self._predicted(shown_before[int(action.object_id)], chosen, x, y)
@@ -445,6 +460,8 @@ class Episode:
             else deviates(predicted, self._perception.heightmap, self._replan_rule),
             executed=executed,
             perception=perception_before,
+            skill=skill,
+            command=command,
         )
         self.steps.append(result)
         return result
@@ -455,32 +472,20 @@ class Episode:
         return self._heightmap if self._perceiver is None else self._perception.heightmap
 
     def _executed_drop(
-        self, index: int, rotation: int, drop: tuple[int, int, int]
+        self, index: int, footprint_cells: tuple[int, int], drop: tuple[int, int, int]
     ) -> ExecutedDrop | None:
         """Noisy execution: the drop as the robot executes it (None in exact execution): the
         arm's noise plus, in perceived mode, the grasped box's pose-estimate error, and the
-        sides the place skill seats it toward, read from the observed heightmap."""
+        sides the place skill seats it toward, read from the observed heightmap around the
+        footprint the robot believes in (``footprint_cells``, of the size it was shown)."""
         if self._execution is None:
             return None
-        c = self._case.container
-        footprint = self._case.objects[index].footprint_mm(rotation)
-        executed = perturb_drop(
-            self._execution,
-            drop,
-            footprint,
-            (c.size_mm[0], c.size_mm[1]),
-            self._execution_rng,
-            self._grasp_error(index),
-        )
+        executed = perturb_drop(self._execution, self._execution_rng, self._grasp_error(index))
         if executed.is_exact or executed.seat_mm == 0:
             return executed
-        cell = c.cell_xy_mm
+        cell = self._case.container.cell_xy_mm
         sides = seat_sides(
-            self.observed_heightmap,
-            drop[0] // cell,
-            drop[1] // cell,
-            self._footprint_cells(index, rotation),
-            drop[2],
+            self.observed_heightmap, drop[0] // cell, drop[1] // cell, footprint_cells, drop[2]
         )
         return replace(executed, seat_sides=sides)
 
@@ -497,23 +502,20 @@ class Episode:
         return (dx, dy, dyaw)
 
     def _place(
-        self, index: int, rotation: int, drop: tuple[int, int, int], executed: ExecutedDrop | None
-    ) -> Transition:
-        if executed is None or executed.is_exact:
-            return self._backend.place(index, rotation, drop)
+        self,
+        index: int,
+        rotation: int,
+        drop: tuple[int, int, int],
+        executed: ExecutedDrop | None,
+        command: PlaceCommand | None,
+    ) -> tuple[Transition, SkillReport | None]:
+        """Execute the placement: exactly as planned (exact execution, or a noisy draw that
+        came out exact), else by the robot's place skill from ``command``."""
+        if executed is None or executed.is_exact or command is None:
+            return self._backend.place(index, rotation, drop), None
         # reset() refused an execution noise for a backend without supports_noisy_execution.
         noisy = cast(_NoisyBackend, self._backend)
-        return noisy.place(
-            index,
-            rotation,
-            drop,
-            offset_mm=executed.offset_mm,
-            yaw_deg=executed.yaw_deg,
-            release_mm=executed.release_mm,
-            comply_mm=executed.comply_mm,
-            seat_mm=executed.seat_mm,
-            seat_sides=executed.seat_sides,
-        )
+        return noisy.execute(index, rotation, command, executed.offset_mm, executed.yaw_deg)
 
     def _predicted(self, item: ShownItem, rotation: int, x: int, y: int) -> np.ndarray:
         """Eq. 2 prediction of the intended placement on the perceived heightmap it was chosen
@@ -589,6 +591,9 @@ class EpisodeResult:
     replans: int | None = None
     #: Perceived mode only (else None): objects perception did not find, set aside unpacked.
     missed: int | None = None
+    #: Noisy execution only (else None): the place skill's counts summed over the steps
+    #: (``StepResult.skill``), by kind; what it had to do to recover and how.
+    skill: dict[str, int] | None = None
 
     def to_record(self) -> dict[str, Any]:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
@@ -609,6 +614,8 @@ class EpisodeResult:
             metrics["replans"] = self.replans
         if self.missed is not None:
             metrics["missed"] = self.missed
+        if self.skill is not None:  # noisy execution only
+            metrics["skill"] = dict(self.skill)
         return {
             "case_id": self.case_id,
             "seed": self.seed,
@@ -671,4 +678,15 @@ def run_episode(
         decision_cpu_s=tuple(decision_cpu),
         replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
         missed=None if perceiver is None else episode.missed,
+        skill=None if execution is None else skill_totals(episode.steps),
     )
+
+
+def skill_totals(steps: tuple[StepResult, ...] | list[StepResult]) -> dict[str, int]:
+    """The place skill's counts of ``steps`` summed by kind (sorted; kinds never needed are
+    left out)."""
+    totals: Counter[str] = Counter()
+    for step in steps:
+        if step.skill is not None:
+            totals.update(step.skill.counts())
+    return dict(sorted(totals.items()))

@@ -6,13 +6,14 @@ zero mean, plus in perceived mode the error of the grasped box's estimated pose)
 height above the planned rest height (the gripper opens before contact, so the box falls that
 far). The physics decides what happens next, so boxes can land off-plan.
 
-The place skill acts only on what the robot knows: the sides it pushes the box toward
+The place skill (``packlab.sim.physics.place_skill``) acts only on what the robot knows: its
+command is built from the perceived size and heightmap, the sides it pushes the box toward
 (``seat_sides``) are read from the observed heightmap around the planned footprint, never from
-the true scene, and the push stops on contact force (``MujocoBackend._seat``).
+the true scene, and its descent and pushes stop or yield on contact force.
 
-Only the mujoco backend executes noisy drops (``MujocoBackend.place`` with ``offset_mm``,
-``yaw_deg``, ``release_mm``): the geometric backend places boxes on whole cells and cannot turn
-them, so a noisy run on it is refused (``RunConfig`` and ``Episode``).
+Only the mujoco backend executes noisy drops (``MujocoBackend.execute``): the geometric
+backend places boxes on whole cells and cannot turn them, so a noisy run on it is refused
+(``RunConfig`` and ``Episode``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 from packlab.core.choices import NoisePreset, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.levels import FACE_RISE_MM
+from packlab.sim.physics.place_skill import PlaceCommand
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,12 +36,12 @@ class ExecutionNoise:
     xy_sigma_mm: float = 0.0  # per axis, of the box centre in the container plane
     yaw_sigma_deg: float = 0.0  # about z, added to the chosen rotation's 0 or 90 degrees
     release_mm: float = 0.0  # the box is let go this far above its planned rest height
-    #: A box that would start inside a neighbour (itself off-plan) slides up to this far aside,
-    #: as a compliant wrist lets it (``MujocoBackend._comply``), instead of landing on top.
+    #: The place skill's compliant wrist lets a contact slide the box at most this far in all
+    #: as it lowers it (``place_skill.descend``): off a wall, a tilted face, a neighbour's edge.
     comply_mm: float = 0.0
     #: The place skill pushes the box toward the sides its planned pose is flush with on the
     #: observed heightmap (``seat_sides``), a guarded move that stops on contact force, at most
-    #: this far past the plan (``MujocoBackend._seat``), so errors do not add up along a row.
+    #: this far past the command (``place_skill.seat``), so errors do not add up along a row.
     #: 0: the box stays where the noise put it.
     seat_mm: float = 0.0
 
@@ -61,10 +63,10 @@ class ExecutionNoise:
 EXECUTION_PRESETS: dict[str, ExecutionNoise] = {
     "none": ExecutionNoise(),
     "structured-light": ExecutionNoise(
-        xy_sigma_mm=2.0, yaw_sigma_deg=1.0, release_mm=5.0, comply_mm=10.0, seat_mm=5.0
+        xy_sigma_mm=2.0, yaw_sigma_deg=1.0, release_mm=5.0, comply_mm=10.0, seat_mm=10.0
     ),
     "stereo": ExecutionNoise(
-        xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=20.0, seat_mm=10.0
+        xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=20.0, seat_mm=20.0
     ),
 }
 
@@ -82,8 +84,8 @@ class ExecutedDrop:
     offset_mm: tuple[float, float]  # xy shift of the box centre from the planned one, mm
     yaw_deg: float  # extra yaw about z, degrees, added to the chosen rotation
     release_mm: float  # extra drop height above the planned rest height, mm
-    comply_mm: float = 0.0  # how far the box may slide aside off a neighbour (ExecutionNoise)
-    seat_mm: float = 0.0  # how far past the plan the box may be pushed flush (ExecutionNoise)
+    comply_mm: float = 0.0  # how far a contact may slide the box (ExecutionNoise)
+    seat_mm: float = 0.0  # how far past the command the box may be pushed flush (ExecutionNoise)
     #: Per axis (x, y), the side the skill pushes toward (-1, +1, or 0: none), ``seat_sides``.
     seat_sides: tuple[int, int] = (0, 0)
 
@@ -95,56 +97,64 @@ class ExecutedDrop:
 EXACT_DROP = ExecutedDrop((0.0, 0.0), 0.0, 0.0)
 
 
-def _half_extent(footprint_mm: tuple[float, float], yaw_deg: float) -> tuple[float, float]:
-    """Half sizes (mm) of the axis-aligned rectangle around a footprint turned by ``yaw_deg``."""
-    fx, fy = footprint_mm
-    c, s = abs(math.cos(math.radians(yaw_deg))), abs(math.sin(math.radians(yaw_deg)))
-    return (c * fx + s * fy) / 2, (s * fx + c * fy) / 2
-
-
 NO_GRASP_ERROR = (0.0, 0.0, 0.0)
 
 
 def perturb_drop(
     noise: ExecutionNoise,
-    min_corner_mm: tuple[int, int, int],
-    footprint_mm: tuple[int, int],
-    container_mm: tuple[int, int],
     rng: np.random.Generator,
     grasp_error: tuple[float, float, float] = NO_GRASP_ERROR,
 ) -> ExecutedDrop:
-    """Sample the executed drop of a planned one (pure but for ``rng``, which it advances).
+    """Sample how a commanded drop is really executed (pure but for ``rng``, which it advances).
 
-    ``footprint_mm`` is the box's (x, y) footprint under the chosen rotation, ``container_mm``
-    the container's inner (X, Y). ``grasp_error`` is the error of the grasped box's estimated
-    pose (dx mm, dy mm, dyaw deg; estimated minus true, ``Perception.grasp_errors``): the robot
-    puts the box's *estimated* pose at the plan, so the true box lands off by the error with its
-    sign reversed, on top of the arm's noise. The xy offset is clamped so the turned footprint
-    stays inside the walls: a robot guided by the walls does not push a box into them, and a
-    box started inside a wall would be shot out by the contact solver. Exactly three normal
-    draws per call (x, y, yaw), whatever the noise, so one seed gives one noise sequence.
+    ``grasp_error`` is the error of the grasped box's estimated pose (dx mm, dy mm, dyaw deg;
+    estimated minus true, ``Perception.grasp_errors``): the robot puts the box's *estimated*
+    pose at the commanded one, so the true box lands off by the error with its sign reversed,
+    on top of the arm's noise. This is the simulator's side (it may know the error; the robot
+    does not): nothing here clamps or corrects the result. A box the noise pushes into a wall
+    is slid off it by the place skill's compliant descent, on the wall's contact force
+    (``packlab.sim.physics.place_skill``). Exactly three normal draws per call (x, y, yaw),
+    whatever the noise, so one seed gives one noise sequence.
     """
     dx, dy, dyaw = rng.normal(size=3)
     if noise.is_zero and tuple(grasp_error) == NO_GRASP_ERROR:
         return EXACT_DROP
     gx, gy, gyaw = (float(v) for v in grasp_error)
-    yaw = float(dyaw) * noise.yaw_sigma_deg - gyaw
-    half_x, half_y = _half_extent(footprint_mm, yaw)
-    cx = min_corner_mm[0] + footprint_mm[0] / 2
-    cy = min_corner_mm[1] + footprint_mm[1] / 2
-    # Clamp the centre into [half, size - half] (an oversized footprint stays where planned).
-    nx = float(
-        np.clip(cx + dx * noise.xy_sigma_mm - gx, half_x, max(half_x, container_mm[0] - half_x))
-    )
-    ny = float(
-        np.clip(cy + dy * noise.xy_sigma_mm - gy, half_y, max(half_y, container_mm[1] - half_y))
-    )
     return ExecutedDrop(
-        (nx - cx, ny - cy),
-        yaw,
+        (float(dx) * noise.xy_sigma_mm - gx, float(dy) * noise.xy_sigma_mm - gy),
+        float(dyaw) * noise.yaw_sigma_deg - gyaw,
         float(noise.release_mm),
         float(noise.comply_mm),
         float(noise.seat_mm),
+    )
+
+
+def place_command(
+    size_mm: tuple[int, int, int],
+    rotation: int,
+    drop_mm: tuple[int, int, int],
+    heightmap: np.ndarray,
+    executed: ExecutedDrop,
+) -> PlaceCommand:
+    """The place skill's command, from what the robot knows only: ``size_mm``, the size it was
+    shown (perceived in perceived mode, sides named as shown), ``rotation``, the policy's
+    choice on those sides, ``drop_mm``, the footprint's minimum corner and the Eq. 2 height
+    the episode read on the observed ``heightmap`` under the shown footprint, and the skill's
+    settings (release height, slide budget, seat reach and sides) carried by ``executed``;
+    its noise is not read. The target centre is the corner plus half the shown footprint."""
+    l, w, h = size_mm
+    fx, fy = (w, l) if rotation == 1 else (l, w)
+    x, y, z = drop_mm
+    return PlaceCommand(
+        centre_mm=(x + fx / 2, y + fy / 2),
+        footprint_mm=(float(fx), float(fy)),
+        bottom_mm=float(z),
+        height_mm=float(h),
+        release_mm=executed.release_mm,
+        seen_top_mm=float(heightmap.max(initial=0)),
+        comply_mm=executed.comply_mm,
+        seat_mm=executed.seat_mm,
+        seat_sides=executed.seat_sides,
     )
 
 
@@ -193,5 +203,6 @@ __all__ = [
     "ExecutionNoise",
     "execution_noise",
     "perturb_drop",
+    "place_command",
     "seat_sides",
 ]

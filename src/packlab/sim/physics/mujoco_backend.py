@@ -35,34 +35,14 @@ from packlab.core.errors import ConfigError
 from packlab.core.protocols import Transition
 from packlab.core.types import Box, Container
 from packlab.sim.heightmap import box_top_region, compose_regions, yaw_quaternion
+from packlab.sim.physics.place_skill import LIFT_TOLERANCE_MM, PlaceCommand, SkillReport
+from packlab.sim.physics.place_skill import place as run_place_skill
 
 _MM = 1e-3  # metres per millimetre
 _REUSE_MM = 0.02  # see MujocoBackend._rasterise
 _REUSE_QUAT = 1e-5
-_LIFT_TOLERANCE_MM = 0.1
-_COMPLY_STEP_MM = 0.5  # ring spacing of MujocoBackend._comply's search
-_SEAT_STEP_MM = 0.25  # step of MujocoBackend._seat's guarded push
-#: The guarded push stops when the contacts on the held box push back along the push axis with
-#: more than this many times the box's weight (its gravity is carried by the gripper while it
-#: pushes, so the reading is the side contacts' alone). The robot knows its payload's weight
-#: (its wrist sensor weighs it at the pick), so the threshold scales with it: MuJoCo's soft
-#: contacts push back in proportion to the held mass times the depth (about 3.9 weights per mm
-#: against a wall or a heavier box, at this solref/solimp), so 0.5 weights stops about 0.13 mm
-#: into a contact for any box, from the bench's 0.28 kg boxes to its 97 kg ones. That is just
-#: past the 0.1 mm a box may already touch at (``_LIFT_TOLERANCE_MM``, what ``_comply``
-#: leaves), so a box resting lightly on one side is not stopped before it moves, and far above
-#: the zero a box touching nothing feels. A fixed force would stop the heavy boxes at the first
-#: touch and let the light ones press in several times deeper.
-_SEAT_FORCE_WEIGHTS = 0.5
-#: A held box pushed into a face with a corner first is turned by the contact's torque (a
-#: wrist compliant in yaw) until its face is flush (``MujocoBackend._flush_turn``): by at
-#: most this much per contact (beyond the arm's and the estimate's yaw errors), found to
-#: 5 deg / 2**12 (0.001 deg), at most _SEAT_TURNS times per push, turns under
-#: _SEAT_MIN_TURN rad (0.003 deg) not taken.
-_SEAT_MAX_YIELD_DEG = 5.0
-_SEAT_TURN_BISECTIONS = 12
-_SEAT_TURNS = 4
-_SEAT_MIN_TURN = 5e-5
+#: A box may touch this deep (mm) and count as clear (the place skill's tolerance too).
+_LIFT_TOLERANCE_MM = LIFT_TOLERANCE_MM
 
 
 @dataclass(frozen=True, slots=True)
@@ -301,55 +281,75 @@ class MujocoBackend:
         adr = self._model.jnt_dofadr[self._model.body_jntadr[self._body_ids[index]]]
         return slice(adr, adr + 6)
 
-    #: ``place`` takes execution noise (an xy offset, a yaw error, a release height).
+    #: ``execute`` runs a noisy placement through the robot's place skill.
     supports_noisy_execution = True
 
-    def place(
-        self,
-        index: int,
-        rotation: int,
-        min_corner_mm: tuple[int, int, int],
-        offset_mm: tuple[float, float] = (0.0, 0.0),
-        yaw_deg: float = 0.0,
-        release_mm: float = 0.0,
-        comply_mm: float = 0.0,
-        seat_mm: float = 0.0,
-        seat_sides: tuple[int, int] = (0, 0),
-    ) -> Transition:
-        """Drop box ``index`` and settle. ``offset_mm`` (centre shift in x, y), ``yaw_deg``
-        (added to the rotation's yaw) and ``release_mm`` (added drop height) execute the drop
-        with robot noise (``packlab.sim.execution``); a box that would start inside another
-        slides up to ``comply_mm`` aside first (``_comply``), then is pushed toward
-        ``seat_sides`` (per axis -1, +1 or 0, decided by the caller from what the robot
-        observed) until contact, up to ``seat_mm`` past the plan (``_seat``). At their zero
-        defaults the drop is computed exactly as without them, so exact runs keep their scores
-        bit for bit."""
-        model, data, cfg = self._model, self._data, self.config
+    def place(self, index: int, rotation: int, min_corner_mm: tuple[int, int, int]) -> Transition:
+        """Drop box ``index`` exactly as planned and settle (exact execution)."""
+        data, cfg = self._data, self.config
         l, w, h = self._sizes_mm[index]
         fx, fy = (w, l) if rotation == 1 else (l, w)
         x, y, z = min_corner_mm
         centre = np.array([x + fx / 2, y + fy / 2, z + h / 2 + cfg.clearance_mm]) * _MM
-        planned = centre
-        noisy = offset_mm != (0.0, 0.0) or yaw_deg != 0.0 or release_mm != 0.0
-        if noisy:  # a separate branch: no float operation touches an exact drop
-            centre = centre + np.array([offset_mm[0], offset_mm[1], release_mm]) * _MM
+        self._activate(index)
+        data.qpos[self._qpos_slice(index)] = np.concatenate([centre, yaw_quaternion(rotation)])
+        data.qvel[self._qvel_slice(index)] = 0.0
+        self._lift_clear(index, rotation)
+        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
 
+    def execute(
+        self,
+        index: int,
+        rotation: int,
+        command: PlaceCommand,
+        offset_mm: tuple[float, float],
+        yaw_deg: float,
+    ) -> tuple[Transition, SkillReport]:
+        """Execute a robot's placement of box ``index`` (noisy execution) and settle.
+
+        The command is the robot's belief (``PlaceCommand``); this maps it onto the true box,
+        which is physics, not a decision: the gripper puts the box's estimated centre at the
+        commanded one, so the true centre lands off by ``offset_mm`` (arm noise minus the grasp
+        error, ``packlab.sim.execution.perturb_drop``), turned by ``yaw_deg`` beyond the box's
+        own ``rotation``; it
+        holds the top face, lowered to ``command.bottom_mm + command.height_mm +
+        command.release_mm`` (plus ``PhysicsConfig.clearance_mm``), so a box truly taller or
+        shorter than perceived hangs lower or higher. Then the place skill
+        (``packlab.sim.physics.place_skill``) runs on the held box, reading only its
+        command and the wrist's sensing (``_HeldBox``), and the box is let go. A box the skill
+        leaves pressed into something (its slide budget spent) is raised clear first: a box
+        never starts inside another (``_lift_clear``)."""
+        model, data, cfg = self._model, self._data, self.config
+        top = command.bottom_mm + command.height_mm + command.release_mm + cfg.clearance_mm
+        true_height = float(self._sizes_mm[index, 2])
+        centre = np.array(
+            [
+                command.centre_mm[0] + offset_mm[0],
+                command.centre_mm[1] + offset_mm[1],
+                top - true_height / 2,
+            ]
+        )
+        self._activate(index)
+        body = self._body_ids[index]
+        model.body_gravcomp[body] = 1.0  # held: the gripper carries its weight
+        qpos = self._qpos_slice(index)
+        data.qpos[qpos] = np.concatenate([centre * _MM, _yawed_quaternion(rotation, yaw_deg)])
+        data.qvel[self._qvel_slice(index)] = 0.0
+        report = run_place_skill(_HeldBox(self, index), command)
+        model.body_gravcomp[body] = 0.0  # released
+        yaw = math.degrees(2 * math.atan2(data.qpos[qpos.start + 6], data.qpos[qpos.start + 3]))
+        self._lift_clear(index, 0, yaw)
+        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps), report
+
+    def _activate(self, index: int) -> None:
+        """Un-park box ``index``: collisions and gravity on; it counts as placed."""
+        model = self._model
         body, geom = self._body_ids[index], self._geom_ids[index]
         model.body_gravcomp[body] = 0.0
         model.geom_contype[geom] = model.geom_conaffinity[geom] = 1
         # The broad phase filters on the per-body masks, which compile from the geoms.
         model.body_contype[body] = model.body_conaffinity[body] = 1
-        qpos = self._qpos_slice(index)
-        quat = _yawed_quaternion(rotation, yaw_deg) if noisy else yaw_quaternion(rotation)
-        data.qpos[qpos] = np.concatenate([centre, quat])
-        data.qvel[self._qvel_slice(index)] = 0.0
         self._placed[index] = True
-        if noisy and comply_mm > 0:
-            self._comply(index, rotation, yaw_deg, comply_mm, planned[:2])
-        if noisy and seat_mm > 0 and any(seat_sides):
-            self._seat(index, seat_sides, seat_mm, planned[:2])
-        self._lift_clear(index, rotation, yaw_deg)
-        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
 
     def finish(self) -> Transition:
         """Settle until at rest (longer window, own larger cap) before the episode is scored."""
@@ -387,121 +387,13 @@ class MujocoBackend:
                 low = mid
         self._data.qpos[z_adr] = high + cfg.clearance_mm * _MM
 
-    def _comply(
-        self,
-        index: int,
-        rotation: int,
-        yaw_deg: float,
-        limit_mm: float,
-        planned_xy: np.ndarray,
-    ) -> None:
-        """Slide a just-placed noisy box aside (at most ``limit_mm``) until it touches nothing.
-
-        A noisy drop beside a neighbour that itself landed off-plan can start a few mm inside
-        it; a robot's compliant wrist lets the box slide off the neighbour's side as it goes
-        down rather than set it on top (what ``_lift_clear`` would do). The nearest clear
-        position is searched on rings of ``_COMPLY_STEP_MM`` in 16 directions: around the noisy
-        pose with the box's yaw error, then squared up (a box turned a degree in a tight slot
-        is turned straight by its walls as it goes down), then squared up around the planned
-        centre (a corner slot that is only clear at one point, which the rings around the
-        noisy centre can step past). When nothing is clear within the limit the box keeps its
-        noisy pose and ``_lift_clear`` raises it.
-        """
-        geom, tol = self._geom_ids[index], _LIFT_TOLERANCE_MM * _MM
-        pose = self._qpos_slice(index)
-        if self._penetration(geom) <= tol:
-            return
-        noisy_pose = self._data.qpos[pose].copy()
-        planned = np.array([planned_xy[0], planned_xy[1], noisy_pose[2]])
-        squared = np.asarray(yaw_quaternion(rotation))
-        passes = [(_yawed_quaternion(rotation, yaw_deg), noisy_pose[:3])] if yaw_deg else []
-        passes += [(squared, noisy_pose[:3]), (squared, planned)]
-        for quat, centre in passes:
-            self._data.qpos[pose.start + 3 : pose.stop] = quat
-            if self._clear_within(geom, pose.start, centre, limit_mm):
-                return
-        self._data.qpos[pose] = noisy_pose
-
-    def _clear_within(self, geom: int, address: int, centre: np.ndarray, limit_mm: float) -> bool:
-        """Put the box at the clear position nearest ``centre`` (rings of ``_COMPLY_STEP_MM``,
-        16 directions, up to ``limit_mm``) and return True, or return False if there is none."""
-        tol = _LIFT_TOLERANCE_MM * _MM
-        angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
-        directions = np.stack([np.cos(angles), np.sin(angles), np.zeros(16)], axis=1)
-        for radius in np.arange(0.0, limit_mm + 1e-9, _COMPLY_STEP_MM):
-            for d in directions[: 1 if radius == 0 else 16]:
-                self._data.qpos[address : address + 3] = centre + d * radius * _MM
-                if self._penetration(geom) <= tol:
-                    return True
-        return False
-
-    def _seat(
-        self, index: int, sides: tuple[int, int], limit_mm: float, planned_xy: np.ndarray
-    ) -> None:
-        """Push a just-placed noisy box toward ``sides`` by guarded moves.
-
-        A placement is planned flush against walls or boxes on some sides (on the -x and -y
-        sides for a minimum-corner rule like DBLF's, anywhere for others); a robot's place
-        skill pushes the box toward those sides as it lowers it, so execution errors do not add
-        up along a row (each box otherwise lands a little off its neighbour and the last box of
-        a tight row no longer fits). Which sides is the caller's decision from what the robot
-        observed (``packlab.sim.execution.seat_sides``); nothing here looks for what is there.
-        Per axis the held box (gravity carried by the gripper) moves in ``_SEAT_STEP_MM`` steps
-        until the contacts push back harder than ``_SEAT_FORCE_WEIGHTS`` of its weight, at most
-        ``limit_mm`` past the plan (``_guarded_push``); a push that meets nothing returns the
-        box to where it started. The yaw is not squared by fiat: it keeps its error unless a
-        contact's torque turns it.
-        """
-        model = self._model
-        body, geom = self._body_ids[index], self._geom_ids[index]
-        address = self._qpos_slice(index).start
-        weight = float(model.body_mass[body]) * abs(self.config.gravity)
-        threshold = _SEAT_FORCE_WEIGHTS * weight
-        model.body_gravcomp[body] = 1.0  # held: the gripper carries its weight while pushing
-        for axis, side in enumerate(sides):
-            if side:
-                # How far the box now is past its planned position (noise and _comply).
-                past = side * (self._data.qpos[address + axis] - planned_xy[axis]) / _MM
-                reach = max(0.0, -past) + limit_mm
-                self._guarded_push(geom, address, axis, side, reach, threshold)
-        for axis in (0, 1):  # a later push or turn may have pressed a side pushed earlier
-            self._relax(geom, address, axis, limit_mm + 2.0)
-        model.body_gravcomp[body] = 0.0
-
-    def _guarded_push(
-        self, geom: int, address: int, axis: int, side: int, reach_mm: float, threshold: float
-    ) -> bool:
-        """Move the held box (pose at ``qpos[address:address + 7]``) toward ``side`` of ``axis``
-        in ``_SEAT_STEP_MM`` steps, at most ``reach_mm``, until the step would make the
-        contacts push back along the axis harder than ``threshold`` (N). There it stays at
-        the last step under the threshold, first letting the contact's torque turn it flush
-        with the face it met (``_flush_turn``, a few times while that lets it go on), and
-        returns True; with nothing met it goes back to its start and returns False."""
-        data, start = self._data, self._data.qpos[address : address + 7].copy()
-        pose = slice(address, address + 7)
-        moved, step, turns_left = 0.0, side * _SEAT_STEP_MM * _MM, _SEAT_TURNS
-        while True:
-            if moved + _SEAT_STEP_MM > reach_mm + 1e-9:
-                data.qpos[pose] = start
-                return False
-            data.qpos[address + axis] += step
-            force, torque, pivot = self._side_load(geom, address)
-            if -side * force[axis] <= threshold:
-                moved += _SEAT_STEP_MM
-                continue
-            rest = data.qpos[address + axis] - side * self._touching_back(geom, axis)
-            turned = self._flush_turn(geom, address, axis, torque, pivot) if turns_left else None
-            data.qpos[address + axis] -= step  # back to the last pose under the threshold
-            if turned is None:
-                break
-            backed = data.qpos[pose].copy()
-            data.qpos[pose] = turned
-            if not self._back_off(geom, address, axis, side, threshold):
-                data.qpos[pose] = backed  # the turn presses the other side (a wall seated on)
-                break
-            turns_left -= 1
-        data.qpos[address + axis] = rest
-        return True
+    def _touching(self, geom: int) -> set[int]:
+        """The geoms ``geom`` touches across a side (horizontal normal), as last collided."""
+        return {
+            c.geom2 if c.geom1 == geom else c.geom1
+            for c in self._data.contact[: self._data.ncon]
+            if geom in (c.geom1, c.geom2) and abs(c.frame[2]) <= 0.5
+        }
 
     def _touching_back(self, geom: int, axis: int) -> float:
         """How far (m) a box pressed into what it met along ``axis`` must back off for its true
@@ -519,80 +411,32 @@ class MujocoBackend:
                     insets = 2
         return deepest + insets * self.config.collision_inset_mm * _MM
 
-    def _back_off(self, geom: int, address: int, axis: int, side: int, threshold: float) -> bool:
-        """Back a just-turned box (turned pressed into what it met) off along ``axis`` by
-        ``_SEAT_STEP_MM`` steps (at least one, at most three) until the contacts push back
-        along it with at most ``threshold``, a turned box bearing at both ends of its face
-        bears twice; return whether the other axis is then under the threshold too."""
-        for _ in range(3):
-            self._data.qpos[address + axis] -= side * _SEAT_STEP_MM * _MM
-            force = self._side_load(geom, address)[0]
-            if -side * force[axis] <= threshold:
-                break
-        return abs(force[1 - axis]) <= threshold and -side * force[axis] <= threshold
-
-    def _flush_turn(
-        self, geom: int, address: int, axis: int, torque: float, pivot: np.ndarray
-    ) -> np.ndarray | None:
-        """The pose (7,) a wrist compliant in yaw lets the contact's ``torque`` give the held
-        box, pressed into what it met: turned in the torque's sense, the arm holding its centre
-        across ``axis`` and letting it follow the contact (``pivot``, the centre of pressure)
-        along it, up to where the torque reverses (the face is flush, bearing at both ends),
-        found by bisection within ``_SEAT_MAX_YIELD_DEG``. None when it does not reverse there
-        (a corner against a corner: nothing flat to turn flush with), when the turn runs into
-        something other than what it met first (a neighbour bearing on part of the face only
-        would turn the box until its far end met a wall), or the turn is under
-        ``_SEAT_MIN_TURN``. Leaves the box's pose as it was."""
-        pose = self._data.qpos[address : address + 7]
-        held = pose.copy()
-        sense = math.copysign(1.0, torque)
-        met = self._touching(geom)
-
-        def turned(angle: float) -> np.ndarray:
-            out = _pivoted(held, pivot, angle)
-            out[1 - axis] = held[1 - axis]
-            return out
-
-        def stopped_at(angle: float) -> bool:
-            """The torque reversed, or the turn ran into something else."""
-            pose[:] = turned(sense * angle)
-            reversed_ = self._side_load(geom, address)[1] * sense < 0.0
-            return reversed_ or not self._touching(geom) <= met
-
-        low, high = 0.0, math.radians(_SEAT_MAX_YIELD_DEG)
-        if torque == 0.0 or not stopped_at(high):
-            pose[:] = held
-            return None
-        for _ in range(_SEAT_TURN_BISECTIONS):
-            mid = (low + high) / 2
-            low, high = (low, mid) if stopped_at(mid) else (mid, high)
-        stopped_by_other = not self._touching(geom) <= met  # at ``high``: past the stop
-        pose[:] = held
-        if low < _SEAT_MIN_TURN or stopped_by_other:
-            return None  # not turned flush with the face it met (a part face, a corner)
-        return turned(sense * low)
-
-    def _touching(self, geom: int) -> set[int]:
-        """The geoms ``geom`` touches across a side (horizontal normal), as last collided."""
-        return {
-            c.geom2 if c.geom1 == geom else c.geom1
-            for c in self._data.contact[: self._data.ncon]
-            if geom in (c.geom1, c.geom2) and abs(c.frame[2]) <= 0.5
-        }
-
-    def _relax(self, geom: int, address: int, axis: int, limit_mm: float) -> None:
-        """Back a seated box off along ``axis`` in ``_SEAT_STEP_MM`` steps (at most
-        ``limit_mm``, as far as a push may have gone) while it is deeper than
-        ``_LIFT_TOLERANCE_MM`` in a contact across that axis: the force threshold allows
-        about 0.13 mm, more where a neighbour lighter than the held box yields, and a box
-        released wedged into a side would be lifted on top by ``_lift_clear``; released, the
-        compressed contact springs back."""
-        tol = _LIFT_TOLERANCE_MM * _MM
-        for _ in range(int(limit_mm / _SEAT_STEP_MM)):
-            deepest, normal = self._deepest_across(geom, axis)
-            if deepest <= tol:
-                return
-            self._data.qpos[address + axis] += normal * _SEAT_STEP_MM * _MM
+    def _wrench(self, geom: int, address: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Force (N, world x, y, z) of every contact on ``geom`` and the centres of pressure
+        (m, x and y) of its side contacts (normal mostly horizontal) and of its support
+        contacts (mostly vertical), at the current positions: what a wrist force-torque sensor
+        resolves of a held box (its weight carried), as ``_side_load`` reads side contacts
+        apart from the support. A centre with no contact of its kind is the box's centre; no
+        solve when the box touches nothing."""
+        model, data = self._model, self._data
+        centre = data.qpos[address : address + 2].copy()
+        force = np.zeros(3)
+        pressure, total = np.zeros((2, 2)), np.zeros(2)  # rows: side, support
+        if self._penetration(geom) <= 0.0:
+            return force, centre, centre.copy()
+        mujoco.mj_forward(model, data)
+        wrench = np.zeros(6)
+        for i, contact in enumerate(data.contact[: data.ncon]):
+            if geom not in (contact.geom1, contact.geom2):
+                continue
+            mujoco.mj_contactForce(model, data, i, wrench)
+            # The normal points from geom1 to geom2; the force pushes geom2 along it.
+            force += wrench[0] * contact.frame[:3] * (1.0 if contact.geom2 == geom else -1.0)
+            kind = int(abs(contact.frame[2]) > 0.5)
+            pressure[kind] += abs(wrench[0]) * contact.pos[:2]
+            total[kind] += abs(wrench[0])
+        side, support = (pressure[k] / total[k] if total[k] > 0 else centre for k in (0, 1))
+        return force, side, support
 
     def _deepest_across(self, geom: int, axis: int) -> tuple[float, float]:
         """Deepest penetration (m) of ``geom`` in a contact whose normal lies along ``axis``,
@@ -760,3 +604,57 @@ class MujocoBackend:
                 region = box_top_region(grid, cell, self._sizes_mm[i], positions[i], quats[i])
                 self._regions[i] = (positions[i].copy(), quats[i].copy(), region)
         return compose_regions(grid, (r[2] for r in self._regions.values()))
+
+
+class _HeldBox:
+    """The box in the gripper, as the place skill senses and moves it (``place_skill.HeldBox``):
+    relative moves of its free-joint pose and the backend's contact readings. The skill never
+    reads the pose itself; the snapshot is an opaque token it hands back."""
+
+    def __init__(self, backend: MujocoBackend, index: int) -> None:
+        self._backend = backend
+        self._geom = int(backend._geom_ids[index])
+        self._address = backend._qpos_slice(index).start
+        self._pose = backend._qpos_slice(index)
+        body = backend._body_ids[index]
+        self._weight = float(backend._model.body_mass[body]) * abs(backend.config.gravity)
+
+    @property
+    def weight(self) -> float:
+        return self._weight
+
+    def snapshot(self) -> np.ndarray:
+        return np.array(self._backend._data.qpos[self._pose])
+
+    def restore(self, token: np.ndarray) -> None:
+        self._backend._data.qpos[self._pose] = token
+
+    def translate(self, dx: float, dy: float, dz: float) -> None:
+        self._backend._data.qpos[self._address : self._address + 3] += (dx, dy, dz)
+
+    def turn(self, angle: float, pivot: np.ndarray) -> None:
+        qpos = self._backend._data.qpos
+        qpos[self._pose] = _pivoted(qpos[self._pose].copy(), pivot, angle)
+
+    def turned_from(self, token: np.ndarray, angle: float, pivot: np.ndarray, axis: int) -> None:
+        out = _pivoted(token, pivot, angle)
+        out[1 - axis] = token[1 - axis]
+        self._backend._data.qpos[self._pose] = out
+
+    def penetration(self) -> float:
+        return self._backend._penetration(self._geom)
+
+    def deepest_across(self, axis: int) -> tuple[float, float]:
+        return self._backend._deepest_across(self._geom, axis)
+
+    def side_load(self) -> tuple[np.ndarray, float, np.ndarray]:
+        return self._backend._side_load(self._geom, self._address)
+
+    def wrench(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._backend._wrench(self._geom, self._address)
+
+    def touching(self) -> set[int]:
+        return self._backend._touching(self._geom)
+
+    def touching_back(self, axis: int) -> float:
+        return self._backend._touching_back(self._geom, axis)

@@ -1,0 +1,547 @@
+"""The robot's place skill: compliant guarded descent, seating, release (issue 34).
+
+The skill decides only from what the robot knows: the command in its own belief
+(``PlaceCommand``: the target centre from the perceived footprint, the chosen rotation, the
+target bottom from the perceived heightmap, the perceived box height, the seat sides read from
+the observed heightmap) and what its wrist's force-torque sensor reads while it holds the box
+(``HeldBox``). It never reads the box's true pose, size or the scene: it moves the gripper by
+relative motions (the box moves rigidly with it) and reads contact wrenches. The simulator
+maps the command onto the true box (grasp error, arm noise, true height: physics, see
+``MujocoBackend.execute``) and implements ``HeldBox``.
+
+Moves are kinematic and quasi-static: every reading is taken with the held box at rest in the
+gripper, its weight carried (gravity compensated), as a slow guarded move would read it.
+
+1. **Descent** (``descend``). A command whose release pose touches nothing is released there
+   (the usual drop onto a flat stack: the descent met nothing on the way). Otherwise the box
+   is lowered from above what the robot sees (``APPROACH_MM`` over the heightmap's top) in
+   ``_DESCENT_STEP_MM`` steps, stopping at each contact to read the wrench:
+
+   * a mostly horizontal contact force (a wall, a tilted neighbour's face) lets the compliant
+     wrist slide the box along it, and a contact torque about z turns it (yaw compliance), in
+     ``_SLIDE_STEP_MM`` steps, at most ``comply_mm`` in all; the descent then goes on;
+   * a contact that carries the box (mostly vertical force) above its target is a ledge: when
+     the wrench's centre of pressure lies at one edge of the box as the robot believes it
+     (within ``_EDGE_BAND_MM`` of its perceived footprint's edge) the box is landing on a
+     neighbour's edge, and the rounded edges of cartons turn part of the reaction outward, so
+     the compliant wrist slides the box off it, away from the edge (within the same budget);
+     otherwise (a support under the box, or the budget spent) the descent stops and the box is
+     released where it is: physics decides what happens then.
+
+   Nothing squares the yaw or moves the box to the planned pose: no code here knows either.
+2. **Seat** (``seat``). Pushes toward the sides the observed heightmap shows flush, guarded
+   moves that stop on contact force, turned flush by the contact's torque (the code of
+   issue 26, moved here from the backend). The reach is measured from the commanded pose plus
+   the skill's own moves (what the robot knows of where it holds the box), never from the
+   planned pose the noise moved it off.
+3. **Release**: the caller (``MujocoBackend.execute``) lets go and settles.
+
+``SkillReport`` counts what the skill had to do (recoveries) per placement; the episode puts
+it in the step record (``skill``) and sums it per episode (``metrics.skill``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Protocol
+
+import numpy as np
+
+_MM = 1e-3  # metres per millimetre
+#: A box may touch what is around it this deep (mm) and count as touching nothing: the
+#: simulator's contacts and the heightmap's sampling leave that much.
+LIFT_TOLERANCE_MM = 0.1
+#: The descent starts with the box's bottom this far (mm) above the highest point the robot
+#: sees in the container (the heightmap's top cell): over the few mm a cell-centre heightmap
+#: can miss of a tilted edge.
+APPROACH_MM = 20.0
+_DESCENT_STEP_MM = 2.0  # the descent's step; a contact met within one is found to the tolerance
+_SLIDE_STEP_MM = 0.5  # a compliant slide's step
+#: An edge landing: the centre of pressure of a contact that carries the box lies off its
+#: middle and within ``comply_mm`` plus this margin of the edge, as the
+#: robot believes it (its command plus its own moves): a strip of overlap with a neighbour's
+#: top narrow enough for the wrist to slide off within its budget. A support spread under the
+#: box puts it well inside. The margin covers the grasp and arm errors between the believed and
+#: the true edge (a few mm).
+_EDGE_MARGIN_MM = 5.0
+#: Turns under contact torque during the descent: the turn per slide step is the rigid motion
+#: whose contact points move about one step, at most this much in all (beyond arm errors).
+_DESCENT_MAX_TURN_DEG = 5.0
+_DESCENT_MAX_MOVES = 400  # a bound on the descent's loop (never reached in the bench cases)
+
+_SEAT_STEP_MM = 0.25  # step of the guarded push
+#: The guarded push stops when the contacts on the held box push back along the push axis with
+#: more than this many times the box's weight (its gravity is carried by the gripper while it
+#: pushes, so the reading is the side contacts' alone). The robot knows its payload's weight
+#: (its wrist sensor weighs it at the pick), so the threshold scales with it: MuJoCo's soft
+#: contacts push back in proportion to the held mass times the depth (about 3.9 weights per mm
+#: against a wall or a heavier box, at the backend's solref/solimp), so 0.5 weights stops about
+#: 0.13 mm into a contact for any box, from the bench's 0.28 kg boxes to its 97 kg ones. That is
+#: just past the 0.1 mm a box may already touch at (``LIFT_TOLERANCE_MM``), so a box resting
+#: lightly on one side is not stopped before it moves, and far above the zero a box touching
+#: nothing feels. A fixed force would stop the heavy boxes at the first touch and let the light
+#: ones press in several times deeper.
+_SEAT_FORCE_WEIGHTS = 0.5
+#: A held box pushed into a face with a corner first is turned by the contact's torque (a
+#: wrist compliant in yaw) until its face is flush (``flush_turn``): by at most this much per
+#: contact (beyond the arm's and the estimate's yaw errors), found to 5 deg / 2**12 (0.001
+#: deg), at most _SEAT_TURNS times per push, turns under _SEAT_MIN_TURN rad (0.003 deg) not
+#: taken.
+_SEAT_MAX_YIELD_DEG = 5.0
+_SEAT_TURN_BISECTIONS = 12
+_SEAT_TURNS = 4
+_SEAT_MIN_TURN = 5e-5
+
+
+@dataclass(frozen=True, slots=True)
+class PlaceCommand:
+    """A placement as the robot commands it, in its own belief (mm, container frame).
+
+    Built from what the robot knows only (``packlab.sim.episode``): the perceived size it was
+    shown, the policy's choice and the heightmap it observed. The gripper holds the box's top
+    face, so it lowers the top to ``bottom_mm + height_mm + release_mm``.
+    """
+
+    centre_mm: tuple[float, float]  # the drop corner plus half the perceived footprint
+    footprint_mm: tuple[float, float]  # perceived footprint (x, y) under the chosen rotation
+    bottom_mm: float  # target bottom: Eq. 2 height on the observed heightmap
+    height_mm: float  # perceived box height
+    release_mm: float  # the gripper opens this far above the target
+    #: The highest point the robot sees in the container (the observed heightmap's top): the
+    #: descent starts ``APPROACH_MM`` above it.
+    seen_top_mm: float
+    comply_mm: float = 0.0  # how far in all the compliant wrist may slide the box
+    seat_mm: float = 0.0  # how far past the command a guarded push may go
+    seat_sides: tuple[int, int] = (0, 0)  # per axis -1, +1 or 0 (``execution.seat_sides``)
+
+
+@dataclass(slots=True)
+class SkillReport:
+    """What the place skill had to do for one placement: 1 (or, for pushes and seat turns,
+    how many) when it happened, 0 when not needed."""
+
+    #: The release pose was in contact: the box was lowered from above by a guarded descent.
+    descended: int = 0
+    #: The wrist slid the box along a mostly horizontal contact force (a wall, a tilted face).
+    slid: int = 0
+    #: The wrist slid the box off a neighbour's edge it was landing on.
+    slid_off_edge: int = 0
+    #: A slide also turned the box (contact torque, yaw compliance).
+    turned: int = 0
+    #: The descent stopped on a contact that carried the box above its target: released there.
+    stopped_high: int = 0
+    #: Guarded pushes that met a face (seated flush) and that met nothing (back to the start).
+    seated: int = 0
+    push_missed: int = 0
+    #: Turns flush with a face during seating (contact torque).
+    seat_turned: int = 0
+    #: The slides spent their budget (``comply_mm``) before the box was clear.
+    budget_spent: int = 0
+    #: Carried above its target with no edge to read, the box was moved aside by a guarded
+    #: search (lateral moves, each followed by a guarded try to go lower) and went on down.
+    probed: int = 0
+
+    def counts(self) -> dict[str, int]:
+        """The nonzero counts by name (what records keep)."""
+        return {k: v for k, v in asdict(self).items() if v}
+
+
+class HeldBox(Protocol):
+    """The box in the gripper, as the skill may act on it and sense it (``MujocoBackend``).
+
+    Moves are relative (the gripper moves; the box follows rigidly); readings are what a wrist
+    force-torque sensor and the arm's own joints give. Positions handed back (a centre of
+    pressure) are in the container frame, metres.
+    """
+
+    @property
+    def weight(self) -> float:
+        """The payload's weight (N): the wrist weighs it at the pick."""
+        ...
+
+    def snapshot(self) -> np.ndarray:
+        """An opaque token of the gripper's pose, for ``restore``."""
+        ...
+
+    def restore(self, token: np.ndarray) -> None: ...
+
+    def translate(self, dx: float, dy: float, dz: float) -> None:
+        """Move the gripper (and the box) by (dx, dy, dz) metres."""
+        ...
+
+    def turn(self, angle: float, pivot: np.ndarray) -> None:
+        """Turn the gripper by ``angle`` radians about the vertical line through ``pivot``."""
+        ...
+
+    def turned_from(self, token: np.ndarray, angle: float, pivot: np.ndarray, axis: int) -> None:
+        """The pose of ``token`` turned about ``pivot``, its centre held across ``axis``."""
+        ...
+
+    def penetration(self) -> float:
+        """How deep (m) the box is pressed into anything: the contact's depth, read as the
+        compliant wrist's deflection under a stiff contact."""
+        ...
+
+    def deepest_across(self, axis: int) -> tuple[float, float]:
+        """Deepest press (m) into a contact whose normal lies along ``axis``, and the way out
+        of it along the axis (+1, -1; 0, 0 if none)."""
+        ...
+
+    def side_load(self) -> tuple[np.ndarray, float, np.ndarray]:
+        """Force (N, x and y), torque about z (N m) and centre of pressure (m, x and y) of the
+        contacts with a mostly horizontal normal (what the box is pushed against)."""
+        ...
+
+    def wrench(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Force (N, x, y, z) of every contact on the box, and the centres of pressure (m, x
+        and y) of its side contacts and of its support: what the wrist's force-torque sensor
+        resolves (a torque about its axis is a force at a point)."""
+        ...
+
+    def touching(self) -> set[int]:
+        """Which contacts across a side the box touches (a new one shows as a new element)."""
+        ...
+
+    def touching_back(self, axis: int) -> float:
+        """How far (m) the box pressed into what it met along ``axis`` backs off to touch."""
+        ...
+
+
+# -- the descent -------------------------------------------------------------------------------
+
+
+def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.ndarray:
+    """Lower the held box to its release pose by a compliant guarded descent (module
+    docstring); returns the gripper's moves (x, y in mm) from the command, which the robot
+    knows from its own joints. The box is left at its release pose or where the descent
+    stopped, touching at most ``LIFT_TOLERANCE_MM``."""
+    tol = LIFT_TOLERANCE_MM * _MM
+    moved = np.zeros(2)  # mm
+    if held.penetration() <= tol:
+        return moved
+    report.descended = 1
+    release = command.bottom_mm + command.release_mm
+    rise = max(0.0, command.seen_top_mm + APPROACH_MM - release) * _MM
+    held.translate(0.0, 0.0, rise)
+    below = rise  # how far (m) the box still is above its release pose
+    budget = command.comply_mm
+    path = 0.0  # mm the wrist has let the box slide so far, every way (the budget's measure)
+    turned = 0.0
+    half = np.array(command.footprint_mm) / 2
+    radius = float(np.hypot(*half))  # mm: the yaw compliance's radius (see _compliant_step)
+    flushes_left = _SEAT_TURNS
+    for _ in range(_DESCENT_MAX_MOVES):
+        depth = held.penetration()
+        if depth <= tol:
+            if below <= 1e-9:
+                return moved
+            down = min(_DESCENT_STEP_MM * _MM, below)
+            held.translate(0.0, 0.0, -down)
+            below -= down
+            continue
+        force, side_pressure, support_pressure = held.wrench()
+        gripper = np.array(command.centre_mm) + moved
+        across = float(math.hypot(force[0], force[1]))
+        # The centre of pressure from the gripper's axis (mm): of the side contacts when the
+        # box is pushed sideways, of the support when it is carried.
+        lever = (side_pressure if across > force[2] else support_pressure) / _MM - gripper
+        if across > force[2]:  # pushed sideways (a wall, a tilted face)
+            push = force[:2] / across
+            report.slid = 1
+            if flushes_left:
+                # Pressed into a face with a corner first, the contact's torque turns the box
+                # flush with it (yaw compliance), as in seating.
+                axis = 0 if abs(push[0]) >= abs(push[1]) else 1
+                _, torque, pivot = held.side_load()
+                flush = flush_turn(held, axis, torque, pivot)
+                flushes_left -= 1
+                if flush is not None:
+                    pressed = held.snapshot()
+                    held.restore(flush)
+                    if held.penetration() <= depth:
+                        report.turned = 1
+                        continue
+                    # The turn would press the box harder into something else (a second
+                    # wall, a neighbour): the wrist cannot turn against that contact.
+                    held.restore(pressed)
+        else:
+            # Carried: back up to the touch (the contact is under the box, its depth along z).
+            below += _back_to_touch(held, depth)
+            if below <= 1e-9:
+                return moved  # at the release pose after all
+            away = _off_edge(lever, half, budget + _EDGE_MARGIN_MM)
+            if away is None:
+                # No edge to read: probe around for where the descent can go on.
+                found = _probe(held, budget - path)
+                if found is None:
+                    report.stopped_high = 1
+                    return moved
+                held.translate(found[0] * _MM, found[1] * _MM, 0.0)
+                moved += found
+                path += float(np.hypot(*found))
+                report.probed = 1
+                continue
+            push = away
+            report.slid_off_edge = 1
+        if path + _SLIDE_STEP_MM > budget + 1e-9:
+            report.budget_spent = 1
+            if force[2] >= across:
+                report.stopped_high = 1  # left on the edge it could not slide off
+            return moved
+        # A side contact yields by its depth (the wrist's deflection under a stiff contact),
+        # so a box in a slot with little slack settles in it instead of bouncing between its
+        # faces; an edge is slid off in whole steps.
+        length = min(_SLIDE_STEP_MM, max(depth / _MM, LIFT_TOLERANCE_MM))
+        step, angle = _compliant_step(push, lever, radius, length if across > force[2] else None)
+        if abs(turned + angle) > math.radians(_DESCENT_MAX_TURN_DEG):
+            angle = 0.0
+        held.translate(step[0] * _MM, step[1] * _MM, 0.0)
+        moved += step
+        path += float(np.hypot(*step))
+        if angle:
+            held.turn(angle, (gripper + step) * _MM)
+            turned += angle
+            report.turned = 1
+    report.stopped_high = 1
+    return moved
+
+
+def _back_to_touch(held: HeldBox, depth: float) -> float:
+    """Raise the box pressed ``depth`` (m) into what carries it until it touches at most the
+    tolerance; returns how far (m) it went up."""
+    tol = LIFT_TOLERANCE_MM * _MM
+    up = 0.0
+    for _ in range(8):
+        if depth <= tol:
+            break
+        lift = max(depth - tol / 2, 0.05 * _MM)
+        held.translate(0.0, 0.0, lift)
+        up += lift
+        depth = held.penetration()
+    return up
+
+
+def _probe(held: HeldBox, budget_mm: float) -> np.ndarray | None:
+    """A guarded search around a box carried above its target (touching what carries it): the
+    nearest lateral move (rings of ``_SLIDE_STEP_MM``, 8 directions, within ``budget_mm``)
+    from which a guarded move down by ``_DESCENT_STEP_MM`` meets nothing, each move from the
+    touching pose and itself touching nothing on the way (a side it would meet stops it).
+    Returns that move (mm) with the box back where it was, or None."""
+    tol = LIFT_TOLERANCE_MM * _MM
+    start = held.snapshot()
+    angles = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
+    directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    blocked = np.zeros(8, dtype=bool)
+    radius = _SLIDE_STEP_MM
+    while radius <= budget_mm + 1e-9 and not blocked.all():
+        for k, d in enumerate(directions):
+            if blocked[k]:
+                continue
+            held.restore(start)
+            held.translate(d[0] * radius * _MM, d[1] * radius * _MM, 0.0)
+            if held.penetration() > tol:
+                blocked[k] = True  # the lateral move met a side: no farther this way
+                continue
+            held.translate(0.0, 0.0, -_DESCENT_STEP_MM * _MM)
+            clear = held.penetration() <= tol
+            held.restore(start)
+            if clear:
+                return d * radius
+        radius += _SLIDE_STEP_MM
+    held.restore(start)
+    return None
+
+
+def _compliant_step(
+    push: np.ndarray, lever_mm: np.ndarray, radius_mm: float, length_mm: float | None = None
+) -> tuple[np.ndarray, float]:
+    """One step of the compliant wrist under a contact force along ``push`` (a unit vector,
+    x, y) applied at ``lever_mm`` from its axis: the move (x, y mm) and turn (rad) along the
+    generalised force (force, torque / radius), ``_SLIDE_STEP_MM`` long in that metric. The
+    same stiffness for moves and for turns at ``radius_mm`` (the box's half diagonal): a push
+    through the axis slides the box, one at a corner also turns it. ``length_mm`` shortens
+    the step (default ``_SLIDE_STEP_MM``)."""
+    torque = float(lever_mm[0] * push[1] - lever_mm[1] * push[0])  # N mm per N
+    generalised = np.array([push[0], push[1], torque / radius_mm])
+    length = _SLIDE_STEP_MM if length_mm is None else length_mm
+    step = length * generalised / float(np.linalg.norm(generalised))
+    return step[:2], float(step[2] / radius_mm)
+
+
+def _off_edge(offset_mm: np.ndarray, half_mm: np.ndarray, band_mm: float) -> np.ndarray | None:
+    """The unit direction (x, y) away from an edge landing, from the centre of pressure's
+    ``offset_mm`` from the gripper's centre and the perceived half footprint: per axis, away
+    from a side whose edge the pressure lies within ``band_mm`` of (and off the middle
+    quarters: the simulator's contact points of a small corner overlap lie inside it);
+    None when the pressure is not at an edge (a support under the box)."""
+    direction = np.zeros(2)
+    for axis in (0, 1):
+        inside = half_mm[axis] - abs(offset_mm[axis])
+        if inside <= band_mm and abs(offset_mm[axis]) > half_mm[axis] / 4:
+            direction[axis] = -math.copysign(1.0, offset_mm[axis])
+    norm = float(np.hypot(*direction))
+    return None if norm == 0 else direction / norm
+
+
+# -- seating (issue 26, moved from the backend) ------------------------------------------------
+
+
+def seat(held: HeldBox, command: PlaceCommand, moved_mm: np.ndarray, report: SkillReport) -> None:
+    """Push the held box toward ``command.seat_sides`` by guarded moves.
+
+    A placement is planned flush against walls or boxes on some sides (on the -x and -y sides
+    for a minimum-corner rule like DBLF's, anywhere for others); the skill pushes the box
+    toward those sides as it lowers it, so execution errors do not add up along a row. Which
+    sides is the caller's decision from what the robot observed
+    (``packlab.sim.execution.seat_sides``); nothing here looks for what is there. Per axis
+    the held box moves in ``_SEAT_STEP_MM`` steps until the contacts push back harder than
+    ``_SEAT_FORCE_WEIGHTS`` of its weight (``guarded_push``), at most ``seat_mm`` past the
+    commanded pose, measured from where the robot holds it (the command plus the descent's
+    moves ``moved_mm``: its own joints, not the noise); a push that meets nothing returns the
+    box to where it started. The yaw keeps its error unless a contact's torque turns it.
+    """
+    threshold = _SEAT_FORCE_WEIGHTS * held.weight
+    for axis, side in enumerate(command.seat_sides):
+        if side:
+            past = side * float(moved_mm[axis])  # how far the descent already took it that way
+            reach = max(0.0, -past) + command.seat_mm
+            met = guarded_push(held, axis, side, reach, threshold, report)
+            if met:
+                report.seated += 1
+            else:
+                report.push_missed += 1
+    for axis in (0, 1):  # a later push or turn may have pressed a side pushed earlier
+        relax(held, axis, command.seat_mm + 2.0)
+
+
+def guarded_push(
+    held: HeldBox, axis: int, side: int, reach_mm: float, threshold: float, report: SkillReport
+) -> bool:
+    """Move the held box toward ``side`` of ``axis`` in ``_SEAT_STEP_MM`` steps, at most
+    ``reach_mm``, until the step would make the contacts push back along the axis harder than
+    ``threshold`` (N). There it stays at the last step under the threshold, first letting the
+    contact's torque turn it flush with the face it met (``flush_turn``, a few times while
+    that lets it go on), and returns True; with nothing met it goes back to its start and
+    returns False."""
+    start = held.snapshot()
+    moved, step, turns_left = 0.0, side * _SEAT_STEP_MM * _MM, _SEAT_TURNS
+    shift = np.zeros(3)
+    shift[axis] = step
+    while True:
+        if moved + _SEAT_STEP_MM > reach_mm + 1e-9:
+            held.restore(start)
+            return False
+        held.translate(*shift)
+        force, torque, pivot = held.side_load()
+        if -side * force[axis] <= threshold:
+            moved += _SEAT_STEP_MM
+            continue
+        rest = side * held.touching_back(axis)  # back off this far from the pressed pose
+        turned = flush_turn(held, axis, torque, pivot) if turns_left else None
+        held.translate(*(-shift))  # back to the last pose under the threshold
+        if turned is None:
+            break
+        backed = held.snapshot()
+        held.restore(turned)
+        if not back_off(held, axis, side, threshold):
+            held.restore(backed)  # the turn presses the other side (a wall seated on)
+            break
+        report.seat_turned += 1
+        turns_left -= 1
+    # From the last pose under the threshold to the touching one: the pressed pose was one
+    # step further, and backing off ``touching_back`` from there touches.
+    delta = np.zeros(3)
+    delta[axis] = step - rest
+    held.translate(*delta)
+    return True
+
+
+def back_off(held: HeldBox, axis: int, side: int, threshold: float) -> bool:
+    """Back a just-turned box (turned pressed into what it met) off along ``axis`` by
+    ``_SEAT_STEP_MM`` steps (at least one, at most three) until the contacts push back
+    along it with at most ``threshold``, a turned box bearing at both ends of its face
+    bears twice; return whether the other axis is then under the threshold too."""
+    shift = np.zeros(3)
+    shift[axis] = -side * _SEAT_STEP_MM * _MM
+    for _ in range(3):
+        held.translate(*shift)
+        force = held.side_load()[0]
+        if -side * force[axis] <= threshold:
+            break
+    return abs(force[1 - axis]) <= threshold and -side * force[axis] <= threshold
+
+
+def flush_turn(held: HeldBox, axis: int, torque: float, pivot: np.ndarray) -> np.ndarray | None:
+    """The pose token a wrist compliant in yaw lets the contact's ``torque`` give the held box,
+    pressed into what it met: turned in the torque's sense, the arm holding its centre across
+    ``axis`` and letting it follow the contact (``pivot``, the centre of pressure) along it, up
+    to where the torque reverses (the face is flush, bearing at both ends), found by bisection
+    within ``_SEAT_MAX_YIELD_DEG``. None when it does not reverse there (a corner against a
+    corner: nothing flat to turn flush with), when the turn runs into something other than
+    what it met first (a neighbour bearing on part of the face only would turn the box until
+    its far end met a wall), or the turn is under ``_SEAT_MIN_TURN``. Leaves the box's pose as
+    it was."""
+    pressed = held.snapshot()
+    sense = math.copysign(1.0, torque)
+    met = held.touching()
+
+    def stopped_at(angle: float) -> bool:
+        """The torque reversed, or the turn ran into something else."""
+        held.turned_from(pressed, sense * angle, pivot, axis)
+        reversed_ = held.side_load()[1] * sense < 0.0
+        return reversed_ or not held.touching() <= met
+
+    low, high = 0.0, math.radians(_SEAT_MAX_YIELD_DEG)
+    if torque == 0.0 or not stopped_at(high):
+        held.restore(pressed)
+        return None
+    for _ in range(_SEAT_TURN_BISECTIONS):
+        mid = (low + high) / 2
+        low, high = (low, mid) if stopped_at(mid) else (mid, high)
+    stopped_by_other = not held.touching() <= met  # at ``high``: past the stop
+    if low < _SEAT_MIN_TURN or stopped_by_other:
+        held.restore(pressed)
+        return None  # not turned flush with the face it met (a part face, a corner)
+    held.turned_from(pressed, sense * low, pivot, axis)
+    turned = held.snapshot()
+    held.restore(pressed)
+    return turned
+
+
+def relax(held: HeldBox, axis: int, limit_mm: float) -> None:
+    """Back a seated box off along ``axis`` in ``_SEAT_STEP_MM`` steps (at most
+    ``limit_mm``, as far as a push may have gone) while it is deeper than
+    ``LIFT_TOLERANCE_MM`` in a contact across that axis: the force threshold allows about
+    0.13 mm, more where a neighbour lighter than the held box yields, and a box released
+    wedged into a side would be lifted on top; released, the compressed contact springs
+    back."""
+    tol = LIFT_TOLERANCE_MM * _MM
+    for _ in range(int(limit_mm / _SEAT_STEP_MM)):
+        deepest, normal = held.deepest_across(axis)
+        if deepest <= tol:
+            return
+        shift = np.zeros(3)
+        shift[axis] = normal * _SEAT_STEP_MM * _MM
+        held.translate(*shift)
+
+
+def place(held: HeldBox, command: PlaceCommand) -> SkillReport:
+    """Run the skill on the held box (descent, then seating); the caller releases it."""
+    report = SkillReport()
+    moved = descend(held, command, report)
+    if command.seat_mm > 0 and any(command.seat_sides):
+        seat(held, command, moved, report)
+    return report
+
+
+__all__ = [
+    "APPROACH_MM",
+    "LIFT_TOLERANCE_MM",
+    "HeldBox",
+    "PlaceCommand",
+    "SkillReport",
+    "descend",
+    "place",
+    "seat",
+]
