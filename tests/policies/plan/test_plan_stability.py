@@ -65,7 +65,7 @@ def _scene_case() -> Case:
 def _place_last(backend: str, stability: str):
     """Script the pillars, let ``plan`` place the last box: (policy, action, heightmap before,
     the drop, the episode)."""
-    episode = Episode(backend)
+    episode = Episode(backend, sides="catalogue")  # the scripted rotations are the catalogue's
     episode.reset(_scene_case(), 0)
     for x in PILLARS_AT:
         episode.step(Action(0, 0, x, 0))

@@ -45,6 +45,12 @@ class CompletionConfig:
     tolerance_mm: int = LEVEL_TOLERANCE_MM
     #: Node budget of one exact-cover search (one component and one height).
     max_nodes: int = 100_000
+    #: Node budget of all the searches of one decision together: a decision runs up to one
+    #: search per stage, component and height, and a few that each ran out of ``max_nodes``
+    #: made the planner's rare slow steps (27 s once on a medium case under stereo noise).
+    #: At about 4 us per node (benchmarks/cover_speed.py) this caps a decision's completion
+    #: near 1 s on one core; the searches it cuts short are those that were failing anyway.
+    decision_nodes: int = 250_000
     #: A guess with jokers needs at least this many boxes of the height seen so far (history
     #: included): a height seen once says nothing about a layer of that height (boxes of
     #: independent sizes rarely share one).
@@ -135,6 +141,7 @@ def find_completion(
     """A tiling of one lowest component by shown boxes of one height, and with ``unseen`` > 0
     (boxes still to come) up to the configured jokers for them; None when no stage finds one."""
     z0, masks = lowest_components(heightmap, config.tolerance_mm)
+    spent = 0  # nodes of this decision's searches so far (CompletionConfig.decision_nodes)
     orders = [height_order(heightmap, mask, z0, shown, config.tolerance_mm) for mask in masks]
     for jokers, use_all in config.stages:
         if jokers > unseen:
@@ -155,8 +162,12 @@ def find_completion(
                     continue
                 if jokers and list(seen_heights).count(h) < config.joker_min_seen:
                     continue
+                budget = min(config.max_nodes, config.decision_nodes - spent)
+                if budget <= 0:
+                    return None
                 rules = CoverRules(jokers, use_all, smallest_side, config.guesses)
-                result: CoverResult = exact_cover(mask, pieces, config.max_nodes, rules)
+                result: CoverResult = exact_cover(mask, pieces, budget, rules)
+                spent += result.nodes
                 if result.slots and any(s.key != JOKER for s in result.slots):
                     n = sum(s.key == JOKER for s in result.slots)
                     return Completion(result.slots, z0, h, result.nodes, n)

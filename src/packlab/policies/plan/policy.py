@@ -14,9 +14,9 @@ Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``dep
 ``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`) and
 ``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
 support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
-choice), and for the completion ``complete`` (true/false), ``nodes``, ``jokers``,
-``joker_seen``, ``guesses`` (see :class:`.complete.CompletionConfig`; ``completed`` counts
-the decisions it took).
+choice), and for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
+``jokers``, ``joker_seen``, ``guesses`` (see :class:`.complete.CompletionConfig`;
+``completed`` counts the decisions it took).
 """
 
 from __future__ import annotations
@@ -139,16 +139,18 @@ def seen_heights(observation: Observation) -> list[int]:
 _BUDGET_KEYS = {f.name for f in fields(Budget)}
 _WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
 #: Options of the completion stage: ``nodes`` (node budget of one exact-cover search),
-#: ``jokers`` (most rectangles a guess leaves for unseen boxes), ``joker_seen`` (how often a
-#: height must have been seen before a guess is made for it), ``guesses`` (tilings a guess
-#: compares).
+#: ``decision_nodes`` (of all of one decision's searches together), ``jokers`` (most
+#: rectangles a guess leaves for unseen boxes), ``joker_seen`` (how often a height must have
+#: been seen before a guess is made for it), ``guesses`` (tilings a guess compares).
 _COMPLETION_KEYS = {
     "nodes": "max_nodes",
+    "decision_nodes": "decision_nodes",
     "jokers": "max_jokers",
     "joker_seen": "joker_min_seen",
     "guesses": "guesses",
 }
 _SWITCHES = ("complete",)
+_WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
 
 
 def _whole(name: str, value: Any) -> int:
@@ -188,7 +190,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
     completion = CompletionConfig(
         **{
-            _COMPLETION_KEYS[k]: _whole(k, v) if k in ("nodes", "guesses") else _count(k, v)
+            _COMPLETION_KEYS[k]: _whole(k, v) if k in _WHOLE_KEYS else _count(k, v)
             for k, v in options.items()
             if k in _COMPLETION_KEYS
         }
