@@ -114,3 +114,27 @@ def test_bad_completion_options_are_one_line_errors(options, message):
 def test_completion_options_reach_the_policy():
     policy = make_policy("plan", nodes=500, complete=False)
     assert policy.completion == CompletionConfig(max_nodes=500) and not policy.complete
+
+
+def test_one_decisions_searches_share_one_node_budget(monkeypatch):
+    """``decision_nodes`` bounds the nodes of all of a decision's searches together: each search
+    gets what is left (at most ``max_nodes``), and none runs once it is spent."""
+    from packlab.policies.plan import complete
+    from packlab.policies.plan.cover import CoverResult
+
+    budgets: list[int] = []
+
+    def exhausting(region, pieces, max_nodes, rules):  # every search runs out of its budget
+        budgets.append(max_nodes)
+        return CoverResult(None, max_nodes, True)
+
+    monkeypatch.setattr(complete, "exact_cover", exhausting)
+    hm = np.zeros((8, 8), dtype=np.int32)
+    shown = _shown([(3, 3, 100), (3, 3, 100), (2, 2, 100), (3, 3, 60), (2, 2, 60)])
+    config = CompletionConfig(max_nodes=400, decision_nodes=1000)
+    assert find_completion(hm, shown, 500, 10, 1, [100] * 5, config) is None
+    assert budgets == [400, 400, 200]
+    budgets.clear()
+    unlimited = dataclasses.replace(config, decision_nodes=10**9)
+    find_completion(hm, shown, 500, 10, 1, [100] * 5, unlimited)
+    assert len(budgets) > 3 and set(budgets) == {400}
