@@ -160,6 +160,7 @@ _PLAN = PolicyOptions(
         "w_trapped",
         "w_unreachable",
         "nodes",
+        "decision_nodes",
         "jokers",
         "joker_seen",
         "guesses",
