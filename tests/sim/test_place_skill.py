@@ -10,6 +10,7 @@ or moving to the plan.
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -331,3 +332,33 @@ def test_the_skill_counts_go_into_step_records_and_episode_metrics():
     assert rec["metrics"]["skill"] == dict(sorted(totals.items()))
     exact = run_episode(case, make_policy("dblf"), 0).to_record()
     assert "skill" not in exact["metrics"] and all("skill" not in s for s in exact["steps"])
+
+
+def test_run_details_show_the_skill_counts_and_old_records_still_read():
+    from layered_cases import make_layered_case
+
+    from packlab.bench.summary import summarize
+    from packlab.bench.table import render_markdown
+    from packlab.core.records import RUN_FORMAT, episode_from_json
+    from packlab.policies import make_policy
+    from packlab.sim.episode import run_episode
+
+    case = make_layered_case(1, pieces=5)
+    noisy = ExecutionNoise(xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=20.0)
+
+    def record(execution, policy):
+        rec = run_episode(case, make_policy("dblf"), 0, execution=execution).to_record()
+        head = {"format": RUN_FORMAT, "status": "ok", "difficulty": "easy", "n_objects": 5}
+        return episode_from_json({**rec, **head, "policy": policy, "timing": {}}, "test")
+
+    noisy_rec, old_rec = record(noisy, "dblf"), record(None, "old")
+    summary = summarize([noisy_rec, old_rec])
+    placements = sum(s.skill is not msgspec.UNSET for s in noisy_rec.steps)
+    assert placements > 0
+    assert summary.counts["dblf"].skill_per_episode == {
+        "placements": float(placements),
+        **{k: float(v) for k, v in noisy_rec.metrics.skill.items()},
+    }
+    assert summary.counts["old"].skill_per_episode is msgspec.UNSET  # no key: no counts
+    table = render_markdown(summary)
+    assert "### Place skill" in table and "| placements |" in table

@@ -36,7 +36,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from typing import TypedDict
 
-from msgspec import UNSET, Struct
+from msgspec import UNSET, Struct, UnsetType
 
 from packlab.bench.decision_times import decision_times
 from packlab.bench.describe import difficulty_order
@@ -124,7 +124,32 @@ def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> Poli
         episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
         **_perception_counts(mine),
         **_decision_counts(mine, levels),
+        **_skill_counts(mine),
     )
+
+
+class _SkillCounts(TypedDict, total=False):
+    """The ``PolicyCounts`` field of noisy-execution runs (issue 34)."""
+
+    skill_per_episode: dict[str, float]
+
+
+def _skill_counts(mine: list[EpisodeOk]) -> _SkillCounts:
+    """The place skill's counts per episode (noisy-execution records carry them in their
+    metrics; none for other runs and older records): by kind, plus the skill's placements
+    (the steps that carry a ``skill`` entry)."""
+    carried = [r for r in mine if r.metrics.skill is not UNSET]
+    if not carried:
+        return {}
+    totals: dict[str, float] = {
+        "placements": float(sum(s.skill is not UNSET for r in carried for s in r.steps))
+    }
+    for r in carried:
+        skill = r.metrics.skill
+        assert not isinstance(skill, UnsetType)
+        for kind, count in skill.items():
+            totals[kind] = totals.get(kind, 0.0) + count
+    return {"skill_per_episode": {k: v / len(carried) for k, v in sorted(totals.items())}}
 
 
 class _DecisionCounts(TypedDict, total=False):

@@ -8,7 +8,7 @@ is 0 and says nothing about how sure the mean is.
 
 from __future__ import annotations
 
-from msgspec import UNSET
+from msgspec import UNSET, UnsetType
 
 from packlab.bench.decision_times import decision_time_table
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
@@ -145,6 +145,41 @@ def details_table(summary: RunSummary) -> str:
     return "\n".join(lines)
 
 
+#: The place skill's counts in the order table.md shows them (``place_skill.SkillReport``);
+#: kinds a newer skill adds follow in name order.
+SKILL_KINDS = (
+    "placements",
+    "descended",
+    "slid",
+    "slid_off_edge",
+    "turned",
+    "probed",
+    "stopped_high",
+    "budget_spent",
+    "seated",
+    "push_missed",
+    "seat_turned",
+)
+
+
+def skill_table(summary: RunSummary) -> str:
+    """Per method of a noisy-execution run: how often per episode the place skill had to act
+    and how (``PolicyCounts.skill_per_episode``); empty when no method has the counts."""
+    counts = {
+        p: c
+        for p in summary.policies
+        if not isinstance(c := summary.counts[p].skill_per_episode, UnsetType)
+    }
+    if not counts:
+        return ""
+    seen = {k for c in counts.values() for k in c}
+    kinds = [k for k in SKILL_KINDS if k in seen] + sorted(seen - set(SKILL_KINDS))
+    lines = [_row(["Method", *kinds]), _row(["---"] + ["---:"] * len(kinds))]
+    for p, c in counts.items():
+        lines.append(_row([display_name(p), *(f"{c.get(k, 0.0):.2f}" for k in kinds)]))
+    return "\n".join(lines)
+
+
 def headline(summary: RunSummary) -> str:
     seeds = ",".join(str(s) for s in summary.seeds)
     n_cases = summary.n_cases if isinstance(summary.n_cases, int) else None
@@ -173,6 +208,14 @@ def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) 
             "",
         ]
     parts += ["### Run details", "", details_table(summary), ""]
+    skill = skill_table(summary)
+    if skill:
+        parts += [
+            "### Place skill (per episode: placements it made, and how often it had to recover)",
+            "",
+            skill,
+            "",
+        ]
     if any(summary.counts[p].decision_times is not UNSET for p in summary.policies):
         parts += [
             "### Decision time (ms per decision, wall; CPU: the process's)",
@@ -192,4 +235,5 @@ __all__ = [
     "interval_note",
     "render_markdown",
     "results_table",
+    "skill_table",
 ]

@@ -177,6 +177,10 @@ class StepRecord(Struct, frozen=True):
     #: loops (the Gymnasium env), which time no decision.
     decision_s: float | UnsetType = UNSET
     decision_cpu_s: float | UnsetType = UNSET
+    #: Issue 34, noisy execution only: what the place skill had to do for this placement, the
+    #: nonzero counts by kind (``packlab.sim.physics.place_skill.SkillReport``); absent from
+    #: older records and from steps placed exactly.
+    skill: dict[str, int] | UnsetType = UNSET
 
 
 class MetricsRecord(Struct, frozen=True):
@@ -203,6 +207,9 @@ class MetricsRecord(Struct, frozen=True):
     replans: int | UnsetType = UNSET
     #: Perceived observation only: objects perception did not find (set aside, not packed).
     missed: int | UnsetType = UNSET
+    #: Issue 34, noisy execution only: the place skill's counts summed over the episode's
+    #: steps, by kind; absent from older records.
+    skill: dict[str, int] | UnsetType = UNSET
 
 
 class FinalPose(Struct, frozen=True):
@@ -342,6 +349,11 @@ class PolicyCounts(Struct, frozen=True):
     #: Issue 38: per-decision time by level and over ``all`` levels; absent when no record of
     #: the method has per-step decision times (records written before issue 38).
     decision_times: dict[str, DecisionTimes] | UnsetType = UNSET
+    #: Issue 34, noisy-execution runs only: the place skill's counts per episode, by kind (what
+    #: it had to do to recover and how; ``packlab.sim.physics.place_skill.SkillReport``), and
+    #: its placements per episode under ``placements``. Absent for other runs and runs written
+    #: before the counts existed.
+    skill_per_episode: dict[str, float] | UnsetType = UNSET
 
 
 class ErrorEntry(Struct, frozen=True):
