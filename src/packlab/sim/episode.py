@@ -70,6 +70,7 @@ class StepResult:
     valid: bool
     reason: str  # "" when valid, else one of INVALID_REASONS
     internal_id: InternalId  # the object processed (placed or set aside), as the case file gives it
+    #: The buffer as the policy was shown it (perceived mode: fresh ids, perceived sizes).
     shown: tuple[ShownItem, ...]
     drop_mm: (
         tuple[int, int, int] | None
@@ -101,6 +102,9 @@ class StepResult:
     #: (``packlab.sim.physics.place_skill.SkillReport``), and the command it was given.
     skill: SkillReport | None = None
     command: PlaceCommand | None = field(default=None, repr=False, compare=False)
+    #: The shown objects' ids as the case file gives them, in shown order (what records and
+    #: replays name); empty: those of ``shown`` (exact mode shows the case's own ids).
+    shown_ids: tuple[InternalId, ...] = ()
 
     def to_record(self) -> dict[str, Any]:
         action = (
@@ -114,7 +118,7 @@ class StepResult:
             "valid": self.valid,
             "reason": self.reason,
             "internal_id": self.internal_id,
-            "shown": [s.internal_id for s in self.shown],
+            "shown": list(self.shown_ids) or [s.internal_id for s in self.shown],
             "drop_mm": list(self.drop_mm) if self.drop_mm else None,
             "settle_steps": self.settle_steps,
             "settled": self.settled,
@@ -197,9 +201,13 @@ class Episode:
         execution: ExecutionNoise | None = None,
         replan: ReplanRule = DEFAULT_REPLAN,
         sides: SideNames = DEFAULT_SIDES,
+        show_remaining: bool = True,
     ) -> None:
         require_choice(sides, SideNames, "sides")
         self._sides = sides
+        #: ``Observation.remaining``, the count of boxes still to come, is an extension of the
+        #: reference's observation (a robot cell knows its order's size); False hides it (None).
+        self._show_remaining = show_remaining
         self._backend_spec = backend
         self._physics = physics
         self._perceiver = perceiver
@@ -238,6 +246,7 @@ class Episode:
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
         self.missed = 0  # objects perception did not find, set aside (perceived mode)
+        self._next_seen_id = 0  # the next fresh id a perceived box is shown under
         self._history: list[HistoryEntry] = []
         self.steps = []
         # The latest settle (placement, then the final one): what "at rest" is judged on.
@@ -266,11 +275,18 @@ class Episode:
                 f"perceiver returned {len(self._perception.sizes_mm)} sizes for "
                 f"{len(self._shown)} shown objects"
             )
-        # The policy is shown the perceived sizes (cells rounded up, as for exact sizes).
+        # The policy is shown the perceived sizes (cells rounded up, as for exact sizes), under
+        # ids fresh at every observation and no catalogue type: a camera tells a box from its
+        # neighbours in one image, not which box of the layout it is, nor that it is the box it
+        # saw at the previous step (the case's ids are layout positions and would say both).
         c = self._case.container
+        first_id = self._next_seen_id
+        self._next_seen_id += len(self._shown)
         self._shown = tuple(
             replace(
                 item,
+                internal_id=f"seen-{first_id + i:05d}",  # zero-padded: sorts as counted
+                type_id=0,
                 size_mm=(int(size[0]), int(size[1]), int(size[2])),
                 size_cells=(
                     _cells(int(size[0]), c.cell_xy_mm),
@@ -278,7 +294,7 @@ class Episode:
                     _cells(int(size[2]), c.cell_z_mm),
                 ),
             )
-            for item, size in zip(self._shown, self._perception.sizes_mm)
+            for i, (item, size) in enumerate(zip(self._shown, self._perception.sizes_mm))
         )
         return [self._shown_indices[i] for i in self._perception.missed]
 
@@ -355,7 +371,7 @@ class Episode:
             heightmap=self.observed_heightmap.copy(),
             shown=self._shown,
             history=tuple(self._history),
-            remaining=len(self._pending),
+            remaining=len(self._pending) if self._show_remaining else None,
         )
 
     # -- the transition --------------------------------------------------------------------
@@ -394,6 +410,7 @@ class Episode:
         started = time.perf_counter()
         reason, index = self._check(action)
         seen_before, shown_before = self.observed_heightmap, self._shown
+        shown_ids = tuple(self._case.objects[i].internal_id for i in self._shown_indices)
         perception_before = self._perception if self._perceiver is not None else None
         predicted = seen_before  # what the policy expects to see next (perceived mode)
         drop = executed = command = skill = None
@@ -462,6 +479,7 @@ class Episode:
             perception=perception_before,
             skill=skill,
             command=command,
+            shown_ids=shown_ids,
         )
         self.steps.append(result)
         return result
@@ -646,13 +664,21 @@ def run_episode(
     perceiver: Perceiver | None = None,
     execution: ExecutionNoise | None = None,
     sides: SideNames = DEFAULT_SIDES,
+    show_remaining: bool = True,
 ) -> EpisodeResult:
     """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result.
 
     ``perceiver`` and ``execution`` select the opt-in modes (see ``Episode``;
     ``packlab.sim.modes.episode_modes`` builds them by name).
     """
-    episode = Episode(backend, physics, perceiver=perceiver, execution=execution, sides=sides)
+    episode = Episode(
+        backend,
+        physics,
+        perceiver=perceiver,
+        execution=execution,
+        sides=sides,
+        show_remaining=show_remaining,
+    )
     observation = episode.reset(case, seed)
     policy.reset(case, seed)
     decision_wall: list[float] = []
