@@ -18,14 +18,24 @@ gripper, its weight carried (gravity compensated), as a slow guarded move would 
    ``_DESCENT_STEP_MM`` steps, stopping at each contact to read the wrench:
 
    * a mostly horizontal contact force (a wall, a tilted neighbour's face) lets the compliant
-     wrist slide the box along it, and a contact torque about z turns it (yaw compliance), in
-     ``_SLIDE_STEP_MM`` steps, at most ``comply_mm`` in all; the descent then goes on;
+     wrist slide the box along it, and a contact torque about z turns it (yaw compliance):
+     pressed into a face with a corner first, it turns flush with that face as in seating
+     (``flush_turn``), unless the turn would press it harder into something else; otherwise
+     it moves along the generalised force (force, torque / radius) by the contact's depth, at
+     most ``_SLIDE_STEP_MM``, at most ``comply_mm`` from the command in all; the descent then
+     goes on;
    * a contact that carries the box (mostly vertical force) above its target is a ledge: when
-     the wrench's centre of pressure lies at one edge of the box as the robot believes it
-     (within ``_EDGE_BAND_MM`` of its perceived footprint's edge) the box is landing on a
-     neighbour's edge, and the rounded edges of cartons turn part of the reaction outward, so
-     the compliant wrist slides the box off it, away from the edge (within the same budget);
-     otherwise (a support under the box, or the budget spent) the descent stops and the box is
+     the support's centre of pressure lies near one edge of the box as the robot believes it
+     (within ``comply_mm`` + ``_EDGE_MARGIN_MM`` of its perceived footprint's edge, off its
+     middle) the box is landing on a neighbour's edge, and the rounded edges of cartons turn
+     part of the reaction outward, so the compliant wrist slides the box off it, away from
+     the edge (within the same budget);
+   * carried with no edge to read (two edges at once, a corner), the skill searches as a robot
+     searches for a slot it cannot see (``_probe``): guarded lateral moves on rings around the
+     touching pose, each followed by a guarded try to go lower, then the same with the gripper
+     turned by small steps either way (a box a little turned in a slot with no slack fits only
+     turned back); the first move from which the descent can go on is taken;
+   * otherwise (a support under the box, the budget spent) the descent stops and the box is
      released where it is: physics decides what happens then.
 
    Nothing squares the yaw or moves the box to the planned pose: no code here knows either.
@@ -68,7 +78,10 @@ _EDGE_MARGIN_MM = 5.0
 #: Turns under contact torque during the descent: the turn per slide step is the rigid motion
 #: whose contact points move about one step, at most this much in all (beyond arm errors).
 _DESCENT_MAX_TURN_DEG = 5.0
-_DESCENT_MAX_MOVES = 400  # a bound on the descent's loop (never reached in the bench cases)
+_DESCENT_MAX_MOVES = 400  # a bound on the descent's loop
+#: The probe's turns (``_probe``): steps, and the lateral reach tried at each.
+_PROBE_TURN_DEG = 0.25
+_PROBE_TURN_REACH_MM = 2.0
 
 _SEAT_STEP_MM = 0.25  # step of the guarded push
 #: The guarded push stops when the contacts on the held box push back along the push axis with
@@ -226,7 +239,6 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
     held.translate(0.0, 0.0, rise)
     below = rise  # how far (m) the box still is above its release pose
     budget = command.comply_mm
-    path = 0.0  # mm the wrist has let the box slide so far, every way (the budget's measure)
     turned = 0.0
     half = np.array(command.footprint_mm) / 2
     radius = float(np.hypot(*half))  # mm: the yaw compliance's radius (see _compliant_step)
@@ -259,11 +271,11 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
                 if flush is not None:
                     pressed = held.snapshot()
                     held.restore(flush)
-                    if held.penetration() <= depth:
+                    if held.penetration() <= depth + tol:
                         report.turned = 1
                         continue
-                    # The turn would press the box harder into something else (a second
-                    # wall, a neighbour): the wrist cannot turn against that contact.
+                    # The turn would press the box harder into something (a second wall, a
+                    # neighbour): the wrist cannot turn against that contact.
                     held.restore(pressed)
         else:
             # Carried: back up to the touch (the contact is under the box, its depth along z).
@@ -273,18 +285,23 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             away = _off_edge(lever, half, budget + _EDGE_MARGIN_MM)
             if away is None:
                 # No edge to read: probe around for where the descent can go on.
-                found = _probe(held, budget - path)
+                room = math.radians(_DESCENT_MAX_TURN_DEG) - abs(turned)
+                found = _probe(held, budget - float(np.hypot(*moved)), gripper, room)
                 if found is None:
                     report.stopped_high = 1
                     return moved
-                held.translate(found[0] * _MM, found[1] * _MM, 0.0)
-                moved += found
-                path += float(np.hypot(*found))
+                shift, angle = found
+                if angle:
+                    held.turn(angle, gripper * _MM)
+                    turned += angle
+                    report.turned = 1
+                held.translate(shift[0] * _MM, shift[1] * _MM, 0.0)
+                moved += shift
                 report.probed = 1
                 continue
             push = away
             report.slid_off_edge = 1
-        if path + _SLIDE_STEP_MM > budget + 1e-9:
+        if float(np.hypot(*moved)) + _SLIDE_STEP_MM > budget + 1e-9:
             report.budget_spent = 1
             if force[2] >= across:
                 report.stopped_high = 1  # left on the edge it could not slide off
@@ -298,7 +315,6 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             angle = 0.0
         held.translate(step[0] * _MM, step[1] * _MM, 0.0)
         moved += step
-        path += float(np.hypot(*step))
         if angle:
             held.turn(angle, (gripper + step) * _MM)
             turned += angle
@@ -322,33 +338,57 @@ def _back_to_touch(held: HeldBox, depth: float) -> float:
     return up
 
 
-def _probe(held: HeldBox, budget_mm: float) -> np.ndarray | None:
-    """A guarded search around a box carried above its target (touching what carries it): the
-    nearest lateral move (rings of ``_SLIDE_STEP_MM``, 8 directions, within ``budget_mm``)
-    from which a guarded move down by ``_DESCENT_STEP_MM`` meets nothing, each move from the
-    touching pose and itself touching nothing on the way (a side it would meet stops it).
-    Returns that move (mm) with the box back where it was, or None."""
+def _probe(
+    held: HeldBox, budget_mm: float, gripper_mm: np.ndarray, turn_left: float
+) -> tuple[np.ndarray, float] | None:
+    """A guarded search around a box carried above its target (touching what carries it),
+    as a robot searches for a slot it cannot see: the nearest lateral move (rings of
+    ``_SLIDE_STEP_MM``, 8 directions, within ``budget_mm``) from which a guarded move down by
+    ``_DESCENT_STEP_MM`` meets nothing, each move from the touching pose and itself touching
+    nothing (a side it would meet blocks that direction); failing that, the same with the
+    gripper turned about its axis (``gripper_mm``) by ``_PROBE_TURN_DEG`` steps either way,
+    within ``turn_left`` radians and ``_PROBE_TURN_REACH_MM`` of lateral moves: a box a little
+    turned in a slot with no slack fits once turned back. Returns the move (mm) and turn
+    (rad) with the box back where it was, or None."""
     tol = LIFT_TOLERANCE_MM * _MM
     start = held.snapshot()
     angles = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
     directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    blocked = np.zeros(8, dtype=bool)
-    radius = _SLIDE_STEP_MM
-    while radius <= budget_mm + 1e-9 and not blocked.all():
-        for k, d in enumerate(directions):
-            if blocked[k]:
-                continue
-            held.restore(start)
-            held.translate(d[0] * radius * _MM, d[1] * radius * _MM, 0.0)
-            if held.penetration() > tol:
-                blocked[k] = True  # the lateral move met a side: no farther this way
-                continue
-            held.translate(0.0, 0.0, -_DESCENT_STEP_MM * _MM)
-            clear = held.penetration() <= tol
-            held.restore(start)
-            if clear:
-                return d * radius
-        radius += _SLIDE_STEP_MM
+    pivot = gripper_mm * _MM
+
+    def search(angle: float, reach_mm: float) -> np.ndarray | None:
+        blocked = np.zeros(8, dtype=bool)
+        radius = 0.0 if angle else _SLIDE_STEP_MM
+        while radius <= reach_mm + 1e-9 and not blocked.all():
+            for k, d in enumerate(directions[: 1 if radius == 0 else 8]):
+                if blocked[k]:
+                    continue
+                held.restore(start)
+                if angle:
+                    held.turn(angle, pivot)
+                held.translate(d[0] * radius * _MM, d[1] * radius * _MM, 0.0)
+                if held.penetration() > tol:
+                    blocked[k] = radius > 0  # a side met: no farther this way
+                    continue
+                held.translate(0.0, 0.0, -_DESCENT_STEP_MM * _MM)
+                clear = held.penetration() <= tol
+                if clear:
+                    held.restore(start)
+                    return d * radius
+            radius += _SLIDE_STEP_MM
+        return None
+
+    found = search(0.0, budget_mm)
+    if found is not None:
+        held.restore(start)
+        return found, 0.0
+    step = math.radians(_PROBE_TURN_DEG)
+    for k in range(1, int(turn_left / step + 1e-9) + 1):
+        for angle in (k * step, -k * step):
+            found = search(angle, min(budget_mm, _PROBE_TURN_REACH_MM))
+            if found is not None:
+                held.restore(start)
+                return found, angle
     held.restore(start)
     return None
 
