@@ -156,6 +156,7 @@ SKILL_KINDS = (
     "probed",
     "stopped_high",
     "budget_spent",
+    "lifted",
     "seated",
     "push_missed",
     "seat_turned",

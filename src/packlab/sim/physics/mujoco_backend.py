@@ -338,7 +338,10 @@ class MujocoBackend:
         report = run_place_skill(_HeldBox(self, index), command)
         model.body_gravcomp[body] = 0.0  # released
         yaw = math.degrees(2 * math.atan2(data.qpos[qpos.start + 6], data.qpos[qpos.start + 3]))
+        z = float(data.qpos[qpos.start + 2])
         self._lift_clear(index, 0, yaw)
+        # Counted: the simulator's guard, not the robot's decision (see SkillReport.lifted).
+        report.lifted = int(float(data.qpos[qpos.start + 2]) != z)
         return self._settle(cfg.settle_window_steps, cfg.max_settle_steps), report
 
     def _activate(self, index: int) -> None:

@@ -154,6 +154,10 @@ class SkillReport:
     #: Carried above its target with no edge to read, the box was moved aside by a guarded
     #: search (lateral moves, each followed by a guarded try to go lower) and went on down.
     probed: int = 0
+    #: Not the skill's doing: the box was let go still pressed into something (its slides
+    #: spent) and the simulator raised it clear (``MujocoBackend._lift_clear``: a box never
+    #: starts inside another, in exact execution too).
+    lifted: int = 0
 
     def counts(self) -> dict[str, int]:
         """The nonzero counts by name (what records keep)."""
