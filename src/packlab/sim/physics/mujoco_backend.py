@@ -414,19 +414,22 @@ class MujocoBackend:
                     insets = 2
         return deepest + insets * self.config.collision_inset_mm * _MM
 
-    def _wrench(self, geom: int, address: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Force (N, world x, y, z) of every contact on ``geom`` and the centres of pressure
-        (m, x and y) of its side contacts (normal mostly horizontal) and of its support
-        contacts (mostly vertical), at the current positions: what a wrist force-torque sensor
-        resolves of a held box (its weight carried), as ``_side_load`` reads side contacts
-        apart from the support. A centre with no contact of its kind is the box's centre; no
-        solve when the box touches nothing."""
+    def _wrench(
+        self, geom: int, address: int, axis_xy: np.ndarray
+    ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """Force (N, world x, y, z) of every contact on ``geom``, their torque about the
+        vertical line through ``axis_xy`` (m: the wrist's axis; N m) and the centres of
+        pressure (m, x and y) of its side contacts (normal mostly horizontal) and of its
+        support contacts (mostly vertical), at the current positions: what a wrist force-torque
+        sensor resolves of a held box (its weight carried), as ``_side_load`` reads side
+        contacts apart from the support. A centre with no contact of its kind is the box's
+        centre; no solve when the box touches nothing."""
         model, data = self._model, self._data
         centre = data.qpos[address : address + 2].copy()
-        force = np.zeros(3)
+        force, torque = np.zeros(3), 0.0
         pressure, total = np.zeros((2, 2)), np.zeros(2)  # rows: side, support
         if self._penetration(geom) <= 0.0:
-            return force, centre, centre.copy()
+            return force, torque, centre, centre.copy()
         mujoco.mj_forward(model, data)
         wrench = np.zeros(6)
         for i, contact in enumerate(data.contact[: data.ncon]):
@@ -434,12 +437,15 @@ class MujocoBackend:
                 continue
             mujoco.mj_contactForce(model, data, i, wrench)
             # The normal points from geom1 to geom2; the force pushes geom2 along it.
-            force += wrench[0] * contact.frame[:3] * (1.0 if contact.geom2 == geom else -1.0)
+            on_box = wrench[0] * contact.frame[:3] * (1.0 if contact.geom2 == geom else -1.0)
+            force += on_box
+            r = contact.pos[:2] - axis_xy
+            torque += float(r[0] * on_box[1] - r[1] * on_box[0])
             kind = int(abs(contact.frame[2]) > 0.5)
             pressure[kind] += abs(wrench[0]) * contact.pos[:2]
             total[kind] += abs(wrench[0])
         side, support = (pressure[k] / total[k] if total[k] > 0 else centre for k in (0, 1))
-        return force, side, support
+        return force, torque, side, support
 
     def _deepest_across(self, geom: int, axis: int) -> tuple[float, float]:
         """Deepest penetration (m) of ``geom`` in a contact whose normal lies along ``axis``,
@@ -653,8 +659,8 @@ class _HeldBox:
     def side_load(self) -> tuple[np.ndarray, float, np.ndarray]:
         return self._backend._side_load(self._geom, self._address)
 
-    def wrench(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self._backend._wrench(self._geom, self._address)
+    def wrench(self, axis: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        return self._backend._wrench(self._geom, self._address, axis)
 
     def touching(self) -> set[int]:
         return self._backend._touching(self._geom)

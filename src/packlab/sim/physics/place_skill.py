@@ -77,7 +77,7 @@ _SLIDE_STEP_MM = 0.5  # a compliant slide's step
 _EDGE_MARGIN_MM = 5.0
 #: Turns under contact torque during the descent: the turn per slide step is the rigid motion
 #: whose contact points move about one step, at most this much in all (beyond arm errors).
-_DESCENT_MAX_TURN_DEG = 5.0
+_DESCENT_MAX_TURN_DEG = 10.0
 _DESCENT_MAX_MOVES = 400  # a bound on the descent's loop
 #: The probe's turns (``_probe``): steps, and the lateral reach tried at each.
 _PROBE_TURN_DEG = 0.25
@@ -210,10 +210,11 @@ class HeldBox(Protocol):
         contacts with a mostly horizontal normal (what the box is pushed against)."""
         ...
 
-    def wrench(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Force (N, x, y, z) of every contact on the box, and the centres of pressure (m, x
-        and y) of its side contacts and of its support: what the wrist's force-torque sensor
-        resolves (a torque about its axis is a force at a point)."""
+    def wrench(self, axis: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """Force (N, x, y, z) of every contact on the box, their torque (N m) about the
+        vertical line through ``axis`` (m, x and y: the wrist's axis), and the centres of
+        pressure (m, x and y) of its side contacts and of its support: what the wrist's
+        force-torque sensor resolves."""
         ...
 
     def touching(self) -> set[int]:
@@ -256,8 +257,8 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             held.translate(0.0, 0.0, -down)
             below -= down
             continue
-        force, side_pressure, support_pressure = held.wrench()
         gripper = np.array(command.centre_mm) + moved
+        force, torque, side_pressure, support_pressure = held.wrench(gripper * _MM)
         across = float(math.hypot(force[0], force[1]))
         # The centre of pressure from the gripper's axis (mm): of the side contacts when the
         # box is pushed sideways, of the support when it is carried.
@@ -314,7 +315,12 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
         # so a box in a slot with little slack settles in it instead of bouncing between its
         # faces; an edge is slid off in whole steps.
         length = min(_SLIDE_STEP_MM, max(depth / _MM, LIFT_TOLERANCE_MM))
-        step, angle = _compliant_step(push, lever, radius, length if across > force[2] else None)
+        if across > force[2]:
+            # The side forces and their torque about the wrist (a box wedged between two faces
+            # feels a couple: little net force, a torque that turns it).
+            step, angle = _compliant_step(force[:2], torque / _MM, radius, length)
+        else:
+            step, angle = _compliant_step(push, None, radius, None, lever)
         if abs(turned + angle) > math.radians(_DESCENT_MAX_TURN_DEG):
             angle = 0.0
         held.translate(step[0] * _MM, step[1] * _MM, 0.0)
@@ -398,16 +404,22 @@ def _probe(
 
 
 def _compliant_step(
-    push: np.ndarray, lever_mm: np.ndarray, radius_mm: float, length_mm: float | None = None
+    force: np.ndarray,
+    torque: float | None,
+    radius_mm: float,
+    length_mm: float | None = None,
+    lever_mm: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
-    """One step of the compliant wrist under a contact force along ``push`` (a unit vector,
-    x, y) applied at ``lever_mm`` from its axis: the move (x, y mm) and turn (rad) along the
-    generalised force (force, torque / radius), ``_SLIDE_STEP_MM`` long in that metric. The
-    same stiffness for moves and for turns at ``radius_mm`` (the box's half diagonal): a push
-    through the axis slides the box, one at a corner also turns it. ``length_mm`` shortens
-    the step (default ``_SLIDE_STEP_MM``)."""
-    torque = float(lever_mm[0] * push[1] - lever_mm[1] * push[0])  # N mm per N
-    generalised = np.array([push[0], push[1], torque / radius_mm])
+    """One step of the compliant wrist under a contact ``force`` (x, y) and ``torque`` about
+    its axis (N mm; None: the force applied at ``lever_mm`` from the axis): the move (x, y mm)
+    and turn (rad) along the generalised force (force, torque / radius), ``length_mm``
+    (default ``_SLIDE_STEP_MM``) long in that metric. The same stiffness for moves and for
+    turns at ``radius_mm`` (the box's half diagonal): a push through the axis slides the box,
+    one at a corner also turns it, a couple only turns it."""
+    if torque is None:
+        assert lever_mm is not None
+        torque = float(lever_mm[0] * force[1] - lever_mm[1] * force[0])
+    generalised = np.array([force[0], force[1], torque / radius_mm])
     length = _SLIDE_STEP_MM if length_mm is None else length_mm
     step = length * generalised / float(np.linalg.norm(generalised))
     return step[:2], float(step[2] / radius_mm)
