@@ -2,6 +2,10 @@
 
 Invalid placements are data, never exceptions: they are recorded with a reason, the affected
 object is set aside outside the container (it counts as unpacked) and the episode goes on.
+
+The loop's parts live beside it: what the robot sees in perceived mode
+(``packlab.sim.perceived``), how a chosen placement is carried out (``packlab.sim.placement``)
+and the results and their records (``packlab.sim.episode_results``, re-exported here).
 """
 
 from __future__ import annotations
@@ -9,18 +13,11 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field, replace
-from typing import Any, Protocol, cast
+from typing import Any, cast
 
 import numpy as np
 
-from packlab.core.choices import (
-    DEFAULT_SIDES,
-    PhysicsBackend,
-    SideNames,
-    named_size,
-    require_choice,
-)
+from packlab.core.choices import DEFAULT_SIDES, PhysicsBackend, SideNames, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
@@ -34,146 +31,34 @@ from packlab.core.types import (
     Unparsable,
 )
 from packlab.metrics import EpisodeMetrics, score_final_state
-from packlab.sim.buffer import episode_rng, shuffled_view, visible_window
-from packlab.sim.execution import (
-    NO_GRASP_ERROR,
-    ExecutedDrop,
-    ExecutionNoise,
-    perturb_drop,
-    place_command,
-    seat_sides,
+from packlab.sim.buffer import (
+    cells_covering,
+    episode_rng,
+    exact_items,
+    shuffled_view,
+    visible_window,
+)
+from packlab.sim.episode_results import INVALID_REASONS, EpisodeResult, StepResult, skill_totals
+from packlab.sim.execution import NO_GRASP_ERROR, ExecutedDrop, ExecutionNoise, place_command
+from packlab.sim.perceived import (
+    grasp_error,
+    perceive,
+    perceived_rotation,
+    predicted_after,
+    seen_items,
 )
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
-from packlab.sim.physics.place_skill import PlaceCommand, SkillReport
-from packlab.sim.pose_log import pose_updates
-from packlab.sim.replan import (
-    Perceiver,
-    Perception,
-    ReplanRule,
-    Scene,
-    deviates,
-    predict_heightmap,
+from packlab.sim.placement import (
+    Placement,
+    believed_footprint,
+    carry_out,
+    executes_noisy_drops,
+    robot_drop,
 )
+from packlab.sim.replan import Perceiver, Perception, ReplanRule, deviates
 
 #: The re-plan threshold of perceived-mode episodes (``packlab.sim.replan.ReplanRule``).
 DEFAULT_REPLAN = ReplanRule()
-#: Reasons a step can be invalid.
-INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")
-
-
-@dataclass(frozen=True, slots=True)
-class StepResult:
-    """What happened at one step."""
-
-    step_index: int
-    action: Action | Unparsable
-    valid: bool
-    reason: str  # "" when valid, else one of INVALID_REASONS
-    internal_id: InternalId  # the object processed (placed or set aside), as the case file gives it
-    #: The buffer as the policy was shown it (perceived mode: fresh ids, perceived sizes).
-    shown: tuple[ShownItem, ...]
-    drop_mm: (
-        tuple[int, int, int] | None
-    )  # footprint minimum corner and Eq. 2 height; None if invalid
-    settle_steps: int  # physics steps of this step (the last step adds the final settle's)
-    #: The placement's settle ended with every box at rest; False when it hit the per-placement
-    #: cap (``PhysicsConfig.max_settle_steps``) and the next step starts from a moving pile.
-    #: Invalid steps place nothing and count as settled.
-    settled: bool
-    wall_time_s: float
-    #: Settled poses of *all* boxes after this step, indexed like ``case.objects``: centres
-    #: (n, 3) float mm and quaternions (n, 4) wxyz; NaN rows for boxes not in the container
-    #: (not yet placed, or set aside). Records keep only their changes from step to step
-    #: (``EpisodeResult.to_record``, ``packlab.sim.pose_log``).
-    positions_mm: np.ndarray = field(repr=False, compare=False)
-    quaternions: np.ndarray = field(repr=False, compare=False)
-    #: Largest linear (m/s) and angular (rad/s) speed of any box when the placement's settle
-    #: stopped: under the rest thresholds when ``settled``, the residual motion when not.
-    max_linear_speed: float = 0.0
-    max_angular_speed: float = 0.0
-    #: Perceived mode only (else None): the heightmap perceived after this step departed from
-    #: its Eq. 2 prediction (``packlab.sim.replan``), a re-plan event.
-    replan: bool | None = None
-    #: Noisy execution only (else None): how the drop was really executed.
-    executed: ExecutedDrop | None = None
-    #: Perceived mode only (else None): the perception this step's decision was made on.
-    perception: Perception | None = None
-    #: Noisy execution only (else None): what the place skill had to do for this placement
-    #: (``packlab.sim.physics.place_skill.SkillReport``), and the command it was given.
-    skill: SkillReport | None = None
-    command: PlaceCommand | None = field(default=None, repr=False, compare=False)
-    #: The shown objects' ids as the case file gives them, in shown order (what records and
-    #: replays name); empty: those of ``shown`` (exact mode shows the case's own ids).
-    shown_ids: tuple[InternalId, ...] = ()
-
-    def to_record(self) -> dict[str, Any]:
-        action = (
-            self.action.to_dict()
-            if isinstance(self.action, Action)
-            else {"unparsable": self.action.text, "error": self.action.error}
-        )
-        return {
-            "step": self.step_index,
-            "action": action,
-            "valid": self.valid,
-            "reason": self.reason,
-            "internal_id": self.internal_id,
-            "shown": list(self.shown_ids) or [s.internal_id for s in self.shown],
-            "drop_mm": list(self.drop_mm) if self.drop_mm else None,
-            "settle_steps": self.settle_steps,
-            "settled": self.settled,
-            "max_linear_speed_mps": round(self.max_linear_speed, 6),
-            "max_angular_speed_radps": round(self.max_angular_speed, 6),
-            "wall_time_s": round(self.wall_time_s, 6),
-            # Opt-in modes add keys; exact runs write exactly the keys above.
-            **({} if self.replan is None else {"replan": self.replan}),
-            **({} if self.executed is None else {"executed": _executed_record(self.executed)}),
-            **({} if self.perception is None else {"perception": _errors(self.perception)}),
-            **({} if self.skill is None else {"skill": self.skill.counts()}),
-        }
-
-
-def _errors(perception: Perception) -> dict[str, Any]:
-    """The perception errors of a step record (lists in shown order; mae None if unknown)."""
-    mae = perception.heightmap_mae_mm
-    return {
-        # None for a missed object (no estimate to compare)
-        "dims_error_mm": [_rounded(v, 3) for v in perception.dims_error_mm],
-        "yaw_error_deg": [_rounded(v, 4) for v in perception.yaw_error_deg],
-        "heightmap_mae_mm": None if mae is None else round(mae, 4),
-        **({} if perception.scans is None else {"scans": perception.scans}),
-    }
-
-
-def _rounded(value: float, digits: int) -> float | None:
-    return None if math.isnan(value) else round(value, digits)
-
-
-def _executed_record(drop: ExecutedDrop) -> list[float]:
-    """(dx mm, dy mm, extra yaw degrees, release mm), rounded for the record."""
-    return [
-        round(drop.offset_mm[0], 3),
-        round(drop.offset_mm[1], 3),
-        round(drop.yaw_deg, 4),
-        round(drop.release_mm, 3),
-    ]
-
-
-def _cells(mm: int, cell: int) -> int:
-    return -(-mm // cell)
-
-
-class _NoisyBackend(TransitionBackend, Protocol):
-    """A backend that executes a robot's placement (``supports_noisy_execution``: mujoco)."""
-
-    def execute(
-        self,
-        index: int,
-        rotation: int,
-        command: PlaceCommand,
-        offset_mm: tuple[float, float],
-        yaw_deg: float,
-    ) -> tuple[Transition, SkillReport]: ...
 
 
 class Episode:
@@ -225,9 +110,7 @@ class Episode:
             self.backend = self._backend = make_backend(name, self._physics)
         else:
             self.backend = self._backend = self._backend_spec
-        if self._execution is not None and not getattr(
-            self.backend, "supports_noisy_execution", False
-        ):
+        if self._execution is not None and not executes_noisy_drops(self._backend):
             raise ConfigError(
                 f"execution = 'noisy': the {self._backend.name} backend places boxes on whole "
                 "cells and cannot execute noisy drops; use the mujoco backend"
@@ -260,42 +143,17 @@ class Episode:
         Returns the case indices of the shown objects perception missed."""
         if self._perceiver is None:
             return []
-        positions, quaternions = self._backend.poses()
-        scene = Scene(
-            container=self._case.container,
-            sizes_mm=np.array([b.size_mm for b in self._case.objects], dtype=np.int64),
-            positions_mm=positions,
-            quaternions=quaternions,
-            heightmap=self._heightmap,
-            shown=tuple(self._shown_indices),
+        self._perception = perceive(
+            self._perceiver,
+            self._case,
+            self._heightmap,
+            self._backend.poses(),
+            self._shown_indices,
+            self._perception_rng,
         )
-        self._perception = self._perceiver(scene, self._perception_rng)
-        if len(self._perception.sizes_mm) != len(self._shown):
-            raise ValueError(
-                f"perceiver returned {len(self._perception.sizes_mm)} sizes for "
-                f"{len(self._shown)} shown objects"
-            )
-        # The policy is shown the perceived sizes (cells rounded up, as for exact sizes), under
-        # ids fresh at every observation and no catalogue type: a camera tells a box from its
-        # neighbours in one image, not which box of the layout it is, nor that it is the box it
-        # saw at the previous step (the case's ids are layout positions and would say both).
-        c = self._case.container
         first_id = self._next_seen_id
         self._next_seen_id += len(self._shown)
-        self._shown = tuple(
-            replace(
-                item,
-                internal_id=f"seen-{first_id + i:05d}",  # zero-padded: sorts as counted
-                type_id=0,
-                size_mm=(int(size[0]), int(size[1]), int(size[2])),
-                size_cells=(
-                    _cells(int(size[0]), c.cell_xy_mm),
-                    _cells(int(size[1]), c.cell_xy_mm),
-                    _cells(int(size[2]), c.cell_z_mm),
-                ),
-            )
-            for i, (item, size) in enumerate(zip(self._shown, self._perception.sizes_mm))
-        )
+        self._shown = seen_items(self._shown, self._perception, self._case, first_id)
         return [self._shown_indices[i] for i in self._perception.missed]
 
     def _turned(self, object_id: int, rotation: int) -> int:
@@ -305,9 +163,7 @@ class Episode:
         if self._perceiver is None:
             l, w, _ = self._case.objects[self._shown_indices[object_id]].size_mm
             return rotation ^ int(self._sides == "longer-first" and l < w)
-        if not self._perception.axis_swapped:
-            return rotation
-        return rotation ^ int(self._perception.axis_swapped[object_id])
+        return perceived_rotation(self._perception, object_id, rotation)
 
     @property
     def done(self) -> bool:
@@ -331,36 +187,27 @@ class Episode:
                 self._pending.remove(index)
             self.missed += len(missed)
             if not self._pending:
-                final = self._last_settle = self._backend.finish()
-                self._heightmap = final.heightmap
-                self.final_settle_steps = final.settle_steps
-                self._shown_indices, self._shown = [], ()
-                self._perceive()
-                return final.settle_steps
+                settle_steps = self._final_settle()
+                self._show_nothing()
+                return settle_steps
 
     def _show_window(self) -> None:
         window = visible_window(self._pending, self._case.buffer_size)
         self._shown_indices = shuffled_view(window, self._rng)
-        c = self._case.container
-        sizes = [self._named(self._case.objects[idx].size_mm) for idx in self._shown_indices]
-        self._shown = tuple(
-            ShownItem(
-                shown_index=i,
-                internal_id=self._case.objects[idx].internal_id,
-                size_mm=size,
-                size_cells=(
-                    _cells(size[0], c.cell_xy_mm),
-                    _cells(size[1], c.cell_xy_mm),
-                    _cells(size[2], c.cell_z_mm),
-                ),
-                type_id=self._case.objects[idx].type_id,
-            )
-            for (i, idx), size in zip(enumerate(self._shown_indices), sizes)
-        )
+        self._shown = exact_items(self._case, self._shown_indices, self._sides)
 
-    def _named(self, size: tuple[int, int, int]) -> tuple[int, int, int]:
-        """A box's sides as exact observation names them (``sides``)."""
-        return named_size(size, self._sides)
+    def _show_nothing(self) -> None:
+        """The stream is empty: an empty buffer, still looked at (perceived mode) so the
+        observed heightmap is the one after the last placement."""
+        self._shown_indices, self._shown = [], ()
+        self._perceive()
+
+    def _final_settle(self) -> int:
+        """Settle the pile once the last object is processed; returns its physics steps."""
+        final = self._last_settle = self._backend.finish()
+        self._heightmap = final.heightmap
+        self.final_settle_steps = final.settle_steps
+        return final.settle_steps
 
     def observe(self) -> Observation:
         if self.case is None:
@@ -398,7 +245,7 @@ class Episode:
     def _footprint_cells(self, index: int, rotation: int) -> tuple[int, int]:
         fx_mm, fy_mm = self._case.objects[index].footprint_mm(rotation)
         cell = self._case.container.cell_xy_mm
-        return _cells(fx_mm, cell), _cells(fy_mm, cell)
+        return cells_covering(fx_mm, cell), cells_covering(fy_mm, cell)
 
     def step(self, action: Action | Unparsable) -> StepResult:
         if self.case is None:
@@ -413,50 +260,18 @@ class Episode:
         shown_ids = tuple(self._case.objects[i].internal_id for i in self._shown_indices)
         perception_before = self._perception if self._perceiver is not None else None
         predicted = seen_before  # what the policy expects to see next (perceived mode)
-        drop = executed = command = skill = None
-        placed: Transition | None = None
+        placement: Placement | None = None
         if not reason and isinstance(action, Action):  # no reason: an Action
-            chosen, x, y = int(action.rotation), int(action.x), int(action.y)
-            rotation = self._turned(int(action.object_id), chosen)
-            fx, fy = self._footprint_cells(index, rotation)
-            item = shown_before[int(action.object_id)]
-            if self._execution is not None:
-                # The robot's own belief: the footprint of the size it was shown (perceived
-                # mode: the perceived size, named longer first; ``chosen`` refers to it).
-                l_cells, w_cells, _ = item.size_cells
-                fx, fy = (w_cells, l_cells) if chosen == 1 else (l_cells, w_cells)
-            # The release height from what the robot sees (perceived mode: the perceived
-            # heightmap; too low, the descent stops on contact).
-            z = placement_height(seen_before, x, y, fx, fy)
-            cell = self._case.container.cell_xy_mm
-            drop = (x * cell, y * cell, z)
-            executed = self._executed_drop(index, (fx, fy), drop)
-            command = (
-                None
-                if executed is None
-                else place_command(item.size_mm, chosen, drop, seen_before, executed)
-            )
-            placed, skill = self._place(index, rotation, drop, executed, command)
-            self._last_settle = placed
-            self._heightmap = placed.heightmap
+            placement = self._place_chosen(action, index, seen_before, shown_before)
             if self._perceiver is not None:
-                predicted = self._predicted(shown_before[int(action.object_id)], chosen, x, y)
+                item = shown_before[int(action.object_id)]
+                chosen, x, y = int(action.rotation), int(action.x), int(action.y)
+                predicted = predicted_after(self._perception, item, chosen, x, y)
         else:
             self._set_aside.add(index)
-        settle_steps = placed.settle_steps if placed else 0
-        if len(self._pending) == 1:  # this step processes the last object
-            final = self._last_settle = self._backend.finish()
-            self._heightmap = final.heightmap
-            self.final_settle_steps = final.settle_steps
-            settle_steps += final.settle_steps
-        positions, quaternions = self._backend.poses()
-        self._history.append(HistoryEntry(seen_before, shown_before, action, not reason))
-        self._pending.remove(index)
-        if self._pending:
-            settle_steps += self._reshuffle()
-        else:
-            self._shown_indices, self._shown = [], ()
-            self._perceive()
+        entry = HistoryEntry(seen_before, shown_before, action, not reason)
+        settle_steps, (positions, quaternions) = self._advance(index, entry)
+        placed = placement.transition if placement else None
         result = StepResult(
             step_index=len(self.steps),
             action=action,
@@ -464,8 +279,8 @@ class Episode:
             reason=reason,
             internal_id=self._case.objects[index].internal_id,
             shown=shown_before,
-            drop_mm=drop,
-            settle_steps=settle_steps,
+            drop_mm=placement.drop_mm if placement else None,
+            settle_steps=settle_steps + (placed.settle_steps if placed else 0),
             settled=placed.settled if placed else True,
             wall_time_s=time.perf_counter() - started,
             positions_mm=positions,
@@ -475,14 +290,63 @@ class Episode:
             replan=None
             if self._perceiver is None
             else deviates(predicted, self._perception.heightmap, self._replan_rule),
-            executed=executed,
+            executed=placement.executed if placement else None,
             perception=perception_before,
-            skill=skill,
-            command=command,
+            skill=placement.skill if placement else None,
+            command=placement.command if placement else None,
             shown_ids=shown_ids,
         )
         self.steps.append(result)
         return result
+
+    def _place_chosen(
+        self,
+        action: Action,
+        index: int,
+        seen: np.ndarray,
+        shown: tuple[ShownItem, ...],
+    ) -> Placement:
+        """Carry out a valid ``action`` on case object ``index``, decided on the observed
+        heightmap ``seen`` and buffer ``shown``."""
+        chosen, x, y = int(action.rotation), int(action.x), int(action.y)
+        rotation = self._turned(int(action.object_id), chosen)
+        item = shown[int(action.object_id)]
+        # Noisy execution: the robot's own belief, the footprint of the size it was shown
+        # (perceived mode: the perceived size, named longer first; ``chosen`` refers to it).
+        fx, fy = (
+            self._footprint_cells(index, rotation)
+            if self._execution is None
+            else believed_footprint(item, chosen)
+        )
+        # The release height from what the robot sees (perceived mode: the perceived
+        # heightmap; too low, the descent stops on contact).
+        z = placement_height(seen, x, y, fx, fy)
+        cell = self._case.container.cell_xy_mm
+        drop = (x * cell, y * cell, z)
+        executed = self._executed_drop(index, (fx, fy), drop)
+        command = (
+            None if executed is None else place_command(item.size_mm, chosen, drop, seen, executed)
+        )
+        placed, skill = carry_out(self._backend, index, rotation, drop, executed, command)
+        self._last_settle = placed
+        self._heightmap = placed.heightmap
+        return Placement(drop, placed, executed, command, skill)
+
+    def _advance(
+        self, index: int, entry: HistoryEntry
+    ) -> tuple[int, tuple[np.ndarray, np.ndarray]]:
+        """After case object ``index`` was processed: the final settle if it was the last one,
+        the poses after the step, the history, and the next objects shown. Returns the physics
+        steps this added (final settle) and the poses."""
+        settle_steps = self._final_settle() if len(self._pending) == 1 else 0
+        poses = self._backend.poses()
+        self._history.append(entry)
+        self._pending.remove(index)
+        if self._pending:
+            settle_steps += self._reshuffle()
+        else:
+            self._show_nothing()
+        return settle_steps, poses
 
     @property
     def observed_heightmap(self) -> np.ndarray:
@@ -492,55 +356,26 @@ class Episode:
     def _executed_drop(
         self, index: int, footprint_cells: tuple[int, int], drop: tuple[int, int, int]
     ) -> ExecutedDrop | None:
-        """Noisy execution: the drop as the robot executes it (None in exact execution): the
-        arm's noise plus, in perceived mode, the grasped box's pose-estimate error, and the
-        sides the place skill seats it toward, read from the observed heightmap around the
-        footprint the robot believes in (``footprint_cells``, of the size it was shown)."""
+        """Noisy execution: the drop as the robot executes it (None in exact execution), with,
+        in perceived mode, the grasped box's pose-estimate error; ``footprint_cells`` is the
+        footprint the robot believes in (of the size it was shown)."""
         if self._execution is None:
             return None
-        executed = perturb_drop(self._execution, self._execution_rng, self._grasp_error(index))
-        if executed.is_exact or executed.seat_mm == 0:
-            return executed
-        cell = self._case.container.cell_xy_mm
-        sides = seat_sides(
-            self.observed_heightmap, drop[0] // cell, drop[1] // cell, footprint_cells, drop[2]
+        error = (
+            NO_GRASP_ERROR
+            if self._perceiver is None
+            else grasp_error(self._perception, self._shown_indices, index)
         )
-        return replace(executed, seat_sides=sides)
-
-    def _grasp_error(self, index: int) -> tuple[float, float, float]:
-        """Perceived mode: the error of the estimated pose of shown object ``index`` (case
-        index), from the perception the decision was made on; zeros when none is reported."""
-        if self._perceiver is None or index not in self._shown_indices:
-            return NO_GRASP_ERROR
-        errors = self._perception.grasp_errors
-        shown = list(self._shown_indices).index(index)
-        if shown >= len(errors):
-            return NO_GRASP_ERROR
-        dx, dy, dyaw = errors[shown]
-        return (dx, dy, dyaw)
-
-    def _place(
-        self,
-        index: int,
-        rotation: int,
-        drop: tuple[int, int, int],
-        executed: ExecutedDrop | None,
-        command: PlaceCommand | None,
-    ) -> tuple[Transition, SkillReport | None]:
-        """Execute the placement: exactly as planned (exact execution, or a noisy draw that
-        came out exact), else by the robot's place skill from ``command``."""
-        if executed is None or executed.is_exact or command is None:
-            return self._backend.place(index, rotation, drop), None
-        # reset() refused an execution noise for a backend without supports_noisy_execution.
-        noisy = cast(_NoisyBackend, self._backend)
-        return noisy.execute(index, rotation, command, executed.offset_mm, executed.yaw_deg)
-
-    def _predicted(self, item: ShownItem, rotation: int, x: int, y: int) -> np.ndarray:
-        """Eq. 2 prediction of the intended placement on the perceived heightmap it was chosen
-        on, with the perceived size the policy was shown."""
-        l, w, _ = item.size_cells
-        footprint = (w, l) if rotation == 1 else (l, w)
-        return predict_heightmap(self._perception.heightmap, x, y, footprint, item.size_mm[2])
+        cell = self._case.container.cell_xy_mm
+        return robot_drop(
+            self._execution,
+            self._execution_rng,
+            error,
+            self.observed_heightmap,
+            drop,
+            footprint_cells,
+            cell,
+        )
 
     # -- outcome ---------------------------------------------------------------------------
     def final_poses(self) -> dict[InternalId, Pose | None]:
@@ -587,71 +422,6 @@ class Episode:
             residual_angular_radps=self._last_settle.max_angular_speed,
             wall_time_s=sum(s.wall_time_s for s in self.steps),
         )
-
-
-@dataclass(frozen=True, slots=True)
-class EpisodeResult:
-    """A finished episode: its steps, final poses and metrics."""
-
-    case_id: str
-    seed: int
-    policy: str
-    backend: str
-    steps: tuple[StepResult, ...]
-    metrics: EpisodeMetrics
-    poses: dict[InternalId, Pose | None] = field(default_factory=dict)
-    policy_time_s: float = 0.0
-    #: Each step's decision (the policy's ``act``): wall and process CPU seconds, by step; empty
-    #: when the steps were driven by a loop that did not time them.
-    decision_s: tuple[float, ...] = ()
-    decision_cpu_s: tuple[float, ...] = ()
-    #: Perceived mode only (else None): steps with a re-plan event (``StepResult.replan``).
-    replans: int | None = None
-    #: Perceived mode only (else None): objects perception did not find, set aside unpacked.
-    missed: int | None = None
-    #: Noisy execution only (else None): the place skill's counts summed over the steps
-    #: (``StepResult.skill``), by kind; what it had to do to recover and how.
-    skill: dict[str, int] | None = None
-
-    def to_record(self) -> dict[str, Any]:
-        # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
-        # after every step without records growing by steps x boxes.
-        steps = [s.to_record() for s in self.steps]
-        if len(self.decision_s) == len(steps):
-            steps = [
-                {**rec, "decision_s": round(wall, 6), "decision_cpu_s": round(cpu, 6)}
-                for rec, wall, cpu in zip(steps, self.decision_s, self.decision_cpu_s)
-            ]
-        if all(s.positions_mm is not None for s in self.steps):
-            moved = pose_updates(
-                [s.positions_mm for s in self.steps], [s.quaternions for s in self.steps]
-            )
-            steps = [{**rec, "poses": m} for rec, m in zip(steps, moved)]
-        metrics = self.metrics.to_dict()
-        if self.replans is not None:  # added keys, only in perceived mode
-            metrics["replans"] = self.replans
-        if self.missed is not None:
-            metrics["missed"] = self.missed
-        if self.skill is not None:  # noisy execution only
-            metrics["skill"] = dict(self.skill)
-        return {
-            "case_id": self.case_id,
-            "seed": self.seed,
-            "policy": self.policy,
-            "backend": self.backend,
-            "metrics": metrics,
-            "policy_time_s": round(self.policy_time_s, 6),
-            "steps": steps,
-            "final_poses": {
-                str(k): None
-                if p is None
-                else {
-                    "position_mm": [round(v, 3) for v in p.position_mm],
-                    "quaternion": [round(v, 6) for v in p.quaternion],
-                }
-                for k, p in self.poses.items()
-            },
-        }
 
 
 def run_episode(
@@ -708,11 +478,12 @@ def run_episode(
     )
 
 
-def skill_totals(steps: tuple[StepResult, ...] | list[StepResult]) -> dict[str, int]:
-    """The place skill's counts of ``steps`` summed by kind (sorted; kinds never needed are
-    left out)."""
-    totals: Counter[str] = Counter()
-    for step in steps:
-        if step.skill is not None:
-            totals.update(step.skill.counts())
-    return dict(sorted(totals.items()))
+__all__ = [
+    "DEFAULT_REPLAN",
+    "INVALID_REASONS",
+    "Episode",
+    "EpisodeResult",
+    "StepResult",
+    "run_episode",
+    "skill_totals",
+]
