@@ -155,6 +155,7 @@ SKILL_KINDS = (
     "turned",
     "probed",
     "stopped_high",
+    "retried",
     "budget_spent",
     "lifted",
     "seated",

@@ -50,6 +50,7 @@ from packlab.sim.perceived import (
 from packlab.sim.physics import Transition, TransitionBackend, make_backend
 from packlab.sim.placement import (
     Placement,
+    arm_redraw,
     believed_footprint,
     carry_out,
     executes_noisy_drops,
@@ -327,7 +328,13 @@ class Episode:
         command = (
             None if executed is None else place_command(item.size_mm, chosen, drop, seen, executed)
         )
-        placed, skill = carry_out(self._backend, index, rotation, drop, executed, command)
+        # A placement the skill tries again draws the arm's noise afresh from the same stream.
+        redraw = (
+            None
+            if self._execution is None
+            else arm_redraw(self._execution, self._execution_rng, self._grasp_error(index))
+        )
+        placed, skill = carry_out(self._backend, index, rotation, drop, executed, command, redraw)
         self._last_settle = placed
         self._heightmap = placed.heightmap
         return Placement(drop, placed, executed, command, skill)
@@ -353,6 +360,12 @@ class Episode:
         """The heightmap the policy sees: the perceived one in perceived mode, else the exact."""
         return self._heightmap if self._perceiver is None else self._perception.heightmap
 
+    def _grasp_error(self, index: int) -> tuple[float, float, float]:
+        """The grasped box's pose-estimate error (perceived mode; none otherwise)."""
+        if self._perceiver is None:
+            return NO_GRASP_ERROR
+        return grasp_error(self._perception, self._shown_indices, index)
+
     def _executed_drop(
         self, index: int, footprint_cells: tuple[int, int], drop: tuple[int, int, int]
     ) -> ExecutedDrop | None:
@@ -361,16 +374,11 @@ class Episode:
         footprint the robot believes in (of the size it was shown)."""
         if self._execution is None:
             return None
-        error = (
-            NO_GRASP_ERROR
-            if self._perceiver is None
-            else grasp_error(self._perception, self._shown_indices, index)
-        )
         cell = self._case.container.cell_xy_mm
         return robot_drop(
             self._execution,
             self._execution_rng,
-            error,
+            self._grasp_error(index),
             self.observed_heightmap,
             drop,
             footprint_cells,

@@ -9,6 +9,7 @@ read from the observed heightmap), and which backend call carries it out.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Protocol, cast
 
@@ -30,6 +31,7 @@ class NoisyBackend(TransitionBackend, Protocol):
         command: PlaceCommand,
         offset_mm: tuple[float, float],
         yaw_deg: float,
+        redraw: Callable[[], tuple[tuple[float, float], float]] | None = None,
     ) -> tuple[Transition, SkillReport]: ...
 
 
@@ -75,6 +77,22 @@ def robot_drop(
     return replace(executed, seat_sides=seat_sides(observed, x, y, footprint_cells, drop_mm[2]))
 
 
+def arm_redraw(
+    noise: ExecutionNoise, rng: np.random.Generator, grasp_error: tuple[float, float, float]
+) -> Callable[[], tuple[tuple[float, float], float]]:
+    """A fresh draw of the arm's noise for a placement the skill tries again (the offset and
+    yaw, as ``perturb_drop``): the arm's repeatability error is independent per motion, the
+    grasp (and its estimate's error) stays. It draws from ``rng`` (the episode's execution
+    stream) only when called, so a placement that is not retried leaves the stream as
+    before."""
+
+    def draw() -> tuple[tuple[float, float], float]:
+        again = perturb_drop(noise, rng, grasp_error)
+        return again.offset_mm, again.yaw_deg
+
+    return draw
+
+
 def carry_out(
     backend: TransitionBackend,
     index: int,
@@ -82,11 +100,13 @@ def carry_out(
     drop_mm: tuple[int, int, int],
     executed: ExecutedDrop | None,
     command: PlaceCommand | None,
+    redraw: Callable[[], tuple[tuple[float, float], float]] | None = None,
 ) -> tuple[Transition, SkillReport | None]:
     """Place case object ``index``: exactly as planned (exact execution, or a noisy draw that
-    came out exact), else by the robot's place skill from ``command``."""
+    came out exact), else by the robot's place skill from ``command``, which may try again
+    with ``redraw`` (``arm_redraw``)."""
     if executed is None or executed.is_exact or command is None:
         return backend.place(index, rotation, drop_mm), None
     # The episode refuses an execution noise for a backend that cannot execute noisy drops.
     noisy = cast(NoisyBackend, backend)
-    return noisy.execute(index, rotation, command, executed.offset_mm, executed.yaw_deg)
+    return noisy.execute(index, rotation, command, executed.offset_mm, executed.yaw_deg, redraw)

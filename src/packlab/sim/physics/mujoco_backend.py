@@ -25,7 +25,7 @@ Design choices (measured on a 2-core CPU; see benchmarks/physics_placement.py):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -304,6 +304,7 @@ class MujocoBackend:
         command: PlaceCommand,
         offset_mm: tuple[float, float],
         yaw_deg: float,
+        redraw: Callable[[], tuple[tuple[float, float], float]] | None = None,
     ) -> tuple[Transition, SkillReport]:
         """Execute a robot's placement of box ``index`` (noisy execution) and settle.
 
@@ -318,24 +319,38 @@ class MujocoBackend:
         (``packlab.sim.physics.place_skill``) runs on the held box, reading only its
         command and the wrist's sensing (``_HeldBox``), and the box is let go. A box the skill
         leaves pressed into something (its slide budget spent) is raised clear first: a box
-        never starts inside another (``_lift_clear``)."""
+        never starts inside another (``_lift_clear``).
+
+        ``redraw`` (the episode's: a fresh draw of the arm's noise, the same grasp error, as
+        ``offset_mm`` and ``yaw_deg``) lets the skill try a placement again whose descent
+        stopped high: the box goes back over the command, held as at the start, off by the new
+        draw (``place_skill.place``). Without it the skill does not retry."""
         model, data, cfg = self._model, self._data, self.config
         top = command.bottom_mm + command.height_mm + command.release_mm + cfg.clearance_mm
         true_height = float(self._sizes_mm[index, 2])
-        centre = np.array(
-            [
-                command.centre_mm[0] + offset_mm[0],
-                command.centre_mm[1] + offset_mm[1],
-                top - true_height / 2,
-            ]
-        )
+        qpos = self._qpos_slice(index)
+
+        def hold(offset: tuple[float, float], yaw: float) -> None:
+            """The box held at the command's release pose, off by the arm's and grasp's errors."""
+            centre = np.array(
+                [
+                    command.centre_mm[0] + offset[0],
+                    command.centre_mm[1] + offset[1],
+                    top - true_height / 2,
+                ]
+            )
+            data.qpos[qpos] = np.concatenate([centre * _MM, _yawed_quaternion(rotation, yaw)])
+            data.qvel[self._qvel_slice(index)] = 0.0
+
+        def retry() -> None:
+            assert redraw is not None
+            hold(*redraw())
+
         self._activate(index)
         body = self._body_ids[index]
         model.body_gravcomp[body] = 1.0  # held: the gripper carries its weight
-        qpos = self._qpos_slice(index)
-        data.qpos[qpos] = np.concatenate([centre * _MM, _yawed_quaternion(rotation, yaw_deg)])
-        data.qvel[self._qvel_slice(index)] = 0.0
-        report = run_place_skill(_HeldBox(self, index), command)
+        hold(offset_mm, yaw_deg)
+        report = run_place_skill(_HeldBox(self, index), command, None if redraw is None else retry)
         model.body_gravcomp[body] = 0.0  # released
         yaw = math.degrees(2 * math.atan2(data.qpos[qpos.start + 6], data.qpos[qpos.start + 3]))
         z = float(data.qpos[qpos.start + 2])

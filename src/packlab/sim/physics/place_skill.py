@@ -35,8 +35,12 @@ gripper, its weight carried (gravity compensated), as a slow guarded move would 
      touching pose, each followed by a guarded try to go lower, then the same with the gripper
      turned by small steps either way (a box a little turned in a slot with no slack fits only
      turned back); the first move from which the descent can go on is taken;
-   * otherwise (a support under the box, the budget spent) the descent stops and the box is
-     released where it is: physics decides what happens then.
+   * otherwise (a support under the box, the budget spent) the descent stops. Stopped more
+     than ``retry_margin_mm`` above its release pose (the gripper's height against the
+     command, all the robot knows of it), the box is lifted back above everything and the
+     descent tried again from the command with a fresh draw of the arm's noise, drawn and
+     applied by the simulator (``place``'s ``retry``), at most ``PLACE_RETRIES`` times; then
+     it is released where it is: physics decides what happens then.
 
    Nothing squares the yaw or moves the box to the planned pose: no code here knows either.
 2. **Seat** (``seat``). Pushes toward the sides the observed heightmap shows flush, guarded
@@ -53,6 +57,7 @@ it in the step record (``skill``) and sums it per episode (``metrics.skill``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
@@ -105,6 +110,15 @@ _SEAT_MAX_YIELD_DEG = 5.0
 _SEAT_TURN_BISECTIONS = 12
 _SEAT_TURNS = 4
 _SEAT_MIN_TURN = 5e-5
+#: A descent that stopped more than this far above its release pose (a fraction of the box's
+#: shown height, at least ``_RETRY_MIN_MM``: over the few mm the observed heightmap and a
+#: tilted edge between cell centres can put the true support above the target) stopped on
+#: something it was not meant to rest on (mostly a neighbour's edge under a box yawed in a slot
+#: with no slack): the robot lifts the box and tries again, up to ``PLACE_RETRIES`` times. Read
+#: from the command and the arm's own height only.
+_RETRY_ABOVE_FRACTION = 0.2
+_RETRY_MIN_MM = 10.0
+PLACE_RETRIES = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,6 +172,10 @@ class SkillReport:
     #: spent) and the simulator raised it clear (``MujocoBackend._lift_clear``: a box never
     #: starts inside another, in exact execution too).
     lifted: int = 0
+    #: The descent stopped well above its target (``retry_margin_mm``): the box was lifted
+    #: back above everything and placed again from the command, the arm's repeatability error
+    #: drawn afresh (``place``); how many times.
+    retried: int = 0
 
     def counts(self) -> dict[str, int]:
         """The nonzero counts by name (what records keep)."""
@@ -234,10 +252,16 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
     docstring); returns the gripper's moves (x, y in mm) from the command, which the robot
     knows from its own joints. The box is left at its release pose or where the descent
     stopped, touching at most ``LIFT_TOLERANCE_MM``."""
+    return _descend(held, command, report)[0]
+
+
+def _descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> tuple[np.ndarray, float]:
+    """``descend``, also returning how far (m) above its release pose the gripper stopped:
+    what the arm's joints tell the robot of its own height against the command."""
     tol = LIFT_TOLERANCE_MM * _MM
     moved = np.zeros(2)  # mm
     if held.penetration() <= tol:
-        return moved
+        return moved, 0.0
     report.descended = 1
     release = command.bottom_mm + command.release_mm
     rise = max(0.0, command.seen_top_mm + APPROACH_MM - release) * _MM
@@ -252,7 +276,7 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
         depth = held.penetration()
         if depth <= tol:
             if below <= 1e-9:
-                return moved
+                return moved, below
             down = min(_DESCENT_STEP_MM * _MM, below)
             held.translate(0.0, 0.0, -down)
             below -= down
@@ -286,7 +310,7 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             # Carried: back up to the touch (the contact is under the box, its depth along z).
             below += _back_to_touch(held, depth)
             if below <= 1e-9:
-                return moved  # at the release pose after all
+                return moved, below  # at the release pose after all
             away = _off_edge(lever, half, budget + _EDGE_MARGIN_MM)
             if away is None:
                 # No edge to read: probe around for where the descent can go on.
@@ -294,7 +318,7 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
                 found = _probe(held, budget - float(np.hypot(*moved)), gripper, room)
                 if found is None:
                     report.stopped_high = 1
-                    return moved
+                    return moved, below
                 shift, angle = found
                 if angle:
                     held.turn(angle, gripper * _MM)
@@ -310,7 +334,7 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             report.budget_spent = 1
             if force[2] >= across:
                 report.stopped_high = 1  # left on the edge it could not slide off
-            return moved
+            return moved, below
         # A side contact yields by its depth (the wrist's deflection under a stiff contact),
         # so a box in a slot with little slack settles in it instead of bouncing between its
         # faces; an edge is slid off in whole steps.
@@ -330,7 +354,7 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
             turned += angle
             report.turned = 1
     report.stopped_high = 1
-    return moved
+    return moved, below
 
 
 def _back_to_touch(held: HeldBox, depth: float) -> float:
@@ -582,10 +606,33 @@ def relax(held: HeldBox, axis: int, limit_mm: float) -> None:
         held.translate(*shift)
 
 
-def place(held: HeldBox, command: PlaceCommand) -> SkillReport:
-    """Run the skill on the held box (descent, then seating); the caller releases it."""
+def retry_margin_mm(command: PlaceCommand) -> float:
+    """How far (mm) above its release pose a descent may stop and the box still be let go
+    there (``_RETRY_ABOVE_FRACTION``): from the command alone."""
+    return max(_RETRY_MIN_MM, _RETRY_ABOVE_FRACTION * command.height_mm)
+
+
+def place(
+    held: HeldBox, command: PlaceCommand, retry: Callable[[], None] | None = None
+) -> SkillReport:
+    """Run the skill on the held box (descent, then seating); the caller releases it.
+
+    A descent that stops more than ``retry_margin_mm`` above the release pose (the gripper's
+    height against the command: all the robot knows of it) is tried again, at most
+    ``PLACE_RETRIES`` times: ``retry`` (the simulator's) lifts the box back above everything
+    and brings it over the command again with a fresh draw of the arm's noise (the grasp, and
+    its estimate's error, stay). The skill does not know the draw: it starts over from the
+    command, its earlier moves forgotten. After the last try the box is released where the
+    descent stopped, as without ``retry``."""
     report = SkillReport()
-    moved = descend(held, command, report)
+    margin = retry_margin_mm(command) * _MM
+    for attempt in range(PLACE_RETRIES + 1):
+        moved, above = _descend(held, command, report)
+        if retry is None or attempt == PLACE_RETRIES or above <= margin:
+            break
+        report.retried += 1
+        report.stopped_high = 0  # counted for the attempt that is released
+        retry()
     if command.seat_mm > 0 and any(command.seat_sides):
         seat(held, command, moved, report)
     return report
@@ -594,10 +641,12 @@ def place(held: HeldBox, command: PlaceCommand) -> SkillReport:
 __all__ = [
     "APPROACH_MM",
     "LIFT_TOLERANCE_MM",
+    "PLACE_RETRIES",
     "HeldBox",
     "PlaceCommand",
     "SkillReport",
     "descend",
     "place",
+    "retry_margin_mm",
     "seat",
 ]
