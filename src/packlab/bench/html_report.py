@@ -30,12 +30,14 @@ from packlab.bench.compare import (
     paired_differences,
     reliable_groups,
 )
+from packlab.bench.config import run_sides
 from packlab.bench.options import COMPARE_HTML, REPORT_HTML
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
 from packlab.bench.summary import RunIntervals, run_intervals
 from packlab.bench.table import headline
 from packlab.bench.terminal import CEILING, ranked_policies
+from packlab.core.choices import SideNames
 from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary, to_builtins
 from packlab.core.types import Case
@@ -139,6 +141,11 @@ def with_intervals(
     return data
 
 
+def head_sides(head: RunConfigHead) -> SideNames:
+    """The side names a run showed, from its config head (``run_sides``)."""
+    return run_sides({"sensing": to_builtins(head.sensing)} if head.sensing else {})
+
+
 def run_html(
     config: RunConfigHead | Mapping[str, object],
     records: Sequence[EpisodeRecord],
@@ -158,7 +165,7 @@ def run_html(
     intervals = run_intervals(summary)
     ranked = [policies.index(p) for p in ranked_policies(summary) if p != CEILING]
     data = report_data(
-        [ReportRun("", summary, tuple(records), tuple(cases))],
+        [ReportRun("", summary, tuple(records), tuple(cases), head_sides(head))],
         methods,
         title=f"packlab bench report: {head.suite or 'cases'}",
         subtitle=headline(summary),
@@ -211,7 +218,8 @@ def compare_html(
     ]
     assert [m.name for m in methods] == list(merged.policies)
     report_runs = [
-        ReportRun(name, s, tuple(r.records), r.cases) for name, s, r in zip(names, summaries, runs)
+        ReportRun(name, s, tuple(r.records), r.cases, head_sides(r.config))
+        for name, s, r in zip(names, summaries, runs)
     ]
     listed = ", ".join(f"{n} ({r.run_dir})" for n, r in zip(names, runs))
     intervals = [run_intervals(s) for s in summaries]

@@ -106,6 +106,13 @@ RemainingMode = Literal["shown", "hidden"]
 DEFAULT_REMAINING: RemainingMode = "shown"
 
 
+def own_rotation(size: tuple[int, int, int], rotation: int, sides: SideNames) -> int:
+    """The box's own rotation (of its catalogue sides) that does what a policy's ``rotation``
+    of the sides it was shown under ``sides`` does (see :func:`named_size`)."""
+    l, w, _ = size
+    return rotation ^ int(sides == "longer-first" and l < w)
+
+
 def named_size(size: tuple[int, int, int], sides: SideNames) -> tuple[int, int, int]:
     """A box's catalogue (l, w, h) as exact observation under ``sides`` names it: rotation r of
     the named box is rotation ``r ^ 1`` of the catalogue's where the names differ (l < w)."""

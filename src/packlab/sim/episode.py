@@ -17,7 +17,13 @@ from typing import Any, cast
 
 import numpy as np
 
-from packlab.core.choices import DEFAULT_SIDES, PhysicsBackend, SideNames, require_choice
+from packlab.core.choices import (
+    DEFAULT_SIDES,
+    PhysicsBackend,
+    SideNames,
+    own_rotation,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.types import (
@@ -162,8 +168,8 @@ class Episode:
         to the sides it was shown, which perception lists longer first (``axis_swapped``), and
         exact observation as ``sides`` says."""
         if self._perceiver is None:
-            l, w, _ = self._case.objects[self._shown_indices[object_id]].size_mm
-            return rotation ^ int(self._sides == "longer-first" and l < w)
+            size = self._case.objects[self._shown_indices[object_id]].size_mm
+            return own_rotation(size, rotation, self._sides)
         return perceived_rotation(self._perception, object_id, rotation)
 
     @property

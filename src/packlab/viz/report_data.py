@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from packlab.core.choices import DEFAULT_SIDES, SideNames, own_rotation
 from packlab.core.records import (
     EpisodeError,
     EpisodeOk,
@@ -85,6 +86,9 @@ class ReportRun:
     summary: RunSummary
     records: tuple[EpisodeRecord, ...]
     cases: tuple[Case, ...]  # empty when the run directory has no cases.jsonl
+    #: The side names the run showed (``packlab.bench.config.run_sides``): recorded rotations
+    #: refer to them, so rebuilding a geometric pose needs them.
+    sides: SideNames = DEFAULT_SIDES
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,7 +125,9 @@ def _geometric_pose(case: Case, index: int, rotation: int, drop: Sequence[int]) 
     return pose_entry(index, centre, yaw_quaternion(rotation))
 
 
-def step_poses(record: EpisodeOk, case: Case) -> tuple[list[list[PoseEntry]], str]:
+def step_poses(
+    record: EpisodeOk, case: Case, sides: SideNames = DEFAULT_SIDES
+) -> tuple[list[list[PoseEntry]], str]:
     """Per step, the poses placed or moved at it, and their source (a key of POSE_SOURCES)."""
     index_of = {str(b.internal_id): i for i, b in enumerate(case.objects)}
     logged = [s.poses for s in record.steps]
@@ -135,7 +141,8 @@ def step_poses(record: EpisodeOk, case: Case) -> tuple[list[list[PoseEntry]], st
             out.append([])
         elif geometric and s.drop_mm is not None:
             rotation = s.action.rotation if isinstance(s.action.rotation, int) else 0
-            out.append([_geometric_pose(case, index, rotation, s.drop_mm)])
+            own = own_rotation(case.objects[index].size_mm, rotation, sides)
+            out.append([_geometric_pose(case, index, own, s.drop_mm)])
         else:
             final = record.final_poses.get(str(s.internal_id))
             out.append(
@@ -152,10 +159,12 @@ def _action(step: StepRecord) -> list[int] | str:
     return list(placement)
 
 
-def episode_steps(record: EpisodeOk, case: Case) -> tuple[list[list[Any]], str]:
+def episode_steps(
+    record: EpisodeOk, case: Case, sides: SideNames = DEFAULT_SIDES
+) -> tuple[list[list[Any]], str]:
     """The replay of an episode (STEP_FIELDS per step) and where its poses come from."""
     index_of = {str(b.internal_id): i for i, b in enumerate(case.objects)}
-    poses, source = step_poses(record, case)
+    poses, source = step_poses(record, case, sides)
     reasons = {r: i + 1 for i, r in enumerate(INVALID_REASONS)}
     steps = []
     for s, moved in zip(record.steps, poses):
@@ -172,7 +181,11 @@ def episode_steps(record: EpisodeOk, case: Case) -> tuple[list[list[Any]], str]:
 
 
 def episode_entry(
-    record: EpisodeRecord, method: int, case_index: int, case: Case | None
+    record: EpisodeRecord,
+    method: int,
+    case_index: int,
+    case: Case | None,
+    sides: SideNames = DEFAULT_SIDES,
 ) -> dict[str, Any]:
     """One episode: who, what it scored, and its replay when the case is known."""
     head: dict[str, Any] = {"m": method, "c": case_index, "s": record.seed}
@@ -193,7 +206,7 @@ def episode_entry(
         "policy_s": _r(record.policy_time_s),
     }
     if case is not None:
-        head["steps"], head["poses"] = episode_steps(record, case)
+        head["steps"], head["poses"] = episode_steps(record, case, sides)
     return head
 
 
@@ -267,7 +280,8 @@ def report_data(
             row = row_of.get((run_i, r.policy))
             if row is None or r.seed not in seeds or r.difficulty not in levels:
                 continue
-            episodes.append(episode_entry(r, row, case_index[r.case_id], known.get(r.case_id)))
+            case = known.get(r.case_id)
+            episodes.append(episode_entry(r, row, case_index[r.case_id], case, run.sides))
     episodes.sort(key=lambda e: (e["m"], e["c"], e["s"]))
     groups = _groups(first)
     return {
