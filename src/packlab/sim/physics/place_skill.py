@@ -258,103 +258,155 @@ def descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> np.nda
 def _descend(held: HeldBox, command: PlaceCommand, report: SkillReport) -> tuple[np.ndarray, float]:
     """``descend``, also returning how far (m) above its release pose the gripper stopped:
     what the arm's joints tell the robot of its own height against the command."""
-    tol = LIFT_TOLERANCE_MM * _MM
-    moved = np.zeros(2)  # mm
-    if held.penetration() <= tol:
-        return moved, 0.0
+    if held.penetration() <= LIFT_TOLERANCE_MM * _MM:
+        return np.zeros(2), 0.0
     report.descended = 1
     release = command.bottom_mm + command.release_mm
     rise = max(0.0, command.seen_top_mm + APPROACH_MM - release) * _MM
     held.translate(0.0, 0.0, rise)
-    below = rise  # how far (m) the box still is above its release pose
-    budget = command.comply_mm
-    turned = 0.0
-    half = np.array(command.footprint_mm) / 2
-    radius = float(np.hypot(*half))  # mm: the yaw compliance's radius (see _compliant_step)
-    flushes_left = _SEAT_TURNS
-    for _ in range(_DESCENT_MAX_MOVES):
-        depth = held.penetration()
-        if depth <= tol:
-            if below <= 1e-9:
-                return moved, below
-            down = min(_DESCENT_STEP_MM * _MM, below)
-            held.translate(0.0, 0.0, -down)
-            below -= down
-            continue
-        gripper = np.array(command.centre_mm) + moved
-        force, torque, side_pressure, support_pressure = held.wrench(gripper * _MM)
-        across = float(math.hypot(force[0], force[1]))
-        # The centre of pressure from the gripper's axis (mm): of the side contacts when the
-        # box is pushed sideways, of the support when it is carried.
-        lever = (side_pressure if across > force[2] else support_pressure) / _MM - gripper
-        if across > force[2]:  # pushed sideways (a wall, a tilted face)
-            push = force[:2] / across
-            report.slid = 1
-            if flushes_left:
-                # Pressed into a face with a corner first, the contact's torque turns the box
-                # flush with it (yaw compliance), as in seating.
-                axis = 0 if abs(push[0]) >= abs(push[1]) else 1
-                _, torque, pivot = held.side_load()
-                flush = flush_turn(held, axis, torque, pivot)
-                flushes_left -= 1
-                if flush is not None:
-                    pressed = held.snapshot()
-                    held.restore(flush)
-                    if held.penetration() <= depth + tol:
-                        report.turned = 1
-                        continue
-                    # The turn would press the box harder into something (a second wall, a
-                    # neighbour): the wrist cannot turn against that contact.
-                    held.restore(pressed)
-        else:
-            # Carried: back up to the touch (the contact is under the box, its depth along z).
-            below += _back_to_touch(held, depth)
-            if below <= 1e-9:
-                return moved, below  # at the release pose after all
-            away = _off_edge(lever, half, budget + _EDGE_MARGIN_MM)
-            if away is None:
-                # No edge to read: probe around for where the descent can go on.
-                room = math.radians(_DESCENT_MAX_TURN_DEG) - abs(turned)
-                found = _probe(held, budget - float(np.hypot(*moved)), gripper, room)
-                if found is None:
-                    report.stopped_high = 1
-                    return moved, below
-                shift, angle = found
-                if angle:
-                    held.turn(angle, gripper * _MM)
-                    turned += angle
-                    report.turned = 1
-                held.translate(shift[0] * _MM, shift[1] * _MM, 0.0)
-                moved += shift
-                report.probed = 1
+    return _Descent(held, command, report, below=rise).run()
+
+
+#: What one contact step of the descent asks next (``_Descent._carried``): go on, or stop.
+_AGAIN, _STOP = "again", "stop"
+
+
+class _Descent:
+    """The state of one compliant guarded descent (``_descend``): where the gripper moved from
+    the command (mm), how far (m) above its release pose the box still is, how far it turned,
+    and how many flush turns the wrist still tries."""
+
+    def __init__(
+        self, held: HeldBox, command: PlaceCommand, report: SkillReport, below: float
+    ) -> None:
+        self.held, self.command, self.report = held, command, report
+        self.moved = np.zeros(2)  # mm
+        self.below = below
+        self.turned = 0.0
+        self.half = np.array(command.footprint_mm) / 2
+        self.radius = float(np.hypot(*self.half))  # mm: the yaw compliance's radius
+        self.flushes_left = _SEAT_TURNS
+
+    def run(self) -> tuple[np.ndarray, float]:
+        tol = LIFT_TOLERANCE_MM * _MM
+        held, report = self.held, self.report
+        for _ in range(_DESCENT_MAX_MOVES):
+            depth = held.penetration()
+            if depth <= tol:
+                if self.below <= 1e-9:
+                    return self.moved, self.below
+                down = min(_DESCENT_STEP_MM * _MM, self.below)
+                held.translate(0.0, 0.0, -down)
+                self.below -= down
                 continue
-            push = away
+            gripper = np.array(self.command.centre_mm) + self.moved
+            force, torque, side_pressure, support_pressure = held.wrench(gripper * _MM)
+            across = float(math.hypot(force[0], force[1]))
+            sideways = across > force[2]  # pushed sideways (a wall, a tilted face), or carried
+            # The centre of pressure from the gripper's axis (mm): of the side contacts when the
+            # box is pushed sideways, of the support when it is carried.
+            lever = (side_pressure if sideways else support_pressure) / _MM - gripper
+            push = force[:2] / across if sideways else np.zeros(2)
+            if sideways:
+                report.slid = 1
+                flushed, torque = self._turn_flush(push, torque, depth)
+                if flushed:
+                    continue
+            else:
+                outcome = self._carried(depth, lever, gripper)
+                if isinstance(outcome, str):
+                    if outcome == _STOP:
+                        return self.moved, self.below
+                    continue  # _AGAIN
+                push = outcome
+            if float(np.hypot(*self.moved)) + _SLIDE_STEP_MM > self.command.comply_mm + 1e-9:
+                report.budget_spent = 1
+                if not sideways:
+                    report.stopped_high = 1  # left on the edge it could not slide off
+                return self.moved, self.below
+            self._slide(force, torque, push, lever, gripper, depth, sideways)
+        report.stopped_high = 1
+        return self.moved, self.below
+
+    def _turn_flush(self, push: np.ndarray, torque: float, depth: float) -> tuple[bool, float]:
+        """Pressed into a face with a corner first, the contact's torque turns the box flush
+        with it (yaw compliance), as in seating: whether it turned, and the torque (N m) the
+        side contacts now read (what the slide then yields to)."""
+        if not self.flushes_left:
+            return False, torque
+        held = self.held
+        axis = 0 if abs(push[0]) >= abs(push[1]) else 1
+        _, torque, pivot = held.side_load()
+        flush = flush_turn(held, axis, torque, pivot)
+        self.flushes_left -= 1
+        if flush is not None:
+            pressed = held.snapshot()
+            held.restore(flush)
+            if held.penetration() <= depth + LIFT_TOLERANCE_MM * _MM:
+                self.report.turned = 1
+                return True, torque
+            # The turn would press the box harder into something (a second wall, a
+            # neighbour): the wrist cannot turn against that contact.
+            held.restore(pressed)
+        return False, torque
+
+    def _carried(self, depth: float, lever: np.ndarray, gripper: np.ndarray) -> str | np.ndarray:
+        """The box is carried by what it met (the contact is under it, its depth along z):
+        back up to the touch, then slide off the edge it rests on (the direction to push), or
+        probe around for where the descent can go on (``_AGAIN``), or stop (``_STOP``)."""
+        held, report = self.held, self.report
+        self.below += _back_to_touch(held, depth)
+        if self.below <= 1e-9:
+            return _STOP  # at the release pose after all
+        budget = self.command.comply_mm
+        away = _off_edge(lever, self.half, budget + _EDGE_MARGIN_MM)
+        if away is not None:
             report.slid_off_edge = 1
-        if float(np.hypot(*moved)) + _SLIDE_STEP_MM > budget + 1e-9:
-            report.budget_spent = 1
-            if force[2] >= across:
-                report.stopped_high = 1  # left on the edge it could not slide off
-            return moved, below
-        # A side contact yields by its depth (the wrist's deflection under a stiff contact),
-        # so a box in a slot with little slack settles in it instead of bouncing between its
-        # faces; an edge is slid off in whole steps.
-        length = min(_SLIDE_STEP_MM, max(depth / _MM, LIFT_TOLERANCE_MM))
-        if across > force[2]:
-            # The side forces and their torque about the wrist (a box wedged between two faces
-            # feels a couple: little net force, a torque that turns it).
-            step, angle = _compliant_step(force[:2], torque / _MM, radius, length)
-        else:
-            step, angle = _compliant_step(push, None, radius, None, lever)
-        if abs(turned + angle) > math.radians(_DESCENT_MAX_TURN_DEG):
-            angle = 0.0
-        held.translate(step[0] * _MM, step[1] * _MM, 0.0)
-        moved += step
+            return away
+        # No edge to read: probe around for where the descent can go on.
+        room = math.radians(_DESCENT_MAX_TURN_DEG) - abs(self.turned)
+        found = _probe(held, budget - float(np.hypot(*self.moved)), gripper, room)
+        if found is None:
+            report.stopped_high = 1
+            return _STOP
+        shift, angle = found
         if angle:
-            held.turn(angle, (gripper + step) * _MM)
-            turned += angle
+            held.turn(angle, gripper * _MM)
+            self.turned += angle
             report.turned = 1
-    report.stopped_high = 1
-    return moved, below
+        held.translate(shift[0] * _MM, shift[1] * _MM, 0.0)
+        self.moved += shift
+        report.probed = 1
+        return _AGAIN
+
+    def _slide(
+        self,
+        force: np.ndarray,
+        torque: float,
+        push: np.ndarray,
+        lever: np.ndarray,
+        gripper: np.ndarray,
+        depth: float,
+        sideways: bool,
+    ) -> None:
+        """One compliant step. A side contact yields by its depth (the wrist's deflection under
+        a stiff contact), so a box in a slot with little slack settles in it instead of
+        bouncing between its faces; an edge is slid off in whole steps. The side forces and
+        their torque about the wrist turn the box too (a box wedged between two faces feels a
+        couple: little net force, a torque that turns it)."""
+        length = min(_SLIDE_STEP_MM, max(depth / _MM, LIFT_TOLERANCE_MM))
+        if sideways:
+            step, angle = _compliant_step(force[:2], torque / _MM, self.radius, length)
+        else:
+            step, angle = _compliant_step(push, None, self.radius, None, lever)
+        if abs(self.turned + angle) > math.radians(_DESCENT_MAX_TURN_DEG):
+            angle = 0.0
+        self.held.translate(step[0] * _MM, step[1] * _MM, 0.0)
+        self.moved += step
+        if angle:
+            self.held.turn(angle, (gripper + step) * _MM)
+            self.turned += angle
+            self.report.turned = 1
 
 
 def _back_to_touch(held: HeldBox, depth: float) -> float:
