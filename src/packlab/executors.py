@@ -55,7 +55,7 @@ from tqdm import tqdm
 
 from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError, RunAborted
-from packlab.core.stop import descendants, end_processes
+from packlab.core.stop import descendants, end_processes, holding_files_under
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -573,9 +573,23 @@ def _run_ray(
             # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds
             # once their raylet is gone, no longer our descendants by then: end what Ray started
             # here by pid after its own shutdown.
-            started = [p for p in descendants(os.getpid()) if p not in before_ray]
+            started = {p for p in descendants(os.getpid()) if p not in before_ray}
+            session = _ray_session_dir(ray)
             ray.shutdown()
-            end_processes(started)
+            # An agent whose raylet ended before the snapshot was no longer our descendant: it
+            # is still found by the session's logs it keeps open.
+            if session is not None:
+                started |= set(holding_files_under(session)) - before_ray - {os.getpid()}
+            end_processes(sorted(started))
+
+
+def _ray_session_dir(ray: Any) -> str | None:
+    """This process's Ray session directory (None when Ray does not say: a private API that a
+    Ray release may move; the cleanup then relies on the descendants snapshot alone)."""
+    try:
+        return str(ray._private.worker._global_node.get_session_dir_path())
+    except Exception:  # noqa: BLE001 - any failure means "unknown", never an error
+        return None
 
 
 __all__ = [

@@ -143,3 +143,29 @@ def test_a_stop_signal_re_raised_as_a_plain_keyboard_interrupt_keeps_its_exit_co
     assert describe_stop(caught.value) == "stopped by SIGTERM"
     with stop_handlers():  # a new command starts with no signal received
         assert exit_code_of(KeyboardInterrupt()) == EXIT_INTERRUPTED
+
+
+def test_processes_are_found_by_the_files_they_keep_open(tmp_path):
+    """``holding_files_under``: a helper that renamed itself and lost its parent is still
+    found by a file it keeps open under the directory (as Ray's agents keep their session's
+    logs), and nothing is found under a directory no process uses."""
+    from packlab.core.stop import holding_files_under
+
+    (tmp_path / "ours").mkdir()
+    (tmp_path / "other").mkdir()
+    log = tmp_path / "ours" / "agent.log"
+    code = f"f = open({str(log)!r}, 'w'); import time; time.sleep(30)"
+    child = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        for _ in range(100):  # until the child has opened its file
+            if log.exists() and child.pid in holding_files_under(tmp_path / "ours"):
+                break
+            time.sleep(0.05)
+        assert child.pid in holding_files_under(tmp_path / "ours")
+        assert child.pid in holding_files_under(tmp_path)
+        assert child.pid not in holding_files_under(tmp_path / "other")
+        assert holding_files_under("relative/path") == []
+    finally:
+        child.kill()
+        child.wait()
+    assert child.pid not in holding_files_under(tmp_path / "ours")

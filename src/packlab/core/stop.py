@@ -111,6 +111,26 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
+def holding_files_under(directory: str | os.PathLike[str]) -> list[int]:
+    """The processes (Linux, this user's) with a file open under ``directory``: a library's
+    helpers that rename themselves and outlive their parent are still found by the logs they
+    keep open (Ray's agents in their session directory). Empty elsewhere."""
+    proc, root = Path("/proc"), str(Path(directory))
+    if not proc.is_dir() or not root.startswith("/"):
+        return []
+    found = []
+    for entry in proc.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            targets = [os.readlink(fd) for fd in (entry / "fd").iterdir()]
+        except OSError:  # ended meanwhile, or another user's
+            continue
+        if any(t == root or t.startswith(root + "/") for t in targets):
+            found.append(int(entry.name))
+    return found
+
+
 def is_alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie has exited; only its parent's wait is missing)."""
     try:
