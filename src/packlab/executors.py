@@ -567,20 +567,31 @@ def _run_ray(
                     report(payload)
                 yield result
     finally:
-        for ref in pending:
-            ray.cancel(ref, force=True)
-        if started_here:
-            # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds
-            # once their raylet is gone, no longer our descendants by then: end what Ray started
-            # here by pid after its own shutdown.
-            started = {p for p in descendants(os.getpid()) if p not in before_ray}
-            session = _ray_session_dir(ray)
-            ray.shutdown()
-            # An agent whose raylet ended before the snapshot was no longer our descendant: it
-            # is still found by the session's logs it keeps open.
-            if session is not None:
-                started |= set(holding_files_under(session)) - before_ray - {os.getpid()}
-            end_processes(sorted(started))
+        # Each step runs whatever the one before raised (a cancel of a task whose worker died
+        # during a stop, a shutdown interrupted by the stop itself): the last, ending what Ray
+        # started here, is what keeps a stopped run from leaving processes behind.
+        started: set[int] = set()
+        session = None
+        try:
+            if started_here:
+                # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by
+                # seconds once their raylet is gone, no longer our descendants by then: end
+                # what Ray started here by pid after its own shutdown.
+                started = {p for p in descendants(os.getpid()) if p not in before_ray}
+                session = _ray_session_dir(ray)
+            for ref in pending:
+                ray.cancel(ref, force=True)
+        finally:
+            try:
+                if started_here:
+                    ray.shutdown()
+            finally:
+                if started_here:
+                    # An agent whose raylet ended before the snapshot was no longer our
+                    # descendant: it is still found by the session's logs it keeps open.
+                    if session is not None:
+                        started |= set(holding_files_under(session)) - before_ray
+                    end_processes(sorted(started - {os.getpid()}))
 
 
 def _ray_session_dir(ray: Any) -> str | None:
