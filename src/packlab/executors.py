@@ -55,7 +55,13 @@ from tqdm import tqdm
 
 from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError, RunAborted
-from packlab.core.stop import descendants, end_processes, holding_files_under
+from packlab.core.stop import (
+    clock_ticks_since_boot,
+    descendants,
+    end_processes,
+    holding_files_under,
+    started_at_ticks,
+)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -532,12 +538,14 @@ def _run_ray(
     ray = _import_ray()
     started_here = not ray.is_initialized()
     before_ray: set[int] = set()
+    ray_started_ticks: int | None = None
     if started_here:
         # ray.init replaces the SIGINT and SIGTERM handlers with its own (log, shut down, exit
         # with the signal's number); keep the caller's (packlab.core.stop), so a stop request
         # runs this function's cleanup and the command exits with its documented code.
         handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
         before_ray = set(descendants(os.getpid()))  # the caller's own children are not Ray's
+        ray_started_ticks = clock_ticks_since_boot()
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         if threading.current_thread() is threading.main_thread():
             for signum, handler in handlers.items():
@@ -577,7 +585,7 @@ def _run_ray(
                 # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by
                 # seconds once their raylet is gone, no longer our descendants by then: end
                 # what Ray started here by pid after its own shutdown.
-                started = {p for p in descendants(os.getpid()) if p not in before_ray}
+                started = set(descendants(os.getpid(), skip=before_ray))
                 session = _ray_session_dir(ray)
             for ref in pending:
                 ray.cancel(ref, force=True)
@@ -589,8 +597,14 @@ def _run_ray(
                 if started_here:
                     # An agent whose raylet ended before the snapshot was no longer our
                     # descendant: it is still found by the session's logs it keeps open.
-                    if session is not None:
-                        started |= set(holding_files_under(session)) - before_ray
+                    if session is not None and ray_started_ticks is not None:
+                        # Only processes younger than this ray.init: never this process's
+                        # ancestors, nor another program that happens to read Ray's logs.
+                        started |= {
+                            p
+                            for p in holding_files_under(session)
+                            if (started_at_ticks(p) or 0) >= ray_started_ticks
+                        } - before_ray
                     end_processes(sorted(started - {os.getpid()}))
 
 

@@ -15,10 +15,12 @@ import pytest
 from packlab.core.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
 from packlab.core.stop import (
     StopRequested,
+    clock_ticks_since_boot,
     descendants,
     describe_stop,
     end_descendants,
     exit_code_of,
+    started_at_ticks,
     stop_handlers,
 )
 
@@ -169,3 +171,42 @@ def test_processes_are_found_by_the_files_they_keep_open(tmp_path):
         child.kill()
         child.wait()
     assert child.pid not in holding_files_under(tmp_path / "ours")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_what_a_kept_process_starts_is_kept_too():
+    """A caller's process (a test session's Ray raylet) starts and ends its own children at
+    will; ending one of them could end the caller's cluster, so they are skipped with it."""
+    code = (
+        "import subprocess, sys, time; "
+        "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)']); "
+        "time.sleep(30)"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        deadline = time.monotonic() + 10
+        while len(descendants(parent.pid)) < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        grandchild = descendants(parent.pid)
+        assert len(grandchild) == 1
+        assert parent.pid in descendants(os.getpid())
+        assert grandchild[0] in descendants(os.getpid())
+        assert parent.pid not in descendants(os.getpid(), skip={parent.pid})
+        assert grandchild[0] not in descendants(os.getpid(), skip={parent.pid})
+    finally:
+        for pid in descendants(parent.pid):
+            os.kill(pid, signal.SIGKILL)
+        parent.kill()
+        parent.wait()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_start_ticks_order_processes_by_age():
+    before = clock_ticks_since_boot()
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert started_at_ticks(os.getpid()) <= before <= started_at_ticks(child.pid)
+        assert started_at_ticks(2**22 + 12345) is None
+    finally:
+        child.kill()
+        child.wait()

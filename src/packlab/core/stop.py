@@ -85,8 +85,9 @@ def stop_handlers() -> Iterator[None]:
             signal.signal(signum, handler)
 
 
-def descendants(pid: int) -> list[int]:
-    """The processes ``pid`` started and theirs (Linux: read from /proc; elsewhere none)."""
+def descendants(pid: int, skip: Collection[int] = ()) -> list[int]:
+    """The processes ``pid`` started and theirs (Linux: read from /proc; elsewhere none),
+    without those in ``skip`` and what they started."""
     proc = Path("/proc")
     if not proc.is_dir():
         return []
@@ -103,12 +104,34 @@ def descendants(pid: int) -> list[int]:
         if fields[0] != "Z":
             children.setdefault(int(fields[1]), []).append(int(entry.name))
     found: list[int] = []
+    skipped = set(skip)
     todo = [pid]
     while todo:
         for child in children.get(todo.pop(), []):
+            if child in skipped:
+                continue
             found.append(child)
             todo.append(child)
     return found
+
+
+def clock_ticks_since_boot() -> int | None:
+    """Now, in the clock ticks since boot that /proc gives process start times in (None where
+    there is no /proc)."""
+    try:
+        uptime_s = float(Path("/proc/uptime").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return int(uptime_s * os.sysconf("SC_CLK_TCK"))
+
+
+def started_at_ticks(pid: int) -> int | None:
+    """When ``pid`` started, in clock ticks since boot (None when it is gone or unknown)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat.rsplit(")", 1)[1].split()[19])  # field 22 of stat: starttime
 
 
 def holding_files_under(directory: str | os.PathLike[str]) -> list[int]:
@@ -167,8 +190,10 @@ def end_descendants(grace_s: float = 1.0, keep: Collection[int] = ()) -> int:
     still importing torch for a vectorised environment that was never built, so never closed),
     and would otherwise end seconds after the command or never.
     """
-    kept = set(keep)
-    pids = [pid for pid in descendants(os.getpid()) if pid not in kept]
+    # Not what a kept process started since (a test session's Ray cluster starts and ends its
+    # workers at will: ending one of them, or an agent it restarted, can end the cluster and
+    # with it the caller, whose Ray driver exits when its raylet is gone).
+    pids = descendants(os.getpid(), skip=keep)
     end_processes(pids, grace_s)
     return len(pids)
 
@@ -194,11 +219,13 @@ def describe_stop(interrupt: KeyboardInterrupt) -> str:
 __all__ = [
     "STOP_SIGNALS",
     "StopRequested",
+    "clock_ticks_since_boot",
     "descendants",
     "describe_stop",
     "end_descendants",
     "end_processes",
     "exit_code_of",
     "is_alive",
+    "started_at_ticks",
     "stop_handlers",
 ]
