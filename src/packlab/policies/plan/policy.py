@@ -28,6 +28,7 @@ from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
+from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.search import Budget, Problem, search
 
@@ -72,9 +73,12 @@ class PlanPolicy:
     completion: CompletionConfig = field(default_factory=CompletionConfig)
     #: Decisions taken from a completion (the rest from the lookahead).
     completed: int = 0
+    #: With every remaining box in view, an exact filling of the rest (``endgame_nodes=0``: off).
+    endgame: Endgame = field(default_factory=Endgame)
 
     def reset(self, case: Case, seed: int) -> None:
-        """Nothing to prepare: the plan never reads the case (its future objects)."""
+        """Forget the last episode's filling; the plan never reads the case (its future objects)."""
+        self.endgame.reset()
 
     def act(self, observation: Observation) -> Action:
         return self.decide(observation).action
@@ -82,6 +86,11 @@ class PlanPolicy:
     def decide(self, observation: Observation) -> PlanDecision:
         """The action and, when a completion decided it, the tiling (see :class:`PlanDecision`)."""
         if self.complete:
+            filling = self.endgame.act(observation)
+            if filling is not None:
+                self.decisions += 1
+                self.completed += 1
+                return PlanDecision(filling, None)
             found = self._completion(observation)
             if found is not None:
                 self.decisions += 1
@@ -149,6 +158,9 @@ _COMPLETION_KEYS = {
     "joker_seen": "joker_min_seen",
     "guesses": "guesses",
 }
+#: Options of the endgame (:class:`.endgame.EndgameConfig`): ``endgame_nodes`` (node budget
+#: of one skyline search; 0 turns the endgame off), ``endgame_boxes`` (most boxes in view).
+_ENDGAME_KEYS = {"endgame_nodes": "max_nodes", "endgame_boxes": "max_boxes"}
 _SWITCHES = ("complete",)
 _WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
 
@@ -175,7 +187,8 @@ def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
     stability = options.pop("stability", "off")
     require_choice(stability, StabilityCheck, "plan: stability")
-    known_keys = _BUDGET_KEYS | set(_WEIGHT_KEYS) | set(_COMPLETION_KEYS) | set(_SWITCHES)
+    option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES)
+    known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
         known = ", ".join(sorted(known_keys | {"stability"}))
@@ -195,6 +208,9 @@ def make_plan(**options: Any) -> PlanPolicy:
             if k in _COMPLETION_KEYS
         }
     )
+    endgame = EndgameConfig(
+        **{_ENDGAME_KEYS[k]: _count(k, v) for k, v in options.items() if k in _ENDGAME_KEYS}
+    )
     switches = {k: _switch(k, options[k]) for k in _SWITCHES if k in options}
     return PlanPolicy(
         budget,
@@ -202,6 +218,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         stability,
         complete=switches.get("complete", True),
         completion=completion,
+        endgame=Endgame(endgame),
     )
 
 
