@@ -575,37 +575,48 @@ def _run_ray(
                     report(payload)
                 yield result
     finally:
-        # Each step runs whatever the one before raised (a cancel of a task whose worker died
-        # during a stop, a shutdown interrupted by the stop itself): the last, ending what Ray
-        # started here, is what keeps a stopped run from leaving processes behind.
-        started: set[int] = set()
-        session = None
+        _end_ray(ray, pending, started_here, before_ray, ray_started_ticks)
+
+
+def _end_ray(
+    ray: Any,
+    pending: dict[Any, Any],
+    started_here: bool,
+    before_ray: set[int],
+    ray_started_ticks: int | None,
+) -> None:
+    """Cancel what is pending and, when this run started Ray, shut it down and end what it
+    started. Each step runs whatever the one before raised (a cancel of a task whose worker
+    died during a stop, a shutdown interrupted by the stop itself): the last, ending what Ray
+    started here, is what keeps a stopped run from leaving processes behind."""
+    started: set[int] = set()
+    session = None
+    try:
+        if started_here:
+            # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds
+            # once their raylet is gone, no longer our descendants by then: end what Ray
+            # started here by pid after its own shutdown.
+            started = set(descendants(os.getpid(), skip=before_ray))
+            session = _ray_session_dir(ray)
+        for ref in pending:
+            ray.cancel(ref, force=True)
+    finally:
         try:
             if started_here:
-                # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by
-                # seconds once their raylet is gone, no longer our descendants by then: end
-                # what Ray started here by pid after its own shutdown.
-                started = set(descendants(os.getpid(), skip=before_ray))
-                session = _ray_session_dir(ray)
-            for ref in pending:
-                ray.cancel(ref, force=True)
+                ray.shutdown()
         finally:
-            try:
-                if started_here:
-                    ray.shutdown()
-            finally:
-                if started_here:
-                    # An agent whose raylet ended before the snapshot was no longer our
-                    # descendant: it is still found by the session's logs it keeps open.
-                    if session is not None and ray_started_ticks is not None:
-                        # Only processes younger than this ray.init: never this process's
-                        # ancestors, nor another program that happens to read Ray's logs.
-                        started |= {
-                            p
-                            for p in holding_files_under(session)
-                            if (started_at_ticks(p) or 0) >= ray_started_ticks
-                        } - before_ray
-                    end_processes(sorted(started - {os.getpid()}))
+            if started_here:
+                # An agent whose raylet ended before the snapshot was no longer our
+                # descendant: it is still found by the session's logs it keeps open. Only
+                # processes younger than this ray.init: never this process's ancestors, nor
+                # another program that happens to read Ray's logs.
+                if session is not None and ray_started_ticks is not None:
+                    started |= {
+                        p
+                        for p in holding_files_under(session)
+                        if (started_at_ticks(p) or 0) >= ray_started_ticks
+                    } - before_ray
+                end_processes(sorted(started - {os.getpid()}))
 
 
 def _ray_session_dir(ray: Any) -> str | None:

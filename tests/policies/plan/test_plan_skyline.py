@@ -29,16 +29,12 @@ def guillotine_boxes(seed: int, cells=(12, 10), height_mm=400, lo=(3, 3, 80), hi
             done.append((x, y, z, dx, dy, dz))
             continue
         a = rng.choice(axes)
-        step = 10 if a == 2 else 1
-        cut = (
-            rng.randrange(lo[a], dims[a] - lo[a] + 1, step)
-            if a == 2
-            else rng.randint(lo[a], dims[a] - lo[a])
-        )
+        step = 10 if a == 2 else 1  # heights in whole cm, footprints in whole cells
+        cut = rng.randrange(lo[a], dims[a] - lo[a] + 1, step)
         first, second = list(dims), list(dims)
         first[a], second[a] = cut, dims[a] - cut
         origin = [x, y, z]
-        origin[a] += cut * (1 if a < 2 else 1)
+        origin[a] += cut
         todo.append((x, y, z, *first))
         todo.append((*origin, *second))
     return done
