@@ -167,9 +167,11 @@ _PLAN = PolicyOptions(
         "endgame_nodes",
         "endgame_boxes",
         "complete",
+        "mixed",
         "stability",
     ),
     {
+        "mixed": _switch,
         "endgame_nodes": _whole(0),
         "endgame_boxes": _whole(0),
         "first": _whole(1),

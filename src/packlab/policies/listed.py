@@ -182,7 +182,10 @@ def _tiling_soft(
     tiling = decision.completion
     if tiling is None:
         return ()
-    boxes = {(s.fx, s.fy, tiling.height_mm, s.x, s.y) for s in tiling.slots if s.key != JOKER}
+    # Each box's own height: a tiling of mixed heights (CompletionConfig.mixed) has no one.
+    boxes = {
+        (s.fx, s.fy, shown[s.key].size_mm[2], s.x, s.y) for s in tiling.slots if s.key != JOKER
+    }
     others = [i for i, c in enumerate(listed) if i != label and _shape_at(c, shown) in boxes]
     if not others:
         return ()

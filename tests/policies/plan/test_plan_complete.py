@@ -138,3 +138,21 @@ def test_one_decisions_searches_share_one_node_budget(monkeypatch):
     unlimited = dataclasses.replace(config, decision_nodes=10**9)
     find_completion(hm, shown, 500, 10, 1, [100] * 5, unlimited)
     assert len(budgets) > 3 and set(budgets) == {400}
+
+
+def test_a_floor_of_mixed_heights_is_tiled_only_by_the_mixed_stage():
+    # A 4 x 2 floor: a 2 x 2 box 100 mm tall and a 2 x 2 box 60 mm tall tile it (a cut
+    # layout's floor); no one height has the area, so every one-height stage fails.
+    shown = _shown([(2, 2, 100), (2, 2, 60)])
+    hm = np.zeros((4, 2), dtype=np.int32)
+    found = find_completion(hm, shown, 500, unseen=0, smallest_side=2)
+    assert found is not None and found.height_mm == 0 and found.jokers == 0
+    assert sorted(s.key for s in found.slots) == [0, 1]
+    off = dataclasses.replace(CompletionConfig(), mixed=False)
+    assert find_completion(hm, shown, 500, unseen=0, smallest_side=2, config=off) is None
+
+
+def test_the_mixed_stage_leaves_out_boxes_that_would_pass_the_lid():
+    shown = _shown([(2, 2, 100), (2, 2, 460)])
+    hm = np.zeros((4, 2), dtype=np.int32)
+    assert find_completion(hm, shown, 400, unseen=0, smallest_side=2) is None

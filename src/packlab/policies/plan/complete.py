@@ -63,6 +63,10 @@ class CompletionConfig:
     max_jokers: int = 3
     #: Tilings a guess looks at before keeping the one whose narrowest rectangle is widest.
     guesses: int = 32
+    #: Last stage: tile a lowest component with shown boxes of any heights (and jokers), for
+    #: perfect packings not built in flat layers (cut layouts: the floor is tiled by boxes of
+    #: many heights). Tried only after every one-height stage failed.
+    mixed: bool = True
 
     @property
     def stages(self) -> tuple[tuple[int, bool], ...]:
@@ -77,11 +81,12 @@ class CompletionConfig:
 
 @dataclass(frozen=True, slots=True)
 class Completion:
-    """A tiling of one lowest component by shown boxes of one height (and jokers, if a guess)."""
+    """A tiling of one lowest component by shown boxes of one height (and jokers, if a guess),
+    or of mixed heights (``height_mm`` 0)."""
 
     slots: tuple[Slot, ...]  # Slot.key indexes the shown buffer (JOKER: left for unseen boxes)
     z_mm: int  # the level the boxes rest at
-    height_mm: int  # the height of every box of the tiling
+    height_mm: int  # the height of every box of the tiling; 0 when their heights differ
     nodes: int
     jokers: int  # rectangles of the tiling left for boxes not yet seen
 
@@ -171,4 +176,48 @@ def find_completion(
                 if result.slots and any(s.key != JOKER for s in result.slots):
                     n = sum(s.key == JOKER for s in result.slots)
                     return Completion(result.slots, z0, h, result.nodes, n)
+    if config.mixed:
+        return _mixed_completion(
+            masks,
+            z0,
+            shown,
+            container_height_mm,
+            unseen,
+            smallest_side,
+            config,
+            config.decision_nodes - spent,
+        )
+    return None
+
+
+def _mixed_completion(
+    masks: Sequence[np.ndarray],
+    z0: int,
+    shown: Sequence[ShownItem],
+    container_height_mm: int,
+    unseen: int,
+    smallest_side: int,
+    config: CompletionConfig,
+    budget_left: int,
+) -> Completion | None:
+    """A tiling of one lowest component by shown boxes of any heights that fit under the lid,
+    exact first, then with up to the configured jokers (boxes still to come)."""
+    pieces = [
+        Piece(s.shown_index, s.size_cells[0], s.size_cells[1])
+        for s in shown
+        if z0 + s.size_mm[2] <= container_height_mm
+    ]
+    if not pieces:
+        return None
+    for jokers in range(min(config.max_jokers, unseen) + 1):
+        for mask in masks:
+            budget = min(config.max_nodes, budget_left)
+            if budget <= 0:
+                return None
+            rules = CoverRules(jokers, False, smallest_side, config.guesses)
+            result = exact_cover(mask, pieces, budget, rules)
+            budget_left -= result.nodes
+            if result.slots and any(s.key != JOKER for s in result.slots):
+                n = sum(s.key == JOKER for s in result.slots)
+                return Completion(result.slots, z0, 0, result.nodes, n)
     return None

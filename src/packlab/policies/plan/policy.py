@@ -161,7 +161,9 @@ _COMPLETION_KEYS = {
 #: Options of the endgame (:class:`.endgame.EndgameConfig`): ``endgame_nodes`` (node budget
 #: of one skyline search; 0 turns the endgame off), ``endgame_boxes`` (most boxes in view).
 _ENDGAME_KEYS = {"endgame_nodes": "max_nodes", "endgame_boxes": "max_boxes"}
-_SWITCHES = ("complete",)
+#: ``complete`` (the completion stage at all) and ``mixed`` (its last stage: a tiling of mixed
+#: heights, :attr:`.complete.CompletionConfig.mixed`).
+_SWITCHES = ("complete", "mixed")
 _WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
 
 
@@ -206,7 +208,8 @@ def make_plan(**options: Any) -> PlanPolicy:
             _COMPLETION_KEYS[k]: _whole(k, v) if k in _WHOLE_KEYS else _count(k, v)
             for k, v in options.items()
             if k in _COMPLETION_KEYS
-        }
+        },
+        mixed=_switch("mixed", options.get("mixed", True)),
     )
     endgame = EndgameConfig(
         **{_ENDGAME_KEYS[k]: _count(k, v) for k, v in options.items() if k in _ENDGAME_KEYS}
