@@ -251,10 +251,17 @@ class _Search:
         areas = np.cumsum([a for _, a in by_height])
         volumes = np.cumsum([a * h for h, a in by_height])
         open_volume = np.cumsum(gaps)
+        stack = _reachable([(h, h) for h, _ in by_height])
         for g in np.unique(gaps):
             cells = int(np.searchsorted(gaps, g, side="right"))
             k = int(np.searchsorted(heights, g, side="right"))
             if not k or int(areas[k - 1]) < cells or int(volumes[k - 1]) < open_volume[cells - 1]:
+                return False
+            # The box resting on a cell whose gap is g is g tall, or leaves a gap that other
+            # boxes stacked on it can close: only such boxes can cover these cells.
+            g = int(g)
+            fits = sum(a for h, a in by_height if h == g or (h < g and (stack >> (g - h)) & 1))
+            if fits < int(np.count_nonzero(gaps == g)):
                 return False
         return True
 
