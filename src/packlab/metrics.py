@@ -15,6 +15,9 @@ from packlab.core.types import Case, Container, InternalId, Pose
 
 #: The three metrics of every summary, in table order.
 METRICS = ("success_ratio", "compactness", "overall")
+#: The field's metric (issue 35): packed volume over container volume, reported beside the three
+#: above (its own table section; ``packlab.bench.summary``).
+UTILIZATION = "space_utilization"
 #: The summary group holding the mean over difficulty levels (the paper's "Average" column).
 AVERAGE = "average"
 
@@ -50,6 +53,17 @@ def inside_mask(
     upper = np.asarray(container.size_mm, dtype=np.float64) + tol_mm
     mask: np.ndarray = np.all((centres >= -tol_mm) & (centres <= upper), axis=1)
     return mask
+
+
+def space_utilization(inside_volume_mm3: float, container: Container) -> float:
+    """Packed volume over the container's volume (X * Y * Z), the online field's metric.
+
+    "Packed" is the volume of the boxes inside (:func:`box_inside`, as for the Success Ratio)
+    when the episode ended: under the online protocol at the first box that fits nowhere, so
+    nothing after it counts; under the buffer protocol after every box was processed.
+    """
+    x, y, z = container.size_mm
+    return float(inside_volume_mm3) / (float(x) * float(y) * float(z))
 
 
 def success_ratio(inside_volume_mm3: float, total_volume_mm3: float) -> float:

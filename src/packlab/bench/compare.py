@@ -35,6 +35,7 @@ from packlab.bench.intervals import Difference, paired_difference, varies_over_s
 from packlab.bench.table import render_markdown
 from packlab.core.choices import UNRECORDED_SIDES
 from packlab.core.errors import PacklabError
+from packlab.core.packing_protocol import PackingProtocol, saved_protocol
 from packlab.core.records import (
     CaseCells,
     MetricCells,
@@ -126,9 +127,27 @@ def _shown(name: str, value: object) -> str:
     return str(value)
 
 
+def summary_protocol(summary: RunSummary) -> PackingProtocol:
+    """The protocol a summary records (absent: buffer, runs made before the choice)."""
+    return saved_protocol({"protocol": _field(summary, "protocol"), **_lookahead(summary)})
+
+
+def _lookahead(summary: RunSummary) -> dict[str, object]:
+    value = _field(summary, "lookahead")
+    return {} if value is None else {"lookahead": value}
+
+
 def _check_comparable(summaries: Sequence[RunSummary], labels: Sequence[str]) -> None:
     first = summaries[0]
     for label, s in zip(labels[1:], summaries[1:]):
+        # Scores of two protocols measure different tasks: never rows of one table.
+        first_protocol, protocol = summary_protocol(first), summary_protocol(s)
+        if first_protocol != protocol:
+            raise PacklabError(
+                f"bench compare: runs {labels[0]!r} and {label!r} differ in protocol "
+                f"(--protocol, --lookahead): {first_protocol.label} in {labels[0]!r}, "
+                f"{protocol.label} in {label!r}; compare needs one protocol in every run"
+            )
         for field, (words, flag) in MUST_MATCH.items():
             mine, theirs = _field(s, field), _field(first, field)
             if mine == theirs:
@@ -193,6 +212,8 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         backend=first.backend,
         # Runs of different settings: the rows say which is which, the merged run has none.
         sensing=first.sensing if same_sensing else msgspec.UNSET,
+        protocol=first.protocol,
+        lookahead=first.lookahead,
         n_cases=first.n_cases,
         policies=tuple(policies),
         seeds=first.seeds,

@@ -49,6 +49,7 @@ from packlab.core.choices import (
     require_choice,
 )
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import PackingProtocol, saved_protocol
 from packlab.core.records import RUN_FORMAT
 from packlab.core.types import Case
 from packlab.sim.modes import EpisodeModes, episode_modes
@@ -73,11 +74,17 @@ IDENTITY_KEYS = (
     # reads them, so directories made before the entry (or its ``sides``) was always written
     # resume under the settings they were made with, and only under those.
     "sensing",
+    # The episode protocol (issue 35): compared as ``saved_protocol`` reads the two keys
+    # together (absent: buffer), with its own one-line refusal (``check_resumable``).
+    "protocol",
+    "lookahead",
 )
 
 
 def default_policies(
-    cases: tuple[Case, ...] = (), observation: ObservationMode = "exact"
+    cases: tuple[Case, ...] = (),
+    observation: ObservationMode = "exact",
+    online: bool = False,
 ) -> tuple[str, ...]:
     """:data:`DEFAULT_POLICIES` (packlab.bench.options): every heuristic, the planner at its fast
     budget (``plan-fast``), the shipped learned policies (:data:`LEARNED_DEFAULTS`), then random
@@ -86,9 +93,10 @@ def default_policies(
 
     ``plan`` at its default budget is left to ``--policies``: it would take the default run past
     five minutes on two cores; so are the other registered policies (the text-answer ``vlm-small``,
-    ``endpoint``, the proposer, the RL random floors).
+    ``endpoint``, the proposer, the RL random floors). The online protocol leaves the oracle out
+    too: its plan places boxes in the layout's order, not in arrival order.
     """
-    if observation == "exact" and all(c.gt_plan is not None for c in cases):
+    if not online and observation == "exact" and all(c.gt_plan is not None for c in cases):
         return DEFAULT_POLICIES
     return tuple(n for n in DEFAULT_POLICIES if n != NEEDS_PLAN)
 
@@ -148,6 +156,8 @@ def default_out(label: str, config: RunConfig) -> Path:
     directory instead of a refused resume."""
     modes = [m for m in (config.observation, config.execution) if m != "exact"]
     hidden = ["remaining-hidden"] if config.remaining != DEFAULT_REMAINING else []
+    if config.protocol == "online":  # its own directory: a run directory holds one protocol
+        hidden.append(f"online-k{config.lookahead}")
     if not modes:
         suffix = [] if config.sides == DEFAULT_SIDES else [config.sides]
         return Path("runs") / "-".join(["bench", label, *suffix, *hidden])
@@ -183,6 +193,7 @@ class ResolvedRun:
             "difficulties": list(self.difficulties),
             "physics": self.physics,
             "sensing": sensing_identity(self.config),
+            **self.config.packing_protocol().identity(),
             "execution": {
                 "workers": self.workers,
                 "executor": self.config.executor,
@@ -200,11 +211,13 @@ class ResolvedRun:
         return out
 
     def episode_modes(self) -> EpisodeModes:
-        """The perceiver and execution noise episodes run with (both None when exact)."""
+        """The perceiver and execution noise episodes run with (both None when exact), and
+        the protocol."""
         c = self.config
-        return episode_modes(
+        modes = episode_modes(
             c.observation, c.execution, c.noise, c.segmentation, c.sides, c.remaining
         )
+        return dataclasses.replace(modes, protocol=c.packing_protocol())
 
     def physics_config(self) -> Any:
         """The PhysicsConfig to build backends with (None for the geometric backend)."""
@@ -258,7 +271,9 @@ def resolve(config: RunConfig) -> ResolvedRun:
     else:
         difficulties = tuple(present)
     cases = tuple(c for c in source.cases if c.difficulty in difficulties)
-    policies = config.policies or default_policies(cases, config.observation)
+    policies = config.policies or default_policies(
+        cases, config.observation, config.protocol == "online"
+    )
     for name, key, _ in config.policy_args:
         if name not in policies:
             raise ConfigError(
@@ -280,9 +295,26 @@ def resolve(config: RunConfig) -> ResolvedRun:
     )
 
 
+def protocol_mismatch(old: PackingProtocol, new: PackingProtocol, where: str) -> str:
+    """The one-line refusal of mixing protocols (resuming a run directory, comparing runs)."""
+    flags = "--protocol buffer"
+    if old.online:
+        flags = f"--protocol online --lookahead {old.lookahead}"
+    return (
+        f"{where}: protocol {old.label} there, {new.label} now; scores of different protocols "
+        f"are not comparable ({flags} matches it; a run directory made before the choice used "
+        "buffer): use another --out"
+    )
+
+
 def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) -> None:
     """ConfigError unless a run directory's saved config has the same identity as this run."""
+    old_protocol, new_protocol = saved_protocol(saved), saved_protocol(current)
+    if old_protocol != new_protocol:
+        raise ConfigError(protocol_mismatch(old_protocol, new_protocol, str(path)))
     for key in IDENTITY_KEYS:
+        if key in ("protocol", "lookahead"):
+            continue  # compared above, as saved_protocol reads them
         old, new = saved.get(key), current.get(key)
         if key == "sensing":
             old, new = saved_sensing(old), saved_sensing(new)
@@ -337,6 +369,7 @@ __all__ = [
     "parse_policy_args",
     "parse_seeds",
     "physics_from_json",
+    "protocol_mismatch",
     "resolve",
     "run_sides",
     "saved_sensing",

@@ -155,7 +155,7 @@ def run_html(
 ) -> str:
     """The report page of one run (``summary``: the run's, computed when not given)."""
     head = config_head(config)
-    summary = summary if summary is not None else summary_of(head, records)
+    summary = summary if summary is not None else summary_of(head, records, cases)
     policies = list(summary.policies)
     colours = row_colours(policies, distinct=False)
     methods = [
@@ -208,7 +208,7 @@ def compare_html(
     are ``"<run>: <method>"``, named and checked as the Markdown comparison names them."""
     names = list(labels) if labels else [Path(d).name for d in run_dirs]
     runs: list[RunFiles] = [load_run(d) for d in run_dirs]
-    summaries = [summary_of(r.config, r.records) for r in runs]
+    summaries = [summary_of(r.config, r.records, r.cases) for r in runs]
     merged = merge_summaries(summaries, names)  # checks labels and that the runs compare
     pairs = [(i, p) for i, s in enumerate(summaries) for p in s.policies]
     colours = row_colours([p for _, p in pairs], distinct=True)

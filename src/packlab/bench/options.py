@@ -18,10 +18,12 @@ from typing import Any
 
 from packlab.core.choices import (
     DEFAULT_NOISE,
+    DEFAULT_PROTOCOL,
     DEFAULT_REMAINING,
     DEFAULT_SEGMENTATION,
     DEFAULT_SIDES,
     HEURISTICS,
+    EpisodeProtocol,
     ExecutionMode,
     Executor,
     NoisePreset,
@@ -34,6 +36,7 @@ from packlab.core.choices import (
     require_choice,
 )
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import DEFAULT_LOOKAHEAD, PackingProtocol
 
 #: The suite a bench run plays unless ``--cases`` names another (``packlab.bench.suites``).
 DEFAULT_SUITE = "packlab-bench-v1"
@@ -198,6 +201,12 @@ class RunConfig:
     #: Whether observations carry ``remaining`` (``core.choices.RemainingMode``): part of the
     #: identity when hidden.
     remaining: RemainingMode = DEFAULT_REMAINING
+    #: The episode protocol (issue 35, ``packlab.core.packing_protocol``): packlab's ``buffer``
+    #: or the field's ``online`` (see ``lookahead`` boxes in arrival order, place the first).
+    #: Always part of the identity; a run directory without it used ``buffer``.
+    protocol: EpisodeProtocol = DEFAULT_PROTOCOL
+    #: Online protocol: how many boxes are shown (1: BPP-1). Part of the identity there.
+    lookahead: int = DEFAULT_LOOKAHEAD
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -245,11 +254,21 @@ class RunConfig:
                     f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run"
                 )
         _check_sensing(self)
+        self.packing_protocol()  # ConfigError for an unknown name or a stray --lookahead
+        if self.protocol == "online" and self.observation != "exact":
+            raise ConfigError(
+                "protocol = 'online': exact observation only (a camera shows the buffer as a "
+                "pile, not as a queue); drop --observation perceived"
+            )
         if self.physics_overrides and self.backend != "mujoco":
             raise ConfigError(
                 f"physics = {dict(self.physics_overrides)!r}: "
                 "only the mujoco backend has physics settings"
             )
+
+    def packing_protocol(self) -> PackingProtocol:
+        """The protocol episodes follow, as one typed value."""
+        return PackingProtocol(self.protocol, self.lookahead)
 
 
 def policy_names() -> list[str]:

@@ -73,11 +73,22 @@ def config_head(config: RunConfigHead | Mapping[str, object]) -> RunConfigHead:
 
 
 def summary_of(
-    config: RunConfigHead | Mapping[str, object], records: Sequence[EpisodeRecord]
+    config: RunConfigHead | Mapping[str, object],
+    records: Sequence[EpisodeRecord],
+    cases: Sequence[Case] = (),
 ) -> RunSummary:
-    """The run's summary with the configuration's order of methods, seeds and difficulties."""
+    """The run's summary with the configuration's order of methods, seeds and difficulties;
+    ``cases`` (the run's) give buffer-protocol records their space utilization."""
     head = config_head(config)
-    return summarize(records, head.policies, head.seeds, head.difficulties, meta=head)
+    volumes = {c.episode_id: container_volume_mm3(c) for c in cases}
+    return summarize(
+        records, head.policies, head.seeds, head.difficulties, meta=head, container_mm3=volumes
+    )
+
+
+def container_volume_mm3(case: Case) -> int:
+    x, y, z = case.container.size_mm
+    return int(x) * int(y) * int(z)
 
 
 def _atomic_text(path: Path, text: str) -> None:
@@ -166,7 +177,7 @@ def write_outputs(
 ) -> tuple[RunSummary, str, list[Path]]:
     """Write summary.json, table.md and (optionally) the figures; return (summary, table, paths)."""
     root = Path(run_dir)
-    summary = summary_of(config, records)
+    summary = summary_of(config, records, cases)
     intervals = run_intervals(summary)  # one bootstrap for both files
     table_md = render_markdown(summary, intervals)
     _atomic_text(root / SUMMARY_FILE, summary_json(summary, intervals))

@@ -15,6 +15,12 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
 * Failed episodes (``status: "error"``) are left out of the means and counted in ``counts`` and
   ``errors``; the table flags a method with failures, since its mean covers fewer episodes.
 
+* Space utilization (issue 35, ``packlab.metrics.space_utilization``): per episode, packed
+  volume / container volume; an online-protocol record carries it (counted up to the first
+  box that fits nowhere), a buffer-protocol record is scored from its inside volume and its
+  case's container (``container_mm3``; without the cases, buffer runs have no utilization).
+  Aggregated like the three metrics (cells, per-case cells, intervals), in its own table
+  section; absent from a method none of whose episodes has it.
 * Intervals (``run_intervals``, written to summary.json under ``intervals``): per method, group
   and metric a 95 % percentile bootstrap interval of the cell's mean over cases, computed from
   ``per_case`` by ``packlab.bench.intervals`` (cases resampled within each level, the average kept
@@ -33,9 +39,10 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import TypedDict
 
+import msgspec
 from msgspec import UNSET, Struct, UnsetType
 
 from packlab.bench.decision_times import decision_times
@@ -64,7 +71,7 @@ from packlab.core.records import (
     SensingModes,
     Timing,
 )
-from packlab.metrics import AVERAGE, METRICS
+from packlab.metrics import AVERAGE, METRICS, UTILIZATION
 
 AGGREGATION = (
     "per-seed mean over cases (average: mean of difficulties); mean and sample std over seeds"
@@ -94,7 +101,26 @@ def _cell(per_seed: dict[str, float]) -> Cell:
 
 
 def _metric_cells(per_metric: dict[str, dict[str, float]]) -> MetricCells:
-    return MetricCells(*(_cell(per_metric[m]) for m in METRICS))
+    cells = MetricCells(*(_cell(per_metric[m]) for m in METRICS))
+    if per_metric.get(UTILIZATION):
+        cells = msgspec.structs.replace(cells, space_utilization=_cell(per_metric[UTILIZATION]))
+    return cells
+
+
+def episode_utilization(record: EpisodeOk, container_mm3: Mapping[str, int] | None) -> float | None:
+    """An episode's space utilization: the record's own (online protocol), else its inside
+    volume over its case's container volume (buffer protocol; None when that is unknown)."""
+    carried = record.metrics.space_utilization
+    if not isinstance(carried, UnsetType):
+        return float(carried)
+    volume = None if container_mm3 is None else container_mm3.get(record.case_id)
+    return None if not volume else record.metrics.inside_volume_mm3 / volume
+
+
+def _scored(metrics: Sequence[str], cases: dict[str, dict[int, dict[str, float]]]) -> list[str]:
+    """The metrics to aggregate: the three, and utilization where some episode has it."""
+    extra = any(UTILIZATION in by_seed for seeds in cases.values() for by_seed in seeds.values())
+    return [*metrics, UTILIZATION] if extra else list(metrics)
 
 
 def _timing(t: Timing, name: str) -> float:
@@ -181,6 +207,8 @@ class _RunFields(TypedDict, total=False):
     n_cases: int | None
     cases_sha256: str | None
     sensing: SensingModes
+    protocol: str
+    lookahead: int
 
 
 def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
@@ -212,28 +240,36 @@ def _policy_cells(
     """One policy's table cells (per difficulty and the average) and its per-case cells."""
     per_case: dict[str, CaseCells] = {}
     by_group: dict[str, dict[str, dict[str, float]]] = {}  # group -> metric -> seed -> score
+    every_case = {c: v for d in difficulties for c, v in value.get((policy, d), {}).items()}
+    metrics = _scored(METRICS, every_case)
     for d in difficulties:
         cases = value.get((policy, d), {})
         by_group[d] = {}
-        for m in METRICS:
+        for m in metrics:
             by_group[d][m] = {}
             for s in seeds:
-                scores = [cases[c][s][m] for c in sorted(cases) if s in cases[c]]
+                scores = [cases[c][s][m] for c in sorted(cases) if m in cases[c].get(s, {})]
                 if scores:
                     by_group[d][m][str(s)] = _mean(scores)
         for c in sorted(cases):
             seeds_of_case = [s for s in seeds if s in cases[c]]
-            per_case[c] = CaseCells(
-                d, *(_cell({str(s): cases[c][s][m] for s in seeds_of_case}) for m in METRICS)
-            )
+            cells = {
+                m: _cell({str(s): cases[c][s][m] for s in seeds_of_case if m in cases[c][s]})
+                for m in metrics
+            }
+            per_case[c] = CaseCells(d, *(cells[m] for m in METRICS))
+            if UTILIZATION in cells and cells[UTILIZATION].per_seed:
+                per_case[c] = msgspec.structs.replace(
+                    per_case[c], space_utilization=cells[UTILIZATION]
+                )
     by_group[AVERAGE] = {}
-    for m in METRICS:
+    for m in metrics:
         by_group[AVERAGE][m] = {}
         for s in seeds:
             parts = [by_group[d][m][str(s)] for d in difficulties if str(s) in by_group[d][m]]
             if len(parts) == len(difficulties) and parts:
                 by_group[AVERAGE][m][str(s)] = _mean(parts)
-    return {g: _metric_cells(metrics) for g, metrics in by_group.items()}, per_case
+    return {g: _metric_cells(per_metric) for g, per_metric in by_group.items()}, per_case
 
 
 def summarize(
@@ -242,12 +278,14 @@ def summarize(
     seeds: Sequence[int] | None = None,
     difficulties: Sequence[str] | None = None,
     meta: RunConfigHead | None = None,
+    container_mm3: Mapping[str, int] | None = None,
 ) -> RunSummary:
     """The summary of a run's records; see the module docstring for the rules.
 
     ``policies`` / ``seeds`` / ``difficulties`` fix the order (and selection) of rows and
     columns; by default they are taken from the records. ``meta`` (the run's config.json) names
-    the suite, backend and cases.
+    the suite, backend and cases; ``container_mm3`` (container volume by case id) scores the
+    space utilization of records that do not carry it (buffer protocol).
     """
     recs = sorted(records, key=lambda r: r.key)
     if policies is None:
@@ -267,9 +305,11 @@ def summarize(
     # metric value by (policy, difficulty, case, seed)
     value: Scores = defaultdict(lambda: defaultdict(dict))
     for r in ok:
-        value[(r.policy, r.difficulty)][r.case_id][r.seed] = {
-            m: float(getattr(r.metrics, m)) for m in METRICS
-        }
+        scores = {m: float(getattr(r.metrics, m)) for m in METRICS}
+        utilization = episode_utilization(r, container_mm3)
+        if utilization is not None:
+            scores[UTILIZATION] = utilization
+        value[(r.policy, r.difficulty)][r.case_id][r.seed] = scores
 
     table: dict[str, dict[str, MetricCells]] = {}
     per_case: dict[str, dict[str, CaseCells]] = {}
@@ -295,6 +335,10 @@ def summarize(
         # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
         if meta.sensing is not None:
             run["sensing"] = meta.sensing
+        if meta.protocol is not None:  # absent: a run made before the choice (buffer)
+            run["protocol"] = meta.protocol
+        if meta.lookahead is not None:
+            run["lookahead"] = meta.lookahead
     return RunSummary(
         format=SUMMARY_FORMAT,
         **run,
@@ -354,8 +398,16 @@ def _strata(cases: dict[str, CaseCells], levels: Sequence[str], metric: str) -> 
 
 def _case_cell(cells: CaseCells, metric: str) -> Cell:
     value = getattr(cells, metric)
+    if isinstance(value, UnsetType):  # a case with no utilization: no scores for it
+        return Cell(None, None, {})
     assert isinstance(value, Cell), metric
     return value
+
+
+def interval_metrics(cases: Mapping[str, CaseCells]) -> tuple[str, ...]:
+    """The metrics a method has intervals for: the three, and utilization where known."""
+    known = any(not isinstance(c.space_utilization, UnsetType) for c in cases.values())
+    return (*METRICS, UTILIZATION) if known else METRICS
 
 
 def policy_intervals(summary: RunSummary, policy: str) -> PolicyIntervals:
@@ -369,7 +421,7 @@ def policy_intervals(summary: RunSummary, policy: str) -> PolicyIntervals:
     out: dict[str, dict[str, tuple[float, float] | None]] = {}
     for group, levels in groups:
         out[group] = {}
-        for m in METRICS:
+        for m in interval_metrics(cases):
             found = bootstrap_interval(_strata(cases, levels, m), over_seeds=stochastic)
             out[group][m] = None if found is None else (found.low, found.high)
     return PolicyIntervals(RESAMPLED_CASES_SEEDS if stochastic else RESAMPLED_CASES, out)
@@ -394,6 +446,8 @@ __all__ = [
     "RESAMPLED_CASES_SEEDS",
     "PolicyIntervals",
     "RunIntervals",
+    "episode_utilization",
+    "interval_metrics",
     "policy_intervals",
     "run_intervals",
     "summarize",

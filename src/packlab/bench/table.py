@@ -13,7 +13,7 @@ from msgspec import UNSET, UnsetType
 from packlab.bench.decision_times import decision_time_table
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
 from packlab.core.records import Cell, RunSummary
-from packlab.metrics import AVERAGE, METRICS
+from packlab.metrics import AVERAGE, METRICS, UTILIZATION
 from packlab.viz.labels import METRIC_SHORT, display_name, group_title
 
 
@@ -97,6 +97,42 @@ def interval_note(summary: RunSummary, intervals: RunIntervals) -> str:
     if not summary.per_case:
         text += "; none here: this summary has no per-case scores (rebuild it with bench report)"
     return text + "."
+
+
+def utilization_table(summary: RunSummary, intervals: RunIntervals) -> str:
+    """Per method, the space utilization (packed volume / container volume; issue 35) per level
+    and on average, each ``mean [95 % interval]``; empty when no method has it."""
+    rows = [
+        p
+        for p in summary.policies
+        if any(
+            not isinstance(cells.space_utilization, UnsetType)
+            for cells in summary.table[p].values()
+        )
+    ]
+    if not rows:
+        return ""
+    groups = list(summary.difficulties)
+    if len(groups) > 1:
+        groups.append(AVERAGE)
+    lines = [_row(["Method", *(group_title(g) for g in groups)])]
+    lines.append(_row(["---"] + ["---:"] * len(groups)))
+    for p in rows:
+        cells = []
+        for g in groups:
+            found = summary.table[p].get(g)
+            value = None if found is None else found.space_utilization
+            cell = None if isinstance(value, UnsetType) else value
+            cells.append(format_cell(cell, 3, intervals.bounds(p, g, UTILIZATION)))
+        lines.append(_row([display_name(p), *cells]))
+    return "\n".join(lines)
+
+
+#: The utilization section's title: what is counted, and up to where.
+UTILIZATION_TITLE = (
+    "### Space utilization (packed volume / container volume; online protocol: up to the "
+    "first box that fits nowhere)"
+)
 
 
 def details_table(summary: RunSummary) -> str:
@@ -189,8 +225,13 @@ def headline(summary: RunSummary) -> str:
     # An absent suite or backend reads as a default; a null one prints as None (as it always has).
     suite = "bench" if summary.suite is UNSET else summary.suite
     backend = "?" if summary.backend is UNSET else summary.backend
+    # Named only when online: buffer tables read as they always have.
+    protocol = ""
+    if summary.protocol == "online":
+        k = summary.lookahead if isinstance(summary.lookahead, int) else 1
+        protocol = f", protocol online (BPP-{k})"
     return (
-        f"{suite}: backend {backend}, seeds {seeds}{cases}; "
+        f"{suite}: backend {backend}{protocol}, seeds {seeds}{cases}; "
         f"mean over seeds [95 % bootstrap interval over cases]"
     )
 
@@ -209,6 +250,9 @@ def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) 
             ),
             "",
         ]
+    utilization = utilization_table(summary, intervals)
+    if utilization:
+        parts += [UTILIZATION_TITLE, "", utilization, ""]
     parts += ["### Run details", "", details_table(summary), ""]
     skill = skill_table(summary)
     if skill:
@@ -238,4 +282,5 @@ __all__ = [
     "render_markdown",
     "results_table",
     "skill_table",
+    "utilization_table",
 ]

@@ -181,6 +181,7 @@ def run_task(
                 execution=modes.execution,
                 sides=modes.sides,
                 show_remaining=modes.show_remaining,
+                protocol=modes.protocol,
             )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).

@@ -44,6 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _add_run_options(p)
     _add_limit_options(p)
     _add_sensing_options(p)
+    _add_protocol_options(p)
     p.add_argument("--describe", action="store_true", help="print the cases' statistics and exit")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     add_wide(p)
@@ -166,6 +167,27 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
         help="whether observations carry the count of boxes still to come (an extension of "
         "the reference's observation: a robot cell knows its order's size; hidden: the "
         "ablation without it); default {default}",
+    )
+
+
+def _add_protocol_options(p: argparse.ArgumentParser) -> None:
+    """Issue 35: packlab's buffered protocol or the field's online one (part of the identity)."""
+    add_field(
+        p,
+        RunConfig,
+        "protocol",
+        "--protocol",
+        help="buffer: the case's buffer_size boxes shown shuffled, place any (packlab's); "
+        "online: the next --lookahead boxes shown in arrival order, place the first, the "
+        "episode ends at the first box that fits nowhere (the field's BPP-1 / BPP-k); "
+        "default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
+        "lookahead",
+        "--lookahead",
+        help="with --protocol online: boxes shown, in arrival order (1: BPP-1); default {default}",
     )
 
 

@@ -104,6 +104,12 @@ UNRECORDED_SIDES: SideNames = "catalogue"
 #: order's size. ``hidden`` (None in the observation) is the ablation without it.
 RemainingMode = Literal["shown", "hidden"]
 DEFAULT_REMAINING: RemainingMode = "shown"
+#: The episode's protocol: packlab's ``buffer`` (the first k boxes shown shuffled, any may be
+#: placed, every box processed) or the field's ``online`` (the next k boxes shown in arrival
+#: order, the first must be placed; BPP-1 at k = 1, BPP-k above; the episode ends at the first
+#: box that fits nowhere). ``packlab.core.packing_protocol`` holds the rule.
+EpisodeProtocol = Literal["buffer", "online"]
+DEFAULT_PROTOCOL: EpisodeProtocol = "buffer"
 
 
 def own_rotation(size: tuple[int, int, int], rotation: int, sides: SideNames) -> int:

@@ -134,18 +134,22 @@ def search_candidates(
     shown: Sequence[ShownItem],
     container_height_mm: int,
     cell_mm: int = 25,
+    first_only: bool = False,
 ) -> CandidateSet:
     """All floor-fitting candidates of ``shown`` on ``heightmap`` with Eq. 2 heights, scan order.
 
     ``heightmap`` is (X, Y) int mm. Objects whose footprint does not fit in a rotation simply
-    contribute no group for it; the result may be empty (``len(...) == 0``).
+    contribute no group for it; the result may be empty (``len(...) == 0``). ``first_only``
+    (the online protocol): only ``shown[0]`` gets candidates; the others stay in the set's
+    buffer (``shown_sizes_mm``, the mask's rows) with none, so indices and shapes are those of
+    the whole buffer.
     """
     hm = np.asarray(heightmap)
     nx, ny = hm.shape
     windows: dict[tuple[int, int], np.ndarray] = {}  # (fx, fy) -> Eq. 2 grid, shared
     groups: list[Orientation] = []
     offset = 0
-    for k, item in enumerate(shown):
+    for k, item in enumerate(shown[:1] if first_only else shown):
         for rot in ROTATIONS:
             fx, fy = footprint_cells(item, rot)
             if fx < 1 or fy < 1 or fx > nx or fy > ny:
@@ -161,13 +165,26 @@ def search_candidates(
 
 
 def observation_candidates(observation: Observation) -> CandidateSet:
-    """:func:`search_candidates` on a policy observation (heightmap, shown buffer, container)."""
+    """:func:`search_candidates` on a policy observation (heightmap, shown buffer, container);
+    under the online protocol (``Observation.must_place_first``) only the first shown box's."""
     return search_candidates(
         observation.heightmap,
         observation.shown,
         observation.container.height_mm,
         observation.container.cell_xy_mm,
+        first_only=observation.must_place_first,
     )
+
+
+def fits_somewhere(heightmap: np.ndarray, item: ShownItem, container_height_mm: int) -> bool:
+    """Whether ``item`` has a feasible placement: some cell of the candidate grid, in either
+    yaw, whose footprint lies on the floor grid and whose top (Eq. 2 height + the box's height)
+    stays within the rim. It is the in-rim action mask (:func:`action_mask` with
+    ``in_rim_only``) of this one box, not empty. The online protocol ends an episode at the
+    first box for which this is False ("fits nowhere"); support is not asked for (the boxes
+    settle under physics, and the field's stability rules differ from paper to paper)."""
+    cands = search_candidates(heightmap, [item], container_height_mm)
+    return bool(action_mask(cands, in_rim_only=True).any())
 
 
 def _flatten(

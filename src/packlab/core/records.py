@@ -210,6 +210,12 @@ class MetricsRecord(Struct, frozen=True):
     #: Issue 34, noisy execution only: the place skill's counts summed over the episode's
     #: steps, by kind; absent from older records.
     skill: dict[str, int] | UnsetType = UNSET
+    #: Issue 35, online protocol only (``packlab.sim.episode_results.OnlineOutcome``): packed
+    #: volume / container volume when the episode ended, the box that fitted nowhere (None:
+    #: every box was processed) and the boxes never processed. Absent from buffer records.
+    space_utilization: float | UnsetType = UNSET
+    stopped_at: RecordId | None | UnsetType = UNSET
+    unprocessed: int | UnsetType = UNSET
 
 
 class FinalPose(Struct, frozen=True):
@@ -285,11 +291,13 @@ class Cell(Struct, frozen=True):
 
 
 class MetricCells(Struct, frozen=True):
-    """The three metrics of one (method, group) of the table."""
+    """The three metrics of one (method, group) of the table, and (issue 35) the space
+    utilization where it is known (absent from older summaries)."""
 
     success_ratio: Cell
     compactness: Cell
     overall: Cell
+    space_utilization: Cell | UnsetType = UNSET
 
     def cell(self, metric: str) -> Cell:
         """The cell of a metric by name (one of packlab.metrics.METRICS)."""
@@ -305,6 +313,7 @@ class CaseCells(Struct, frozen=True):
     success_ratio: Cell
     compactness: Cell
     overall: Cell
+    space_utilization: Cell | UnsetType = UNSET  # issue 35; as in MetricCells
 
 
 class DecisionTimes(Struct, frozen=True):
@@ -401,6 +410,10 @@ class RunSummary(Struct, frozen=True, kw_only=True):
     #: Issue 15: the run's observation / execution / noise (config.json ``sensing``); absent
     #: when both modes are exact.
     sensing: SensingModes | None | UnsetType = UNSET
+    #: Issue 35: the run's protocol (``buffer`` or ``online``) and, online, its lookahead;
+    #: absent in summaries of runs made before the choice (they read as ``buffer``).
+    protocol: str | UnsetType = UNSET
+    lookahead: int | UnsetType = UNSET
 
 
 class RunConfigHead(Struct, frozen=True, kw_only=True):
@@ -415,6 +428,8 @@ class RunConfigHead(Struct, frozen=True, kw_only=True):
     seeds: tuple[int, ...]
     difficulties: tuple[str, ...]
     sensing: SensingModes | None = None
+    protocol: str | None = None  # issue 35; absent: buffer
+    lookahead: int | None = None  # online runs only
 
 
 # -- the dataset info (PackData meta/info.json) -----------------------------------------------

@@ -191,6 +191,15 @@ class Observation:
     #: observation (a robot cell knows its order's size); None when the run hides it
     #: (``--remaining hidden``), and a policy must then do without.
     remaining: int | None = 0
+    #: The online protocol (``packlab.core.packing_protocol``): ``shown`` is the next boxes in
+    #: arrival order and only the first (index 0) may be placed; the others are lookahead. The
+    #: shared candidate search (``core.feasibility.observation_candidates``) and so every
+    #: policy built on it obey this; an action naming another index is an invalid step.
+    must_place_first: bool = False
+
+    def placeable(self, index: int) -> bool:
+        """Whether shown box ``index`` may be placed now (the one rule of the online protocol)."""
+        return 0 <= index < len(self.shown) and (index == 0 or not self.must_place_first)
 
     def remaining_at_least(self) -> int:
         """``remaining`` where the run shows it, else the least it can be (the shown objects)."""

@@ -25,7 +25,8 @@ from packlab.core.choices import (
     require_choice,
 )
 from packlab.core.errors import ConfigError
-from packlab.core.feasibility import footprint_fits, placement_height
+from packlab.core.feasibility import fits_somewhere, footprint_fits, placement_height
+from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.core.types import (
     Action,
     Case,
@@ -36,7 +37,7 @@ from packlab.core.types import (
     ShownItem,
     Unparsable,
 )
-from packlab.metrics import EpisodeMetrics, score_final_state
+from packlab.metrics import EpisodeMetrics, score_final_state, space_utilization
 from packlab.sim.buffer import (
     cells_covering,
     episode_rng,
@@ -44,7 +45,13 @@ from packlab.sim.buffer import (
     shuffled_view,
     visible_window,
 )
-from packlab.sim.episode_results import INVALID_REASONS, EpisodeResult, StepResult, skill_totals
+from packlab.sim.episode_results import (
+    INVALID_REASONS,
+    EpisodeResult,
+    OnlineOutcome,
+    StepResult,
+    skill_totals,
+)
 from packlab.sim.execution import NO_GRASP_ERROR, ExecutedDrop, ExecutionNoise, place_command
 from packlab.sim.perceived import (
     grasp_error,
@@ -74,6 +81,10 @@ class Episode:
     Opt-in (issue 15): a ``perceiver`` makes the observation the perceived one and logs re-plan
     events by ``replan``; ``execution`` noise executes each drop off-plan (mujoco only). Without
     them the episode is exactly the exact-mode loop.
+
+    ``protocol`` (issue 35, ``packlab.core.packing_protocol``): the buffered loop of DESIGN.md
+    section 4 by default; ``online`` shows the next ``lookahead`` boxes in arrival order, lets
+    only the first be placed and ends the episode at the first box that fits nowhere.
     """
 
     # Set by reset(): the case and backend of this episode (``case`` and ``backend`` before the
@@ -94,8 +105,14 @@ class Episode:
         replan: ReplanRule = DEFAULT_REPLAN,
         sides: SideNames = DEFAULT_SIDES,
         show_remaining: bool = True,
+        protocol: PackingProtocol = BUFFER,
     ) -> None:
         require_choice(sides, SideNames, "sides")
+        if protocol.online and perceiver is not None:
+            # A camera shows the buffer as a pile, not as a queue; the online protocol is the
+            # field's, played on exact observations.
+            raise ConfigError("protocol = 'online': exact observation only")
+        self._protocol = protocol
         self._sides = sides
         #: ``Observation.remaining``, the count of boxes still to come, is an extension of the
         #: reference's observation (a robot cell knows its order's size); False hides it (None).
@@ -139,10 +156,14 @@ class Episode:
         self._next_seen_id = 0  # the next fresh id a perceived box is shown under
         self._history: list[HistoryEntry] = []
         self.steps = []
+        #: Online protocol: the case index of the box that fitted nowhere (the episode ended
+        #: there), else None.
+        self.stopped_at: int | None = None
         # The latest settle (placement, then the final one): what "at rest" is judged on.
         self._last_settle = Transition(self._heightmap, settle_steps=0, capped=False)
         self.final_settle_steps = 0
         self._reshuffle()
+        self._stop_if_stuck()
         return self.observe()
 
     def _perceive(self) -> list[int]:
@@ -174,7 +195,23 @@ class Episode:
 
     @property
     def done(self) -> bool:
-        return not self._pending
+        return not self._pending or self.stopped_at is not None
+
+    def _stop_if_stuck(self) -> int:
+        """Online protocol: end the episode when the box that must be placed next fits nowhere
+        (``core.feasibility.fits_somewhere`` on the true heightmap and the box's true size:
+        what the robot could do, not what it believes). Returns the final settle's steps when
+        it ended the episode, else 0."""
+        if not self._protocol.online or not self._pending or not self._shown_indices:
+            return 0
+        index = self._shown_indices[0]
+        item = exact_items(self._case, [index], self._sides)[0]
+        if fits_somewhere(self._heightmap, item, self._case.container.height_mm):
+            return 0
+        self.stopped_at = index
+        settle_steps = self._final_settle()
+        self._show_nothing()
+        return settle_steps
 
     @property
     def heightmap(self) -> np.ndarray:
@@ -199,8 +236,9 @@ class Episode:
                 return settle_steps
 
     def _show_window(self) -> None:
-        window = visible_window(self._pending, self._case.buffer_size)
-        self._shown_indices = shuffled_view(window, self._rng)
+        window = visible_window(self._pending, self._protocol.shown_count(self._case.buffer_size))
+        # Online: shown in arrival order (the first is the one to place), no shuffle drawn.
+        self._shown_indices = window if self._protocol.online else shuffled_view(window, self._rng)
         self._shown = exact_items(self._case, self._shown_indices, self._sides)
 
     def _show_nothing(self) -> None:
@@ -226,6 +264,7 @@ class Episode:
             shown=self._shown,
             history=tuple(self._history),
             remaining=len(self._pending) if self._show_remaining else None,
+            must_place_first=self._protocol.online,
         )
 
     # -- the transition --------------------------------------------------------------------
@@ -237,6 +276,8 @@ class Episode:
             self._shown
         ):
             return "bad_object_id", self._random_shown()
+        if self._protocol.online and int(action.object_id) != 0:
+            return "not_first", self._shown_indices[0]
         index = self._shown_indices[int(action.object_id)]
         if action.rotation not in (0, 1):
             return "bad_rotation", index
@@ -247,6 +288,10 @@ class Episode:
         return "", index
 
     def _random_shown(self) -> int:
+        """The box an unusable action sets aside: a seeded draw among the shown ones, or
+        online the first (the only one a step may process)."""
+        if self._protocol.online:
+            return self._shown_indices[0]
         return self._shown_indices[int(self._rng.integers(len(self._shown_indices)))]
 
     def _footprint_cells(self, index: int, rotation: int) -> tuple[int, int]:
@@ -357,6 +402,7 @@ class Episode:
         self._pending.remove(index)
         if self._pending:
             settle_steps += self._reshuffle()
+            settle_steps += self._stop_if_stuck()
         else:
             self._show_nothing()
         return settle_steps, poses
@@ -437,6 +483,19 @@ class Episode:
             wall_time_s=sum(s.wall_time_s for s in self.steps),
         )
 
+    def online_outcome(self, metrics: EpisodeMetrics) -> OnlineOutcome | None:
+        """The online protocol's record (None under the buffer protocol): space utilization of
+        ``metrics`` (this episode's, taken once it is done), the box it stopped at and the
+        boxes left unprocessed."""
+        if not self._protocol.online:
+            return None
+        stopped = self.stopped_at
+        return OnlineOutcome(
+            space_utilization=space_utilization(metrics.inside_volume_mm3, self._case.container),
+            stopped_at=None if stopped is None else self._case.objects[stopped].internal_id,
+            unprocessed=len(self._pending),
+        )
+
 
 def run_episode(
     case: Case,
@@ -449,6 +508,7 @@ def run_episode(
     execution: ExecutionNoise | None = None,
     sides: SideNames = DEFAULT_SIDES,
     show_remaining: bool = True,
+    protocol: PackingProtocol = BUFFER,
 ) -> EpisodeResult:
     """Run ``policy`` (the Policy protocol) on ``case`` to the end and return the result.
 
@@ -462,6 +522,7 @@ def run_episode(
         execution=execution,
         sides=sides,
         show_remaining=show_remaining,
+        protocol=protocol,
     )
     observation = episode.reset(case, seed)
     policy.reset(case, seed)
@@ -475,13 +536,14 @@ def run_episode(
         episode.step(action)
         if not episode.done:
             observation = episode.observe()
+    metrics = episode.metrics()
     return EpisodeResult(
         case_id=case.episode_id,
         seed=seed,
         policy=getattr(policy, "name", type(policy).__name__),
         backend=episode._backend.name,
         steps=tuple(episode.steps),
-        metrics=episode.metrics(),
+        metrics=metrics,
         poses=episode.final_poses(),
         policy_time_s=math.fsum(decision_wall),
         decision_s=tuple(decision_wall),
@@ -489,6 +551,7 @@ def run_episode(
         replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
         missed=None if perceiver is None else episode.missed,
         skill=None if execution is None else skill_totals(episode.steps),
+        online=episode.online_outcome(metrics),
     )
 
 
@@ -497,6 +560,7 @@ __all__ = [
     "INVALID_REASONS",
     "Episode",
     "EpisodeResult",
+    "OnlineOutcome",
     "StepResult",
     "run_episode",
     "skill_totals",

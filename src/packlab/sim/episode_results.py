@@ -22,8 +22,9 @@ from packlab.sim.physics.place_skill import PlaceCommand, SkillReport
 from packlab.sim.pose_log import pose_updates
 from packlab.sim.replan import Perception
 
-#: Reasons a step can be invalid.
-INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable")
+#: Reasons a step can be invalid (``not_first``: the online protocol's action named a shown box
+#: other than the first, the only one it may place).
+INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable", "not_first")
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,6 +126,19 @@ def _executed_record(drop: ExecutedDrop) -> list[float]:
 
 
 @dataclass(frozen=True, slots=True)
+class OnlineOutcome:
+    """What an online-protocol episode adds to its record's metrics (issue 35)."""
+
+    #: Packed volume / container volume (``packlab.metrics.space_utilization``), counting the
+    #: boxes inside when the episode ended: at the first box that fits nowhere, or the last.
+    space_utilization: float
+    #: The box that fitted nowhere (the case's id), None when every box was processed.
+    stopped_at: InternalId | None
+    #: Boxes never processed: the one that fitted nowhere and every one after it.
+    unprocessed: int
+
+
+@dataclass(frozen=True, slots=True)
 class EpisodeResult:
     """A finished episode: its steps, final poses and metrics."""
 
@@ -147,6 +161,8 @@ class EpisodeResult:
     #: Noisy execution only (else None): the place skill's counts summed over the steps
     #: (``StepResult.skill``), by kind; what it had to do to recover and how.
     skill: dict[str, int] | None = None
+    #: Online protocol only (else None): utilization and where the episode stopped.
+    online: OnlineOutcome | None = None
 
     def to_record(self) -> dict[str, Any]:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
@@ -169,6 +185,10 @@ class EpisodeResult:
             metrics["missed"] = self.missed
         if self.skill is not None:  # noisy execution only
             metrics["skill"] = dict(self.skill)
+        if self.online is not None:  # online protocol only: buffer records are unchanged
+            metrics["space_utilization"] = self.online.space_utilization
+            metrics["stopped_at"] = self.online.stopped_at
+            metrics["unprocessed"] = self.online.unprocessed
         return {
             "case_id": self.case_id,
             "seed": self.seed,

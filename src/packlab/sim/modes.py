@@ -26,6 +26,7 @@ from packlab.core.choices import (
     SideNames,
     require_choice,
 )
+from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.sim.execution import ExecutionNoise, execution_noise
 from packlab.sim.replan import Perceiver, Perception, Scene
 from packlab.sim.sensing import perceive_state
@@ -77,6 +78,8 @@ class EpisodeModes:
     sides: SideNames = DEFAULT_SIDES
     #: Observations carry ``remaining`` (``core.choices.RemainingMode``).
     show_remaining: bool = True
+    #: The episode protocol (issue 35): packlab's buffered one unless the run asks otherwise.
+    protocol: PackingProtocol = BUFFER
 
 
 #: Both modes exact: what every run uses unless asked otherwise.

@@ -28,6 +28,7 @@ from packlab.core.choices import StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
+from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.search import Budget, Problem, search
@@ -43,6 +44,7 @@ def observation_problem(observation: Observation, weights: Weights) -> Problem:
         observation.container.cell_xy_mm,
         smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items]),
         weights,
+        in_order=observation.must_place_first,
     )
 
 
@@ -86,16 +88,18 @@ class PlanPolicy:
     def decide(self, observation: Observation) -> PlanDecision:
         """The action and, when a completion decided it, the tiling (see :class:`PlanDecision`)."""
         if self.complete:
-            filling = self.endgame.act(observation)
+            # The endgame builds its filling in its own order; the online protocol fixes the
+            # order, so there the endgame stays out (the completion and the search adapt).
+            filling = None if observation.must_place_first else self.endgame.act(observation)
             if filling is not None:
                 self.decisions += 1
                 self.completed += 1
                 return PlanDecision(filling, None)
             found = self._completion(observation)
-            if found is not None:
+            slot = None if found is None else committed_slot(found, observation)
+            if slot is not None:
                 self.decisions += 1
                 self.completed += 1
-                slot = found.commit
                 action = Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
                 return PlanDecision(action, found)
         problem = observation_problem(observation, self.weights)
@@ -130,6 +134,15 @@ class PlanPolicy:
             seen_heights(observation),
             self.completion,
         )
+
+
+def committed_slot(found: Completion, observation: Observation) -> Slot | None:
+    """The box of a tiling to place now: its first real box, or (online protocol) the first
+    shown box's slot; None when the tiling leaves that box out, so the search decides. Every
+    box of a tiling rests on the same level, so any of them may go first."""
+    if not observation.must_place_first:
+        return found.commit
+    return next((s for s in found.slots if observation.placeable(s.key)), None)
 
 
 def seen_heights(observation: Observation) -> list[int]:

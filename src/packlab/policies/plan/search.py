@@ -15,6 +15,11 @@ heightmap under its footprint becomes its top. A decision:
 
 With ``time_s`` set, rollouts stop once the time is spent (the first one always runs); the
 answer is the best so far.
+
+Under the online protocol (``Problem.in_order``, from ``Observation.must_place_first``) the
+first placements are the first shown box's only, and every rollout places the other shown boxes
+in the order shown, as the protocol will make the robot place them: the lookahead boxes still
+decide where the first one goes.
 """
 
 from __future__ import annotations
@@ -55,6 +60,8 @@ class Problem:
     cell_mm: int
     footprints: tuple[tuple[int, int], ...]  # for the unreachable-pit term
     weights: Weights
+    #: Online protocol: the boxes are placed in the order shown (``shown[0]`` first).
+    in_order: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,8 +83,14 @@ class Outcome:
 
 
 def _candidates(hm: np.ndarray, problem: Problem, left: tuple[int, ...]) -> CandidateSet:
+    """Candidates of the objects ``left`` (indices into ``left``); in order, of ``left[0]``
+    only (its index stays 0)."""
     return search_candidates(
-        hm, [problem.shown[i] for i in left], problem.container_height_mm, problem.cell_mm
+        hm,
+        [problem.shown[i] for i in left],
+        problem.container_height_mm,
+        problem.cell_mm,
+        first_only=problem.in_order,
     )
 
 
