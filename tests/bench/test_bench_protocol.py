@@ -93,3 +93,24 @@ def test_compare_refuses_runs_of_different_protocols(tiny_suite, tmp_path):
         merge_summaries([a, b], ["a", "b"])
     c = run_tiny(tiny_suite, tmp_path / "c", protocol="online", policies=("sdf",)).summary
     assert merge_summaries([b, c], ["b", "c"]).protocol == "online"
+
+
+def test_an_online_record_replays_only_under_its_own_protocol(tiny_suite, tmp_path):
+    """A recorded object index refers to the buffer the run's protocol showed: replays (bench
+    replay, viz episode/rerun) read the protocol from config.json and step under it."""
+    from packlab.bench.replay import replay_record
+    from packlab.cases.load import load_cases
+    from packlab.core.packing_protocol import BUFFER
+
+    out = tmp_path / "online"
+    run_tiny(tiny_suite, out, protocol="online", lookahead=3, policies=("sdf",))
+    saved = json.loads((out / "config.json").read_text())
+    cases = {c.episode_id: c for c in load_cases(tiny_suite)}
+    records = [r for r in read_records(out / "episodes.jsonl") if isinstance(r, EpisodeOk)]
+    assert records
+    protocol = saved_protocol(saved)
+    assert all(
+        replay_record(cases[r.case_id], r, protocol=protocol).matches_record for r in records
+    )
+    as_buffer = [replay_record(cases[r.case_id], r, protocol=BUFFER) for r in records]
+    assert not all(rep.matches_record for rep in as_buffer)  # the shuffled view differs

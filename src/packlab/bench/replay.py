@@ -14,6 +14,7 @@ import numpy as np
 
 from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.core.records import EpisodeOk, EpisodeRecord, StepRecord
 from packlab.core.types import Action, Case, Unparsable
 from packlab.sim.episode import Episode
@@ -36,11 +37,16 @@ class Replay:
 
 
 def replay_record(
-    case: Case, record: EpisodeRecord, physics: Any = None, sides: SideNames = DEFAULT_SIDES
+    case: Case,
+    record: EpisodeRecord,
+    physics: Any = None,
+    sides: SideNames = DEFAULT_SIDES,
+    protocol: PackingProtocol = BUFFER,
 ) -> Replay:
     """Step a record's actions through a fresh episode on the record's backend, with the side
     names the run showed (``packlab.bench.config.run_sides``): a recorded rotation refers to
-    them."""
+    them; and under the run's protocol (``core.packing_protocol.saved_protocol``): a recorded
+    object index refers to the buffer that protocol showed."""
     if not isinstance(record, EpisodeOk):
         raise ConfigError(
             f"record {record.case_id}/{record.policy}/seed {record.seed}: "
@@ -50,7 +56,7 @@ def replay_record(
         raise ConfigError(
             f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}"
         )
-    episode = Episode(record.backend, physics, sides=sides)
+    episode = Episode(record.backend, physics, sides=sides, protocol=protocol)
     episode.reset(case, record.seed)
     heightmaps, same_objects = [], True
     for step in record.steps:

@@ -24,6 +24,7 @@ from packlab.cases import load_cases
 from packlab.cli.viz import RRD_DIR
 from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import BUFFER, PackingProtocol, saved_protocol
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Case
 from packlab.policies import make_policy
@@ -52,6 +53,8 @@ class RecordedEpisode:
     run_dir: Path
     #: The side names the run showed (its config.json; none: this version's default).
     sides: SideNames = DEFAULT_SIDES
+    #: The protocol it ran under (its config.json; none: the buffer protocol).
+    protocol: PackingProtocol = BUFFER
 
 
 def _recorded_episode(args: argparse.Namespace) -> RecordedEpisode:
@@ -82,13 +85,15 @@ def _recorded_episode(args: argparse.Namespace) -> RecordedEpisode:
         # Replay with the engine settings the run was scored with.
         physics = physics_from_json(saved.get("physics"))
     # and the side names it showed: a recorded rotation refers to them.
-    return RecordedEpisode(record, case, physics, episodes, run_dir, run_sides(saved))
+    return RecordedEpisode(
+        record, case, physics, episodes, run_dir, run_sides(saved), saved_protocol(saved)
+    )
 
 
 def run_episode_figure(args: argparse.Namespace) -> int:
     found = _recorded_episode(args)
     record, case = found.record, found.case
-    replay = replay_record(case, record, found.physics, found.sides)
+    replay = replay_record(case, record, found.physics, found.sides, found.protocol)
     if not replay.matches_record:
         print(
             f"packlab viz: warning: the replay scored Overall {replay.overall:.4f}, the record "
@@ -163,6 +168,7 @@ def _rerun_record(args: argparse.Namespace) -> Exported:
         found.physics,
         args.resimulate,
         found.sides,
+        found.protocol,
     )
 
 

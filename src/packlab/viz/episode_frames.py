@@ -35,6 +35,7 @@ from msgspec import UNSET, UnsetType
 
 from packlab.core.choices import DEFAULT_SIDES, SideNames, named_size
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.core.records import EpisodeOk, StepRecord, to_builtins
 from packlab.core.types import Case, InternalId, ShownItem
 from packlab.metrics import EpisodeMetrics
@@ -197,11 +198,11 @@ def _episode_metrics(record: EpisodeOk) -> EpisodeMetrics:
 
 
 def _resimulated_frames(
-    case: Case, record: EpisodeOk, physics: Any, sides: SideNames
+    case: Case, record: EpisodeOk, physics: Any, sides: SideNames, protocol: PackingProtocol
 ) -> tuple[tuple[Frame, ...], bool, bool]:
     """(frames, same steps, same scores) of the record's actions stepped again, under the side
     names the run showed (a recorded rotation refers to them)."""
-    episode = Episode(record.backend, physics, sides=sides)
+    episode = Episode(record.backend, physics, sides=sides, protocol=protocol)
     episode.reset(case, record.seed)
     frames: list[Frame] = []
     same_steps = True
@@ -225,10 +226,12 @@ def replay_frames(
     physics: Any = None,
     resimulate: bool = False,
     sides: SideNames = DEFAULT_SIDES,
+    protocol: PackingProtocol = BUFFER,
 ) -> Replay:
     """A record's episode as frames: from its per-step poses when it has them, else (or with
     ``resimulate``) by stepping its actions again on its backend with ``physics``. ``sides``:
-    the side names the run showed (``packlab.bench.config.run_sides``)."""
+    the side names the run showed (``packlab.bench.config.run_sides``); ``protocol``: the
+    protocol it ran under (a recorded object index refers to the buffer that showed)."""
     if record.case_id != case.episode_id:
         raise ConfigError(
             f"record case_id = {record.case_id!r} does not match case {case.episode_id!r}"
@@ -240,7 +243,9 @@ def replay_frames(
         same_steps = same_scores = True  # the record's own steps and scores
     else:
         method = RESIMULATED
-        frames, same_steps, same_scores = _resimulated_frames(case, record, physics, sides)
+        frames, same_steps, same_scores = _resimulated_frames(
+            case, record, physics, sides, protocol
+        )
     return Replay(
         frames,
         method,

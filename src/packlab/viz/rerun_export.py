@@ -21,6 +21,7 @@ from urllib.parse import urlsplit
 
 from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError
+from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Case, Container
 from packlab.metrics import EpisodeMetrics
@@ -201,11 +202,12 @@ def export_replay(
     physics: Any = None,
     resimulate: bool = False,
     sides: SideNames = DEFAULT_SIDES,
+    protocol: PackingProtocol = BUFFER,
 ) -> Exported:
     """Send a bench record's episode to ``target``, step by step (``replay_frames`` says how
     the steps are rebuilt: from the record's poses, or by stepping its actions again, under
-    the run's side names ``sides``)."""
-    replay = replay_frames(case, record, physics, resimulate, sides)
+    the run's side names ``sides`` and its ``protocol``)."""
+    replay = replay_frames(case, record, physics, resimulate, sides, protocol)
     info = EpisodeInfo(case, record.policy, record.seed, record.backend, source)
     name = f"{case.episode_id} {record.policy} seed {record.seed}"
     opened = open_recording(target, name, case.container, log_time=False)
