@@ -99,8 +99,9 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
         CaseConfig,
         "layout",
         "--layout",
-        help="layout family (random: drawn boxes, no perfect layout, not validated; needs "
-        "--teacher other than oracle); default {default}",
+        help="layout family (cut: the stack cut recursively, Zhao et al.'s CUT; random: drawn "
+        "boxes, rs: i.i.d. boxes of 64 types, Zhao et al.'s RS; random and rs have no perfect "
+        "layout, are not validated and need --teacher other than oracle); default {default}",
     )
     add_field(
         p,
@@ -108,7 +109,10 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
         "order",
         "--order",
         help="arrival order: removal (reverse removal) or layers (layer by layer, shuffled "
-        "within a layer); random cases arrive in draw order; default {default}",
+        "within a layer); for --layout cut: removal, base-height (by base height, shuffled "
+        "within one; CUT-1) or support (drawn among the boxes whose footprint's surface "
+        "stands at their base; CUT-2); random and rs cases arrive in draw order; "
+        "default {default}",
     )
     add_field(
         p,

@@ -29,12 +29,16 @@ Heuristic = Literal["dblf", "hm", "mta", "ffp", "sdf"]
 HEURISTICS: tuple[str, ...] = get_args(Heuristic)
 #: Heuristic tie rule between equally scored placements (docs/heuristics.md).
 TieBreak = Literal["larger_volume", "shown_order"]
-#: Layout family of generated cases: the paper's ``layered``, the opt-in richer ``stepped``, or
-#: ``random`` (independently drawn boxes, no perfect layout and no ``gt_plan``; docs/datagen.md).
-LayoutFamily = Literal["layered", "stepped", "random"]
+#: Layout family of generated cases: the paper's ``layered``, the opt-in richer ``stepped``,
+#: ``random`` (independently drawn boxes, no perfect layout and no ``gt_plan``), ``cut`` (the
+#: stack cuboid cut recursively, Zhao et al. 2021's CUT) or ``rs`` (i.i.d. boxes of the 64 types
+#: with sides 2..5 units, their RS; no ``gt_plan``). docs/datagen.md.
+LayoutFamily = Literal["layered", "stepped", "random", "cut", "rs"]
 #: Arrival order of a generated case's objects: ``removal`` (reverse removal, any supported
-#: order) or ``layers`` (the reference benchmark's: layer by layer, shuffled within a layer).
-ArrivalOrder = Literal["removal", "layers"]
+#: order), ``layers`` (the reference benchmark's: layer by layer, shuffled within a layer), and
+#: for ``cut`` layouts ``base-height`` (CUT-1: by base height, shuffled within one) or
+#: ``support`` (CUT-2: drawn among the boxes whose footprint's surface stands at their base).
+ArrivalOrder = Literal["removal", "layers", "base-height", "support"]
 #: The ``plan`` policy's check of its chosen placement before committing it.
 StabilityCheck = Literal["off", "support"]
 #: SFT export of a dataset: one chat example per step (its history as context), per episode, none.

@@ -28,6 +28,11 @@ from packlab.core.choices import (
 from packlab.core.errors import ConfigError
 from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
 
+#: Families with no perfect layout (no ``gt_plan``, no replay validation; draw order).
+NO_LAYOUT_FAMILIES: tuple[str, ...] = ("random", "rs")
+#: Arrival orders made for cut layouts only (``packlab.datagen.cut_order``).
+CUT_ORDERS: tuple[str, ...] = ("base-height", "support")
+
 #: Bumped whenever the same seed would produce a different case (sampler or layout change).
 GENERATOR_VERSION = "packlab-datagen-1"
 GENERATOR_NAME = "packlab.datagen"
@@ -166,10 +171,14 @@ class CaseConfig:
 
     #: Layout family (``packlab.datagen.layout``): "layered" is the paper's, "stepped" the opt-in
     #: richer family (regions of a layer split at different heights), "random" independently
-    #: drawn boxes with no perfect layout (``packlab.datagen.random_family``).
+    #: drawn boxes with no perfect layout (``packlab.datagen.random_family``), "cut" the stack
+    #: cuboid cut recursively (``packlab.datagen.cut_family``), "rs" i.i.d. boxes of 64 types
+    #: (``packlab.datagen.rs_family``, no perfect layout).
     layout: LayoutFamily = "layered"
     #: Arrival order (``packlab.datagen.removal``): "removal" (reverse removal, the default) or
-    #: "layers" (layer by layer, shuffled within a layer). Random cases arrive in draw order.
+    #: "layers" (layer by layer, shuffled within a layer); for cut layouts "removal",
+    #: "base-height" or "support" (``packlab.datagen.cut_order``). Random and rs cases arrive in
+    #: draw order.
     order: ArrivalOrder = "removal"
     #: Stepped family only: chance that a region of a layer is split into two sub-layers.
     step_prob: float = 0.6
@@ -188,6 +197,21 @@ class CaseConfig:
             raise ConfigError(
                 f"order = {self.order!r}: the random layout has no layers; its objects arrive "
                 "in draw order (leave order at removal)"
+            )
+        if self.layout == "rs" and self.order != "removal":
+            raise ConfigError(
+                f"order = {self.order!r}: the rs layout has no layout; its objects arrive in "
+                "draw order (leave order at removal)"
+            )
+        if self.order in CUT_ORDERS and self.layout != "cut":
+            raise ConfigError(
+                f"order = {self.order!r}: an order of cut layouts (Zhao et al.'s CUT sets), not "
+                f"of layout {self.layout!r}; use removal or layers"
+            )
+        if self.order == "layers" and self.layout == "cut":
+            raise ConfigError(
+                "order = 'layers': cut layouts have no layers; use base-height (by base height, "
+                "shuffled within one), support or removal"
             )
         if not 0.0 <= self.step_prob <= 1.0:
             raise ConfigError(f"step_prob = {self.step_prob!r}: must be in [0, 1]")
@@ -334,9 +358,10 @@ class DatasetConfig:
         require_choice(self.sides, SideNames, "sides")
         if not self.teacher.strip():
             raise ConfigError("teacher = '': name a registered policy, e.g. oracle or plan")
-        if self.case.layout == "random" and self.teacher == "oracle":
+        if self.case.layout in NO_LAYOUT_FAMILIES and self.teacher == "oracle":
             raise ConfigError(
-                "teacher = 'oracle': the random layout has no perfect layout to replay; "
+                f"teacher = 'oracle': the {self.case.layout} layout has no perfect layout to "
+                "replay; "
                 "name another policy (e.g. --teacher plan or a heuristic such as sdf)"
             )
         if self.recipe is not None and self.recipe not in RECIPES:

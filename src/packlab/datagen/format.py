@@ -421,7 +421,7 @@ def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> l
 
 
 def _case_settings_note(info: DatasetInfo) -> str:
-    """A paragraph on the arrival order / random layout when not the defaults (else "", so the
+    """A paragraph on the arrival order / layout family when not the defaults (else "", so the
     cards of datasets made before those options keep their bytes)."""
     raw_case = info.generator_config.get("case")
     case = raw_case if isinstance(raw_case, dict) else {}
@@ -430,6 +430,17 @@ def _case_settings_note(info: DatasetInfo) -> str:
         notes.append(
             "Cases of the random layout family: independently drawn boxes with no perfect\n"
             "layout, not validated; each episode is the teacher's closed-loop run.\n"
+        )
+    if case.get("layout") == "rs":
+        notes.append(
+            "Cases of the rs layout family: boxes drawn i.i.d. from 64 types (sides 2-5 units,\n"
+            "Zhao et al. 2021's RS), no perfect layout, not validated; each episode is the\n"
+            "teacher's closed-loop run.\n"
+        )
+    if case.get("layout") == "cut":
+        notes.append(
+            "Cases of the cut layout family: the stack cuboid cut recursively on the grid\n"
+            "(Zhao et al. 2021's CUT), a perfect packing of mixed heights.\n"
         )
     if case.get("order", "removal") != "removal":
         notes.append(f"Arrival order: {case['order']} (see docs/datagen.md).\n")

@@ -1,8 +1,9 @@
 """Case seed -> Case: scenario, layout, presentation and placement order put together.
 
 ``build_case`` is pure: the same (seed, difficulty, config) always gives the same case.
-Cases of the ``random`` family (``packlab.datagen.random_family``) have no layout and no plan:
-``build_case`` makes them with ``random_case``; ``draw_blueprint`` is for the layout families.
+Cases of the ``random`` and ``rs`` families (``packlab.datagen.random_family``, ``rs_family``)
+have no layout and no plan: ``build_case`` makes them with ``random_case`` / ``rs_case``;
+``draw_blueprint`` is for the layout families (``layered``, ``stepped``, ``cut``).
 ``generate_cases`` is the public entry point for frozen suites (the bench) and shares every line
 of case making with the dataset engine, so suites and datasets come from one generator.
 """
@@ -12,19 +13,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.types import Box, Case, PlanStep
 from packlab.datagen.config import (
     GENERATOR_NAME,
     GENERATOR_VERSION,
+    NO_LAYOUT_FAMILIES,
     CaseConfig,
     ValidationConfig,
     difficulty_spec,
 )
+from packlab.datagen.cut_family import CutDraw, build_cut_layout
+from packlab.datagen.cut_order import base_height_order, support_order
 from packlab.datagen.layout import Layout, build_layout
 from packlab.datagen.random_family import draw_random_boxes
 from packlab.datagen.removal import PlacementOrder, layer_order, reverse_removal
+from packlab.datagen.rs_family import TYPES, draw_rs_boxes
 from packlab.datagen.scenario import Scenario, sample_scenario
 from packlab.datagen.seeds import case_seed, case_streams, domain_tag
 from packlab.datagen.seeds import id_prefix as seed_id_prefix
@@ -40,22 +47,54 @@ class Blueprint:
     order: PlacementOrder
     rotated: tuple[bool, ...]  # per layout box: presented at rotation 1
     type_ids: tuple[int, ...]  # per layout box
+    cut: CutDraw | None = None  # the cut family's draw (side range), None for other families
 
 
 def draw_blueprint(seed: int, difficulty: str, cfg: CaseConfig) -> Blueprint:
     """The random draws of one case, each stage from its own stream of the case seed."""
     spec = difficulty_spec(difficulty)
-    if cfg.layout == "random":
-        raise ConfigError("layout = 'random' has no blueprint (no layout); use build_case")
+    if cfg.layout in NO_LAYOUT_FAMILIES:
+        raise ConfigError(f"layout = {cfg.layout!r} has no blueprint (no layout); use build_case")
     scenario_rng, layout_rng, present_rng, order_rng = case_streams(seed, 4)
     scenario = sample_scenario(spec, cfg, scenario_rng)
-    layout = build_layout(scenario, cfg, layout_rng)
+    cut = build_cut_layout(scenario, spec, cfg, layout_rng) if cfg.layout == "cut" else None
+    layout = cut.layout if cut is not None else build_layout(scenario, cfg, layout_rng)
     n = len(layout.boxes)
     rotated = tuple(bool(r) for r in present_rng.random(n) < cfg.objects.rotated_fraction)
     type_ids = tuple(int(t) for t in present_rng.integers(cfg.n_types, size=n))
-    draw_order = layer_order if cfg.order == "layers" else reverse_removal
-    order = draw_order(layout, cfg.anchor, order_rng)
-    return Blueprint(scenario, layout, order, rotated, type_ids)
+    order = _draw_order(layout, cfg, order_rng)
+    return Blueprint(scenario, layout, order, rotated, type_ids, cut)
+
+
+def _draw_order(layout: Layout, cfg: CaseConfig, rng: np.random.Generator) -> PlacementOrder:
+    """The arrival order ``cfg.order`` of a layout (the config refuses unsuited pairs)."""
+    if cfg.order == "layers":
+        return layer_order(layout, cfg.anchor, rng)
+    if cfg.order == "base-height":
+        return base_height_order(layout, rng)
+    if cfg.order == "support":
+        return support_order(layout, rng)
+    return reverse_removal(layout, cfg.anchor, rng)
+
+
+def _family_fields(bp: Blueprint) -> dict[str, Any]:
+    """``Case.generator`` fields of the layout's shape: the scenario's layers for the layered
+    families (their bytes unchanged), the base heights and side range of a cut."""
+    if bp.cut is None:
+        return {
+            "n_layers": len(bp.scenario.layer_heights_mm),
+            "stack_height_cm": _cm(bp.scenario.stack_height_mm),
+            "layer_heights_cm": [_cm(h) for h in bp.scenario.layer_heights_mm],
+        }
+    c = bp.scenario.container
+    units = (c.cell_xy_mm, c.cell_xy_mm, c.cell_z_mm)
+    return {
+        "n_bases": len({b.z for b in bp.layout.boxes}),
+        "stack_height_cm": _cm(bp.scenario.stack_height_mm),
+        "side_min_cm": [_cm(v * u) for v, u in zip(bp.cut.sides.lo, units)],
+        "side_max_cm": [_cm(v * u) for v, u in zip(bp.cut.sides.hi, units)],
+        "target_objects": bp.scenario.n_objects,
+    }
 
 
 def _cm(mm: int) -> float | int:
@@ -106,9 +145,7 @@ def case_from_blueprint(
         **({"order": bp.order.rule} if bp.order.rule != "removal" else {}),
         "anchor": bp.order.anchor,
         "first_cell": [first.x, first.y],
-        "n_layers": len(bp.scenario.layer_heights_mm),
-        "stack_height_cm": _cm(bp.scenario.stack_height_mm),
-        "layer_heights_cm": [_cm(h) for h in bp.scenario.layer_heights_mm],
+        **_family_fields(bp),
         "base_size_cm": [_cm(v) for v in bp.scenario.base_size_mm],
         **(provenance or {}),
     }
@@ -168,6 +205,52 @@ def random_case(
     )
 
 
+def rs_case(
+    seed: int,
+    difficulty: str,
+    cfg: CaseConfig,
+    episode_id: str,
+    provenance: dict[str, Any] | None = None,
+) -> Case:
+    """A case of the ``rs`` family: i.i.d. boxes of the 64 types in draw order, no ``gt_plan``.
+
+    The streams are those of ``random_case`` (scenario for the container, boxes, presentation;
+    the order stream is unused). ``internal_id`` and ``gt_index`` are the draw index.
+    """
+    spec = difficulty_spec(difficulty)
+    scenario_rng, boxes_rng, present_rng, _ = case_streams(seed, 4)
+    scenario = sample_scenario(spec, cfg, scenario_rng)
+    c = scenario.container
+    draw = draw_rs_boxes(c, cfg.objects.height_step_mm, boxes_rng)
+    type_ids = present_rng.integers(cfg.n_types, size=len(draw.sizes_mm))
+    objects = tuple(
+        Box(internal_id=i, size_mm=size, gt_index=i, type_id=int(t))
+        for i, (size, t) in enumerate(zip(draw.sizes_mm, type_ids))
+    )
+    drawn = sum(l * w * h for l, w, h in draw.sizes_mm)
+    generator = {
+        "name": GENERATOR_NAME,
+        "version": GENERATOR_VERSION,
+        "layout": "rs",
+        "order": "draw",
+        "unit_cm": _cm(draw.unit_mm),
+        "types": [list(TYPES[k]) for k in draw.type_index],
+        "drawn_fill": round(drawn / c.volume_mm3, 6),
+        "base_size_cm": [_cm(v) for v in scenario.base_size_mm],
+        **(provenance or {}),
+    }
+    return Case(
+        episode_id=episode_id,
+        container=c,
+        buffer_size=spec.buffer_size,
+        objects=objects,
+        seed=seed,
+        difficulty=difficulty,
+        gt_plan=None,
+        generator=generator,
+    )
+
+
 def build_case(
     seed: int,
     difficulty: str,
@@ -180,6 +263,8 @@ def build_case(
     episode_id = episode_id or f"{difficulty}-{seed}"
     if cfg.layout == "random":
         return random_case(seed, difficulty, cfg, episode_id, provenance)
+    if cfg.layout == "rs":
+        return rs_case(seed, difficulty, cfg, episode_id, provenance)
     bp = draw_blueprint(seed, difficulty, cfg)
     return case_from_blueprint(bp, seed, difficulty, episode_id, provenance)
 
@@ -226,10 +311,10 @@ def fill_slot(
 ) -> SlotOutcome:
     """Try attempts 0, 1, ... of a slot until a case passes validation (or attempts run out).
 
-    A ``random`` case has no plan to check or replay: attempt 0 is taken as it is. The accepted
-    replay's observations name sides as ``sides`` says.
+    A ``random`` or ``rs`` case has no plan to check or replay: attempt 0 is taken as it is. The
+    accepted replay's observations name sides as ``sides`` says.
     """
-    if cfg.layout == "random":
+    if cfg.layout in NO_LAYOUT_FAMILIES:
         case = slot_case(user_seed, domain, difficulty, slot, 0, cfg, id_prefix)
         return SlotOutcome(case, None, ())
     rejected: list[str] = []
@@ -291,5 +376,6 @@ __all__ = [
     "fill_slot",
     "generate_cases",
     "random_case",
+    "rs_case",
     "slot_case",
 ]
