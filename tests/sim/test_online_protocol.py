@@ -143,3 +143,26 @@ def test_protocol_values_and_saved_reading():
         PackingProtocol("online", 0)
     with pytest.raises(ConfigError, match="protocol"):
         saved_protocol({"protocol": "bpp"})
+
+
+OFFLINE = PackingProtocol("offline")
+
+
+def test_offline_shows_every_unprocessed_box_and_lets_any_be_placed():
+    case = make_layered_case(2, cells=(20, 16), layer_heights_mm=(100, 100), buffer_size=2)
+    ep = Episode("geometric", protocol=OFFLINE)
+    obs = ep.reset(case, 0)
+    n = len(case.objects)
+    assert len(obs.shown) == n == obs.remaining and not obs.must_place_first
+    last = len(obs.shown) - 1
+    ep.step(Action(last, 0, 0, 0))  # any shown box may be placed
+    assert len(ep.observe().shown) == n - 1
+    result = run_episode(case, make_policy("dblf"), backend="geometric", protocol=OFFLINE)
+    assert len(result.steps) == n  # every box is processed, as in the buffer protocol
+
+
+def test_offline_round_trips_and_takes_no_lookahead():
+    assert saved_protocol(OFFLINE.identity()) == OFFLINE
+    assert OFFLINE.label == "offline (every box shown)"
+    with pytest.raises(ConfigError, match="only used with --protocol online"):
+        PackingProtocol("offline", 3)

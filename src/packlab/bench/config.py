@@ -158,6 +158,8 @@ def default_out(label: str, config: RunConfig) -> Path:
     hidden = ["remaining-hidden"] if config.remaining != DEFAULT_REMAINING else []
     if config.protocol == "online":  # its own directory: a run directory holds one protocol
         hidden.append(f"online-k{config.lookahead}")
+    if config.protocol == "offline":
+        hidden.append("offline")
     if not modes:
         suffix = [] if config.sides == DEFAULT_SIDES else [config.sides]
         return Path("runs") / "-".join(["bench", label, *suffix, *hidden])
@@ -297,7 +299,7 @@ def resolve(config: RunConfig) -> ResolvedRun:
 
 def protocol_mismatch(old: PackingProtocol, new: PackingProtocol, where: str) -> str:
     """The one-line refusal of mixing protocols (resuming a run directory, comparing runs)."""
-    flags = "--protocol buffer"
+    flags = f"--protocol {old.name}"
     if old.online:
         flags = f"--protocol online --lookahead {old.lookahead}"
     return (

@@ -230,6 +230,8 @@ def headline(summary: RunSummary) -> str:
     if summary.protocol == "online":
         k = summary.lookahead if isinstance(summary.lookahead, int) else 1
         protocol = f", protocol online (BPP-{k})"
+    elif summary.protocol == "offline":
+        protocol = ", protocol offline (every box shown)"
     return (
         f"{suite}: backend {backend}{protocol}, seeds {seeds}{cases}; "
         f"mean over seeds [95 % bootstrap interval over cases]"

@@ -180,7 +180,8 @@ def _add_protocol_options(p: argparse.ArgumentParser) -> None:
         help="buffer: the case's buffer_size boxes shown shuffled, place any (packlab's); "
         "online: the next --lookahead boxes shown in arrival order, place the first, the "
         "episode ends at the first box that fits nowhere (the field's BPP-1 / BPP-k); "
-        "default {default}",
+        "offline: every box shown, place any (the reference that measures what the buffer or "
+        "the online protocol costs); default {default}",
     )
     add_field(
         p,

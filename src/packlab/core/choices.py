@@ -111,8 +111,9 @@ DEFAULT_REMAINING: RemainingMode = "shown"
 #: The episode's protocol: packlab's ``buffer`` (the first k boxes shown shuffled, any may be
 #: placed, every box processed) or the field's ``online`` (the next k boxes shown in arrival
 #: order, the first must be placed; BPP-1 at k = 1, BPP-k above; the episode ends at the first
-#: box that fits nowhere). ``packlab.core.packing_protocol`` holds the rule.
-EpisodeProtocol = Literal["buffer", "online"]
+#: box that fits nowhere), or the ``offline`` reference (every box shown, any may be placed).
+#: ``packlab.core.packing_protocol`` holds the rule.
+EpisodeProtocol = Literal["buffer", "online", "offline"]
 DEFAULT_PROTOCOL: EpisodeProtocol = "buffer"
 
 

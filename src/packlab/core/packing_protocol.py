@@ -8,6 +8,10 @@
   BPP-k above); an action naming another shown box is invalid (``not_first``). The episode ends
   at the first box that fits nowhere (:func:`packlab.core.feasibility.fits_somewhere`), and space
   utilization counts the volume packed up to it. The case's ``buffer_size`` is not used.
+* ``offline`` (issue 35's reference): every unprocessed box is shown (in the buffer protocol's
+  seeded shuffled order) and any may be placed; every box is processed. The same cases with
+  the whole sequence in view measure what the buffer or the online protocol costs a policy
+  (the online gap), including on cases without a perfect packing.
 
 One typed value (:class:`PackingProtocol`) carries the choice from the command line to the
 episode; its :meth:`~PackingProtocol.identity` is what a run directory's ``config.json`` records
@@ -44,23 +48,27 @@ class PackingProtocol:
         k = self.lookahead
         if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= MAX_LOOKAHEAD:
             raise ConfigError(f"lookahead = {k!r}: must be a whole number in 1..{MAX_LOOKAHEAD}")
-        if self.name == "buffer" and k != DEFAULT_LOOKAHEAD:
+        if self.name != "online" and k != DEFAULT_LOOKAHEAD:
             raise ConfigError(
                 f"lookahead = {k}: only used with --protocol online (the buffer protocol shows "
-                "the case's buffer_size boxes)"
+                "the case's buffer_size boxes, the offline one every box)"
             )
 
     @property
     def online(self) -> bool:
         return self.name == "online"
 
-    def shown_count(self, buffer_size: int) -> int:
+    def shown_count(self, buffer_size: int, unprocessed: int) -> int:
         """How many unprocessed boxes are shown at once (fewer near the end of a case)."""
+        if self.name == "offline":
+            return unprocessed
         return self.lookahead if self.online else buffer_size
 
     @property
     def label(self) -> str:
         """How a table or an error names it: ``buffer``, ``online (BPP-1)``, ``online (BPP-3)``."""
+        if self.name == "offline":
+            return "offline (every box shown)"
         return f"online (BPP-{self.lookahead})" if self.online else "buffer"
 
     def identity(self) -> dict[str, str | int]:
@@ -82,6 +90,8 @@ def saved_protocol(config: Mapping[str, object] | None) -> PackingProtocol:
         return BUFFER
     name = config["protocol"]
     require_choice(name, EpisodeProtocol, "protocol")
+    if name == "offline":
+        return PackingProtocol("offline")
     if name != "online":
         return BUFFER
     lookahead = config.get("lookahead", DEFAULT_LOOKAHEAD)

@@ -236,7 +236,8 @@ class Episode:
                 return settle_steps
 
     def _show_window(self) -> None:
-        window = visible_window(self._pending, self._protocol.shown_count(self._case.buffer_size))
+        shown = self._protocol.shown_count(self._case.buffer_size, len(self._pending))
+        window = visible_window(self._pending, shown)
         # Online: shown in arrival order (the first is the one to place), no shuffle drawn.
         self._shown_indices = window if self._protocol.online else shuffled_view(window, self._rng)
         self._shown = exact_items(self._case, self._shown_indices, self._sides)
