@@ -23,7 +23,7 @@ from pathlib import Path
 
 from packlab.bench.options import DEFAULT_SUITE
 from packlab.cases import cases_sha256, load_cases, save_cases
-from packlab.core.choices import ArrivalOrder, require_choice
+from packlab.core.choices import ArrivalOrder, LayoutFamily, require_choice
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.fileio import file_sha256
 from packlab.core.types import Case
@@ -40,8 +40,9 @@ class SuiteIntegrityError(PacklabError):
 
 @dataclass(frozen=True, slots=True)
 class SuiteSpec:
-    """How a suite was made: per difficulty the number of cases, from one fixed user seed, in
-    one arrival order (``CaseConfig.order``; every other case setting is the default)."""
+    """How a suite was made: per difficulty the number of cases, from one fixed user seed, of
+    one layout family in one arrival order (``CaseConfig.layout`` / ``CaseConfig.order``; every
+    other case setting is the default)."""
 
     name: str
     counts: tuple[tuple[str, int], ...]  # (difficulty, number of cases), in file order
@@ -49,9 +50,11 @@ class SuiteSpec:
     domain: str = "bench"
     description: str = ""
     order: ArrivalOrder = "removal"
+    layout: LayoutFamily = "layered"
 
     def __post_init__(self) -> None:
         require_choice(self.order, ArrivalOrder, f"suite {self.name!r}: order")
+        require_choice(self.layout, LayoutFamily, f"suite {self.name!r}: layout")
         if not self.counts or any(n < 1 for _, n in self.counts):
             raise ConfigError(
                 f"suite {self.name!r}: counts = {self.counts!r}: "
@@ -65,7 +68,7 @@ class SuiteSpec:
     @property
     def case_config(self) -> CaseConfig:
         """The data engine's case settings of this suite."""
-        return CaseConfig(order=self.order)
+        return CaseConfig(layout=self.layout, order=self.order)
 
 
 #: The registered suites. Never edit an entry whose file has shipped: add a new version.
@@ -86,6 +89,19 @@ SUITES: dict[str, SuiteSpec] = {
         description=(
             "PackLab-Bench v1's recipe with the reference benchmark's arrival order: objects "
             "arrive layer by layer, shuffled within a layer (20 easy, 20 medium, 20 hard)"
+        ),
+    ),
+    "packlab-bench-cut-v1": SuiteSpec(
+        "packlab-bench-cut-v1",
+        counts=(("easy", 20), ("medium", 20), ("hard", 20)),
+        seed=2,
+        layout="cut",
+        order="support",
+        description=(
+            "Cut layouts (Zhao et al., AAAI 2021: the stack cuboid cut recursively, boxes of many "
+            "heights, no flat layers), arriving in their support order (CUT-2: a box arrives "
+            "once the surface under its footprint stands at its base); 20 easy (buffer 3), 20 "
+            "medium (buffer 5), 20 hard (buffer 10)"
         ),
     ),
 }
