@@ -3,6 +3,7 @@ resume and compare refusals, and space utilization in the summary and table."""
 
 import json
 
+import msgspec
 import pytest
 from bench_helpers import run_tiny, tiny_cases
 
@@ -10,7 +11,7 @@ from packlab.bench.compare import merge_summaries
 from packlab.bench.config import RunConfig, check_resumable, default_out, resolve
 from packlab.bench.records import read_records
 from packlab.bench.report import container_volume_mm3
-from packlab.core.errors import ConfigError, PacklabError
+from packlab.core.errors import ConfigError
 from packlab.core.packing_protocol import PackingProtocol, saved_protocol
 from packlab.core.records import EpisodeOk
 from packlab.metrics import AVERAGE
@@ -86,13 +87,22 @@ def test_buffer_run_reports_utilization_without_changing_its_records(tiny_suite,
     assert "protocol online" not in outcome.table_md
 
 
-def test_compare_refuses_runs_of_different_protocols(tiny_suite, tmp_path):
+def test_compare_labels_rows_of_different_protocols_with_their_protocol(tiny_suite, tmp_path):
+    """The same cases under the buffer, online and offline protocols in one table: what seeing
+    only part of the sequence costs (issue 35's online gap); each row names its protocol."""
     a = run_tiny(tiny_suite, tmp_path / "a").summary
     b = run_tiny(tiny_suite, tmp_path / "b", protocol="online").summary
-    with pytest.raises(PacklabError, match="differ in protocol"):
-        merge_summaries([a, b], ["a", "b"])
+    d = run_tiny(tiny_suite, tmp_path / "d", protocol="offline").summary
+    merged = merge_summaries([a, b, d], ["a", "b", "d"])
+    assert merged.policies == (
+        "a (protocol buffer)",
+        "b (protocol online (BPP-1))",
+        "d (protocol offline (every box shown))",
+    )
+    assert merged.protocol is msgspec.UNSET
     c = run_tiny(tiny_suite, tmp_path / "c", protocol="online", policies=("sdf",)).summary
-    assert merge_summaries([b, c], ["b", "c"]).protocol == "online"
+    same = merge_summaries([b, c], ["b", "c"])
+    assert same.protocol == "online" and same.policies == ("b", "c")
 
 
 def test_an_online_record_replays_only_under_its_own_protocol(tiny_suite, tmp_path):

@@ -140,14 +140,6 @@ def _lookahead(summary: RunSummary) -> dict[str, object]:
 def _check_comparable(summaries: Sequence[RunSummary], labels: Sequence[str]) -> None:
     first = summaries[0]
     for label, s in zip(labels[1:], summaries[1:]):
-        # Scores of two protocols measure different tasks: never rows of one table.
-        first_protocol, protocol = summary_protocol(first), summary_protocol(s)
-        if first_protocol != protocol:
-            raise PacklabError(
-                f"bench compare: runs {labels[0]!r} and {label!r} differ in protocol "
-                f"(--protocol, --lookahead): {first_protocol.label} in {labels[0]!r}, "
-                f"{protocol.label} in {label!r}; compare needs one protocol in every run"
-            )
         for field, (words, flag) in MUST_MATCH.items():
             mine, theirs = _field(s, field), _field(first, field)
             if mine == theirs:
@@ -169,7 +161,12 @@ def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> 
     """Each run's label, with the settings that differ between the runs appended, e.g.
     ``"lf (sides longer-first)"``; unchanged when no setting differs."""
     settings = [sensing_settings(s) for s in summaries]
-    varying = [name for name in ABLATIONS if len({str(st[name]) for st in settings}) > 1]
+    # The protocol too (issue 35): the same cases under the buffer, online and offline
+    # protocols are what measures the cost of seeing only part of the sequence.
+    for st, s in zip(settings, summaries):
+        st["protocol"] = summary_protocol(s).label
+    names = [*ABLATIONS, "protocol"]
+    varying = [name for name in names if len({str(st[name]) for st in settings}) > 1]
     if not varying:
         return list(labels)
     out = []
@@ -192,6 +189,7 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
     _check_comparable(summaries, labels)
     labels = _ablation_labels(summaries, labels)
     same_sensing = len({repr(sensing_settings(s)) for s in summaries}) == 1
+    same_protocol = len({summary_protocol(s) for s in summaries}) == 1
     policies: list[str] = []
     table: dict[str, dict[str, MetricCells]] = {}
     per_case: dict[str, dict[str, CaseCells]] = {}
@@ -212,8 +210,9 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         backend=first.backend,
         # Runs of different settings: the rows say which is which, the merged run has none.
         sensing=first.sensing if same_sensing else msgspec.UNSET,
-        protocol=first.protocol,
-        lookahead=first.lookahead,
+        # Runs of different protocols: the rows say which is which (labels), the merged has none.
+        protocol=first.protocol if same_protocol else msgspec.UNSET,
+        lookahead=first.lookahead if same_protocol else msgspec.UNSET,
         n_cases=first.n_cases,
         policies=tuple(policies),
         seeds=first.seeds,
