@@ -32,7 +32,13 @@ def test_option_names_match_the_factories():
 
     for name in HEURISTICS:
         assert keys(name) == set(HEURISTIC_OPTIONS)
-    plan_keys = {*plan._BUDGET_KEYS, *plan._WEIGHT_KEYS, *plan._COMPLETION_KEYS, *plan._SWITCHES}
+    plan_keys = {
+        *plan._BUDGET_KEYS,
+        *plan._WEIGHT_KEYS,
+        *plan._COMPLETION_KEYS,
+        *plan._ENDGAME_KEYS,
+        *plan._SWITCHES,
+    }
     assert keys("plan") == plan_keys | {"stability"}
     assert keys("irbpp") == keys("tapnet") == set(RL_OPTIONS)
     assert keys("vlm") == set(inspect.signature(VLMPolicy).parameters) | set(CANDIDATE_ARGS)
