@@ -7,6 +7,7 @@ plan is valid in arrival order and the oracle scores 1 on the geometric backend.
 
 from __future__ import annotations
 
+import json
 from itertools import pairwise
 from pathlib import Path
 
@@ -80,3 +81,23 @@ def run_tiny(suite: Path, out: Path, **config) -> BenchOutcome:
     fields = {"backend": "geometric", "policies": ("dblf",), "seeds": (0,), "workers": 1}
     full = RunConfig(cases=str(suite), out=str(out), progress=False, **{**fields, **config})
     return run_bench(full, figures=False, html=False)
+
+
+def oracle_records(cases: str, out: Path) -> list[dict]:
+    """The oracle's episode records of a suite (or case file): seed 0, geometric, in this
+    process, as JSON objects (a bundled suite's "1.0 is reachable" check)."""
+    run_bench(
+        RunConfig(
+            cases=cases,
+            policies=("oracle",),
+            seeds=(0,),
+            backend="geometric",
+            out=str(out),
+            workers=1,
+            progress=False,
+        ),
+        figures=False,
+        html=False,
+    )
+    with open(out / "episodes.jsonl", encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]

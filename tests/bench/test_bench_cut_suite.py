@@ -3,10 +3,8 @@ their support order, bundled and checksummed; the oracle reaches 1.0 on every ca
 
 from __future__ import annotations
 
-import json
+from bench_helpers import oracle_records
 
-from packlab.bench.config import RunConfig
-from packlab.bench.runner import run_bench
 from packlab.bench.suites import SUITES, load_suite, resolve_cases
 from packlab.datagen import CaseConfig
 from packlab.datagen.seeds import seed_domain
@@ -38,20 +36,6 @@ def test_every_cut_case_has_mixed_heights_and_arrives_on_its_support():
 
 def test_the_oracle_scores_one_on_the_cut_suite_geometric(tmp_path):
     assert resolve_cases(CUT_SUITE).label == CUT_SUITE
-    run_bench(
-        RunConfig(
-            cases=CUT_SUITE,
-            policies=("oracle",),
-            seeds=(0,),
-            backend="geometric",
-            out=str(tmp_path / "run"),
-            workers=1,
-            progress=False,
-        ),
-        figures=False,
-        html=False,
-    )
-    with open(tmp_path / "run" / "episodes.jsonl", encoding="utf-8") as fh:
-        records = [json.loads(line) for line in fh if line.strip()]
+    records = oracle_records(CUT_SUITE, tmp_path / "run")
     assert len(records) == 60 and {r["status"] for r in records} == {"ok"}
     assert all(r["metrics"]["overall"] == 1.0 for r in records)

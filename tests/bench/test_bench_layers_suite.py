@@ -3,12 +3,9 @@ order, bundled and checksummed; every case arrives layer by layer."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
+from bench_helpers import oracle_records
 
-from packlab.bench.config import RunConfig
-from packlab.bench.runner import run_bench
 from packlab.bench.suites import (
     DEFAULT_SUITE,
     SUITES,
@@ -62,21 +59,7 @@ def test_the_layers_suite_resolves_by_name():
 
 
 def test_the_oracle_scores_one_on_the_layers_suite_geometric(tmp_path):
-    run_bench(
-        RunConfig(
-            cases=LAYERS_SUITE,
-            policies=("oracle",),
-            seeds=(0,),
-            backend="geometric",
-            out=str(tmp_path / "run"),
-            workers=1,
-            progress=False,
-        ),
-        figures=False,
-        html=False,
-    )
-    with open(tmp_path / "run" / "episodes.jsonl", encoding="utf-8") as fh:
-        records = [json.loads(line) for line in fh if line.strip()]
+    records = oracle_records(LAYERS_SUITE, tmp_path / "run")
     assert len(records) == 60 and {r["status"] for r in records} == {"ok"}
     assert min(r["metrics"]["overall"] for r in records) == pytest.approx(1.0)
 

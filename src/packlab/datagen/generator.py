@@ -10,6 +10,7 @@ of case making with the dataset engine, so suites and datasets come from one gen
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -178,11 +179,7 @@ def random_case(
     scenario_rng, boxes_rng, present_rng, _ = case_streams(seed, 4)
     scenario = sample_scenario(spec, cfg, scenario_rng)
     draw = draw_random_boxes(scenario, spec, cfg, boxes_rng)
-    type_ids = present_rng.integers(cfg.n_types, size=len(draw.sizes_mm))
-    objects = tuple(
-        Box(internal_id=i, size_mm=size, gt_index=i, type_id=int(t))
-        for i, (size, t) in enumerate(zip(draw.sizes_mm, type_ids))
-    )
+    objects = _drawn_objects(draw.sizes_mm, cfg, present_rng)
     generator = {
         "name": GENERATOR_NAME,
         "version": GENERATOR_VERSION,
@@ -222,11 +219,7 @@ def rs_case(
     scenario = sample_scenario(spec, cfg, scenario_rng)
     c = scenario.container
     draw = draw_rs_boxes(c, cfg.objects.height_step_mm, boxes_rng)
-    type_ids = present_rng.integers(cfg.n_types, size=len(draw.sizes_mm))
-    objects = tuple(
-        Box(internal_id=i, size_mm=size, gt_index=i, type_id=int(t))
-        for i, (size, t) in enumerate(zip(draw.sizes_mm, type_ids))
-    )
+    objects = _drawn_objects(draw.sizes_mm, cfg, present_rng)
     drawn = sum(l * w * h for l, w, h in draw.sizes_mm)
     generator = {
         "name": GENERATOR_NAME,
@@ -248,6 +241,18 @@ def rs_case(
         difficulty=difficulty,
         gt_plan=None,
         generator=generator,
+    )
+
+
+def _drawn_objects(
+    sizes_mm: Sequence[tuple[int, int, int]], cfg: CaseConfig, present_rng: np.random.Generator
+) -> tuple[Box, ...]:
+    """Boxes in draw order (``internal_id`` and ``gt_index``: the draw index), coloured from the
+    case's presentation stream: the families with no layout (random, rs)."""
+    type_ids = present_rng.integers(cfg.n_types, size=len(sizes_mm))
+    return tuple(
+        Box(internal_id=i, size_mm=size, gt_index=i, type_id=int(t))
+        for i, (size, t) in enumerate(zip(sizes_mm, type_ids))
     )
 
 
