@@ -12,6 +12,12 @@ A found filling is kept and followed while the world goes as planned: the next d
 it when the heightmap is the one the filling predicted and a shown box has the next box's size.
 Anything else (a box settled elsewhere, a run that hides ``remaining``) searches again or leaves
 the decision to the rest of the planner.
+
+A search that ends without a filling (not for want of budget) proves there is none, and none
+appears later while the boxes only move from the buffer into the container: a box placed flat
+plus a filling of what is left after it would be a filling now. So the endgame does not search
+again in that episode until the total volume (heightmap plus boxes in view) changes, which is
+what a gap left under a box or a box set aside does.
 """
 
 from __future__ import annotations
@@ -46,11 +52,19 @@ class Endgame:
     _plan: list[Placed] = field(default_factory=list)
     #: The heightmap the filling predicts for the coming decision.
     _expected: np.ndarray | None = None
+    #: The total volume (heightmap plus boxes in view, mm x cells) at which a search proved
+    #: that no filling exists (None: no such proof this episode).
+    _hopeless_volume: int | None = None
     #: Decisions taken from a filling, and searches run.
     decided: int = 0
     searches: int = 0
 
     def reset(self) -> None:
+        """A new episode: forget the filling and any proof that there is none."""
+        self._forget()
+        self._hopeless_volume = None
+
+    def _forget(self) -> None:
         self._plan, self._expected = [], None
 
     def act(self, observation: Observation) -> Action | None:
@@ -63,14 +77,14 @@ class Endgame:
             or not shown
             or len(shown) > self.config.max_boxes
         ):
-            self.reset()
+            self._forget()
             return None
         hm = np.asarray(observation.heightmap)
         if not self._following(hm) and not self._search(observation):
             return None
         action = self._next_action(observation)
         if action is None:
-            self.reset()
+            self._forget()
         return action
 
     def _following(self, hm: np.ndarray) -> bool:
@@ -88,12 +102,17 @@ class Endgame:
         ]
         hm = np.asarray(observation.heightmap)
         ceiling = filling_ceiling(hm, blocks)
-        self.reset()
+        self._forget()
         if ceiling is None or ceiling > observation.container.height_mm:
+            return False
+        volume = int(hm.sum(dtype=np.int64)) + sum(b.length * b.width * b.height_mm for b in blocks)
+        if volume == self._hopeless_volume:  # proved earlier: see the module docstring
             return False
         self.searches += 1
         found = skyline_fill(hm, blocks, ceiling, self.config.max_nodes)
         if found.placements is None:
+            if not found.exhausted:
+                self._hopeless_volume = volume
             return False
         self._plan = list(found.placements)
         self._expected = hm.astype(np.int32, copy=True)
