@@ -17,7 +17,7 @@ from packlab.policies.candidates import propose
 from packlab.policies.listed import TEACHERS, ListedTeacher
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import Episode
-from packlab.vlm.candidate.collect import collect, done_cases
+from packlab.vlm.candidate.collect import RobotPath, collect, done_cases
 from packlab.vlm.candidate.compose import export_chat_jsonl, state_messages
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.recipe import DaggerConfig
@@ -189,3 +189,20 @@ def test_shuffled_moves_the_label_with_its_placement_and_is_reproducible(cases):
     assert {c.action for c in listed_of(a)} == {c.action for c in listed}
     orders = {tuple(c.action for c in listed_of(shuffled(state, s))) for s in range(6)}
     assert len(orders) > 1  # the seed changes the order
+
+
+def test_collect_on_the_robot_path_labels_what_the_robot_is_shown(cases, tmp_path):
+    # Issue 36: states from perceived + noisy MuJoCo episodes carry what perception showed (fresh
+    # ids per observation, sizes measured off the depth image), not the case's boxes.
+    out = tmp_path / "robot.jsonl"
+    n = collect(cases[:1], out, "sdf", "robot", workers=1, progress=False,
+                robot=RobotPath("stereo"))  # fmt: skip
+    states = list(read_states(out))
+    assert n == len(states) > 0
+    true_ids = {str(o.internal_id) for o in cases[0].objects}
+    shown = [box for s in states for box in s.shown]
+    assert shown and not {str(b.internal_id) for b in shown} & true_ids
+    exact = tmp_path / "exact.jsonl"
+    collect(cases[:1], exact, "sdf", "exact", workers=1, progress=False)
+    exact_shown = [box for s in read_states(exact) for box in s.shown]
+    assert {str(b.internal_id) for b in exact_shown} <= true_ids

@@ -8,6 +8,11 @@ proposer lists its K placements and the teacher labels the state with its pick a
 the data is always "what the teacher would do here", wherever "here" came from. Steps where
 nothing fits are not recorded (the policy falls back to SDF-Pack there).
 
+``RobotPath`` collects on the robot path instead (issue 36): MuJoCo, perceived observations and
+noisy execution under a sensor preset. The teacher then labels what the robot is shown (perceived
+sizes, a noisy heightmap), so a student trained on those rows learns to act on what a robot cell
+sees, and the states follow from placements that landed off plan.
+
 Cases run in worker processes; each finished case's states are appended to the file at once, so
 a crash loses at most the cases in flight, and a rerun skips the cases already in the file.
 """
@@ -28,12 +33,24 @@ from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
+from packlab.core.choices import NoisePreset
 from packlab.sim.episode import run_episode
+from packlab.sim.modes import DEFAULT_NOISE, EpisodeModes, episode_modes
 from packlab.vlm.candidate.states import LabelledState, append_states, make_state, read_states
 
 #: (policy name, options) of the actor; ``None`` follows the teacher.
 ActorSpec = tuple[str, dict[str, Any]] | None
 DEFAULT_PROPOSER = ProposerConfig()
+
+
+@dataclass(frozen=True, slots=True)
+class RobotPath:
+    """Collect on the honest robot path: perceived + noisy under ``noise``, on MuJoCo."""
+
+    noise: NoisePreset = DEFAULT_NOISE
+
+    def modes(self) -> EpisodeModes:
+        return episode_modes("perceived", "noisy", self.noise)
 
 
 @dataclass
@@ -82,12 +99,20 @@ class _Job:
     proposer: ProposerConfig
     source: str
     actor: ActorSpec
+    robot: RobotPath | None = None
 
 
 def _play(job: _Job) -> tuple[str, list[LabelledState], float]:
     actor = make_policy(job.actor[0], **job.actor[1]) if job.actor is not None else None
     labeller = Labeller(ListedTeacher(job.teacher), job.proposer, job.source, actor)
-    result = run_episode(job.case, labeller, seed=0, backend="geometric")
+    if job.robot is None:  # exact: the geometric backend is exact Eq. 2 and fast
+        result = run_episode(job.case, labeller, seed=0, backend="geometric")
+        return job.case.episode_id, labeller.states, result.metrics.overall
+    modes = job.robot.modes()
+    result = run_episode(
+        job.case, labeller, seed=0, backend="mujoco", perceiver=modes.perceiver,
+        execution=modes.execution, sides=modes.sides,
+    )  # fmt: skip
     return job.case.episode_id, labeller.states, result.metrics.overall
 
 
@@ -105,12 +130,14 @@ def collect(
     workers: int = 2,
     progress: bool = True,
     on_case: Callable[[str, float], None] | None = None,
+    robot: RobotPath | None = None,
 ) -> int:
     """Play every case not yet in ``out`` and append its labelled states; the number appended.
-    ``on_case(case_id, overall)`` sees each finished case (the actor's closed-loop score)."""
+    ``on_case(case_id, overall)`` sees each finished case (the actor's closed-loop score);
+    ``robot`` plays on the honest robot path instead of exact observations."""
     ListedTeacher(teacher)  # refuse an unknown teacher before starting workers
     done = done_cases(out)
-    jobs = [_Job(c, teacher, proposer, source, actor) for c in cases if c.episode_id not in done]
+    jobs = [_Job(c, teacher, proposer, source, actor, robot) for c in cases if c.episode_id not in done]
     out.parent.mkdir(parents=True, exist_ok=True)
     written = 0
     bar = tqdm(total=len(jobs), desc=f"collect {source}", unit="case", disable=not progress)
