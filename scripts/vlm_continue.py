@@ -8,7 +8,8 @@ Usage:
         --steps 700 --lr 5e-4 --minutes 18
 
 ``packlab train candidate`` collects each DAgger round with the model itself acting. This script
-trains on states collected otherwise (here: the states the line-vector MLP student of
+trains on states collected otherwise (``--model tiny:qwen3_vl:mini --map text`` starts from random
+weights with the map, the line vectors and a shuffled listing, as ``train candidate`` does) (here: the states the line-vector MLP student of
 ``benchmarks/student_probe.py dagger`` reached, labelled by the planner), warm-starting from a
 pointer directory with its own settings (map, line vectors, K). The closed-loop evaluation uses
 the last five cases per level of ``--cases`` (as the recipe does). Resumable like any training.
@@ -17,14 +18,26 @@ the last five cases per level of ``--cases`` (as the recipe does). Resumable lik
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from packlab.cases import cases_sha256, load_cases
+from packlab.core.choices import PointerMap, choices
 from packlab.datagen.guard import require_training_cases
 from packlab.policies.provenance import cases_record
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.saved import load_pointer
 from packlab.vlm.candidate.states_guard import require_training_states
+from packlab.policies.candidates import STUDENT_K
 from packlab.vlm.candidate.train import PointerTrainConfig, train_pointer
+
+
+def _start_settings(model: str, map_: str) -> dict[str, Any]:
+    """The settings a model is trained with: a pointer directory's own, or the student
+    defaults (K = 16, line vectors, shuffled listing) for a model from random weights."""
+    if model.startswith("tiny:"):
+        return {"map": map_, "line_vectors": True, "proposer": {"k": STUDENT_K}, "shuffle": True,
+                "teacher": "plan"}  # fmt: skip
+    return load_pointer(model).vlm.meta
 
 
 def main() -> None:
@@ -45,6 +58,9 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=None)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--note", default="", help="recorded in the model card")
+    p.add_argument("--map", choices=choices(PointerMap), default="image",
+                   help="how a model from random weights (--model tiny:...) sees the heightmap")
+    p.add_argument("--threads", type=int, default=1)
     a = p.parse_args()
     cases = require_training_cases(load_cases(a.cases), a.cases)
     # The states are checked too, row by row, by their cases' content: not a suite's, and each
@@ -52,12 +68,13 @@ def main() -> None:
     more = [c for f in a.states_cases for c in require_training_cases(load_cases(f), f)]
     require_training_states(a.states, cases + more)
     _, evals = split_cases(cases, 3, 0, 5)
-    meta = load_pointer(a.model).vlm.meta
+    meta = _start_settings(a.model, a.map)
     cfg = PointerTrainConfig(
         states=tuple(a.states), out=a.out, model=a.model, map=meta["map"],
         line_vectors=bool(meta.get("line_vectors", False)), k=meta["proposer"]["k"],
-        shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr, warmup=20,
-        seed=a.seed, threads=1, minutes=a.minutes, eval_every=350,
+        shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr,
+        warmup=100 if a.model.startswith("tiny:") else 20,
+        seed=a.seed, threads=a.threads, minutes=a.minutes, eval_every=350,
         # The card records the model continued from as "init" (name + sha256) and the cases
         # by name and content digest: no scratch path (packlab.policies.provenance).
         meta={"teacher": meta.get("teacher", ""), "note": a.note,
