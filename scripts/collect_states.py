@@ -51,4 +51,5 @@ if __name__ == "__main__":
     try:
         main()
     except ConfigError as exc:  # bad input: one line naming the file and the case, exit 2
-        sys.exit(f"error: {exc}")
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
