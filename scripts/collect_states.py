@@ -1,8 +1,9 @@
 """Planner-labelled states for the students (a DAgger round's data step), from the command line.
 
 Usage:
-    python scripts/collect_states.py CASES OUT.jsonl SOURCE [--actor irbpp --actor-opts '{"model": DIR}']
-        [--robot structured-light|stereo] [--skip N] [--first N] [--workers 2]
+    python scripts/collect_states.py CASES OUT.jsonl SOURCE
+        [--actor irbpp --actor-opts '{"model": DIR}'] [--robot structured-light|stereo]
+        [--skip N] [--first N] [--workers 2]
 
 Without ``--actor`` the planner plays its own trajectories (round 0); with one, the named policy
 acts and the planner labels every state it reaches (a DAgger round: the states a student's own

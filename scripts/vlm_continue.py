@@ -8,10 +8,11 @@ Usage:
         --steps 700 --lr 5e-4 --minutes 18
 
 ``packlab train candidate`` collects each DAgger round with the model itself acting. This script
-trains on states collected otherwise (``--model tiny:qwen3_vl:mini --map text`` starts from random
-weights with the map, the line vectors and a shuffled listing, as ``train candidate`` does) (here: the states the line-vector MLP student of
-``benchmarks/student_probe.py dagger`` reached, labelled by the planner), warm-starting from a
-pointer directory with its own settings (map, line vectors, K). The closed-loop evaluation uses
+trains on states collected otherwise (e.g. the states the line-vector MLP student of
+``benchmarks/student_probe.py dagger`` reached, or ``scripts/collect_states.py``'s, labelled by
+the planner), warm-starting from a pointer directory with its own settings (map, line vectors,
+K); ``--model tiny:qwen3_vl:mini --map text`` starts from random weights instead, with the line
+vectors, K = 16 and a shuffled listing, as ``train candidate`` does. The closed-loop evaluation uses
 the last five cases per level of ``--cases`` (as the recipe does). Resumable like any training.
 """
 
@@ -23,11 +24,11 @@ from typing import Any
 from packlab.cases import cases_sha256, load_cases
 from packlab.core.choices import PointerMap, choices
 from packlab.datagen.guard import require_training_cases
+from packlab.policies.candidates import STUDENT_K
 from packlab.policies.provenance import cases_record
 from packlab.vlm.candidate.dagger_split import split_cases
 from packlab.vlm.candidate.saved import load_pointer
 from packlab.vlm.candidate.states_guard import require_training_states
-from packlab.policies.candidates import STUDENT_K
 from packlab.vlm.candidate.train import PointerTrainConfig, train_pointer
 
 
@@ -58,8 +59,12 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=None)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--note", default="", help="recorded in the model card")
-    p.add_argument("--map", choices=choices(PointerMap), default="image",
-                   help="how a model from random weights (--model tiny:...) sees the heightmap")
+    p.add_argument(
+        "--map",
+        choices=choices(PointerMap),
+        default="image",
+        help="how a model from random weights (--model tiny:...) sees the heightmap",
+    )
     p.add_argument("--threads", type=int, default=1)
     a = p.parse_args()
     cases = require_training_cases(load_cases(a.cases), a.cases)

@@ -231,3 +231,20 @@ def test_an_agent_of_older_item_rows_is_refused_with_what_to_do(tmp_path):
         read_card(tmp_path)
     (tmp_path / CARD_FILE).write_text(json.dumps({**old, "features": 2}))
     assert read_card(tmp_path).features == 2
+
+
+def test_a_card_names_how_tapnet_places_its_object(tmp_path):
+    import json
+
+    from packlab.core.errors import ConfigError
+    from packlab.rl.agent import CARD_FILE, read_card
+
+    old = {"agent": "tapnet", "n_items": 10, "reward": "overall",
+           "format": "packlab-rl-card-1", "features": 2}  # fmt: skip
+    (tmp_path / CARD_FILE).write_text(json.dumps(old))
+    assert read_card(tmp_path).spec.placement == "dblf"  # written before the field: DBLF's rule
+    (tmp_path / CARD_FILE).write_text(json.dumps({**old, "placement": "proposer"}))
+    assert read_card(tmp_path).spec.placement == "proposer"
+    (tmp_path / CARD_FILE).write_text(json.dumps({**old, "placement": "lowest"}))
+    with pytest.raises(ConfigError, match=r"card.json: placement = 'lowest'"):
+        read_card(tmp_path)

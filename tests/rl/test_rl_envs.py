@@ -119,13 +119,29 @@ def test_object_rows_place_each_object_by_dblf(cases):
     observation = episode.reset(cases[4], 0)
     episode.step(make_dblf().act(observation))  # a non-empty floor
     observation = episode.observe()
-    rows = encode(observation, FeatureSpec.default("tapnet")).actions
+    rows = encode(observation, FeatureSpec.default("tapnet", placement="dblf")).actions
     assert len(rows) == len(observation.shown)
     for shown, row in zip(observation.shown, rows):
         alone = Observation(0, observation.container, observation.heightmap,
                             (replace(shown, shown_index=0),))  # fmt: skip
         assert replace(row, object_id=0) == make_dblf().act(alone)
         assert rule_placement(observation_candidates(alone), 0) is not None
+
+
+def test_object_rows_place_each_object_at_its_first_proposer_listing(cases):
+    """The default rule (issue 36): each object where the proposer lists it first."""
+    episode = Episode("geometric")
+    observation = episode.reset(cases[4], 0)
+    episode.step(make_dblf().act(observation))
+    observation = episode.observe()
+    rows = encode(observation, FeatureSpec.default("tapnet")).actions
+    listed = propose(observation, ProposerConfig(k=64))
+    assert len(rows) == len(observation.shown) and len({r.object_id for r in rows}) == len(rows)
+    for row in rows:
+        first = next(c for c in listed if c.object_index == row.object_id)
+        assert row == first.action
+    dblf_rows = encode(observation, FeatureSpec.default("tapnet", placement="dblf")).actions
+    assert rows != dblf_rows  # the rule is not ignored
 
 
 def test_features_are_bounded_and_padded(cases):

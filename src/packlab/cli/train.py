@@ -192,6 +192,11 @@ def register_rl(sub: argparse._SubParsersAction) -> None:
     field("seed", "--seed", help="default {default}")
     field("threads", "--threads", help="torch threads of the learner; default {default}")
     field("init", "--init", help="a model directory to start from (e.g. rl-imitate's --out)")
+    field(
+        "placement",
+        "--placement",
+        help="tapnet: the rule placing the chosen box; default {default}",
+    )
     r.set_defaults(func=run_rl)
     register_rl_imitate(sub)
 
@@ -216,6 +221,11 @@ def register_rl_imitate(sub: argparse._SubParsersAction) -> None:
     field("out", "--out", help="model directory; default {default}")
     for name in ("k", "width", "epochs", "batch", "lr", "value_weight", "seed", "threads"):
         field(name, "--" + name.replace("_", "-"), help="default {default}")
+    field(
+        "placement",
+        "--placement",
+        help="tapnet: the rule placing the chosen box; default {default}",
+    )
     r.set_defaults(func=run_rl_imitate)
 
 

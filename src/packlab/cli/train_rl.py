@@ -106,7 +106,7 @@ def run_rl_imitate(args: argparse.Namespace) -> int:
     cfg = ImitationConfig(**config_kwargs(args, "train rl-imitate", ImitationConfig))
     cases, source = training_cases(args.cases) if args.cases else (None, {})
     demos = demos_from_states(Path(args.states), cases)
-    samples = imitation_samples(demos, FeatureSpec.default(cfg.agent, cfg.k))
+    samples = imitation_samples(demos, FeatureSpec.default(cfg.agent, cfg.k, cfg.placement))
     named = (source.get("cases", ""), source.get("cases_sha256", ""))
     res = fit.imitate(samples, cfg, str(args.states), named)
     print(

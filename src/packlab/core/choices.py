@@ -72,6 +72,14 @@ TEACHERS: tuple[str, ...] = get_args(Teacher)
 #: The RL agents of ``packlab train rl``: IR-BPP-style (choose one of K proposed placements) and
 #: TAP-Net-style (choose which shown object; a fixed rule places it).
 RLAgent = Literal["irbpp", "tapnet"]
+#: How a TAP-Net-style agent's chosen box is placed: DBLF's rule, or the proposer's first listing
+#: of that box (its lowest placement that leaves its level best, ``policies.candidates``). With
+#: sides named longer first DBLF's rotation-0 preference no longer follows the layouts: placed by
+#: DBLF, even the planner's own choice of box scores below the proposer (docs/rl.md, issue 36).
+TapnetPlacement = Literal["dblf", "proposer"]
+DEFAULT_TAPNET_PLACEMENT: TapnetPlacement = "proposer"
+#: What an agent card written before the field existed used.
+UNRECORDED_TAPNET_PLACEMENT: TapnetPlacement = "dblf"
 #: What an RL env pays per step: ``overall`` (potential-based, the change in Overall-so-far, so
 #: the return is the final Overall), ``overall-terminal`` (0 until the last step, then Overall)
 #: or ``success`` (the change in packed-volume fraction, return = Success Ratio, as Pack-v0).

@@ -12,6 +12,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from packlab.core.choices import (
+    DEFAULT_TAPNET_PLACEMENT,
+    UNRECORDED_TAPNET_PLACEMENT,
+    TapnetPlacement,
+    choices,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.fileio import write_atomically
 from packlab.rl.features import FEATURES_VERSION, FeatureSpec
@@ -47,10 +53,13 @@ class AgentCard:
     states: list[dict[str, str | None]] = field(default_factory=list)  # imitation: path, sha256
     #: The cases the kept model was chosen on: sha256 (content, order-free), n, rule.
     selection: dict[str, Any] | None = None
+    #: tapnet: the rule that places the chosen object (``core.choices.TapnetPlacement``); a
+    #: card written before the field existed used DBLF's.
+    placement: str = DEFAULT_TAPNET_PLACEMENT
 
     @property
     def spec(self) -> FeatureSpec:
-        return FeatureSpec(self.agent, self.n_items)  # type: ignore[arg-type]
+        return FeatureSpec(self.agent, self.n_items, self.placement)  # type: ignore[arg-type]
 
 
 def write_card(directory: Path, card: AgentCard) -> None:
@@ -69,7 +78,13 @@ def read_card(directory: Path) -> AgentCard:
     if raw.get("format") != CARD_FORMAT:
         raise ConfigError(f"{path}: format = {raw.get('format')!r}, expected {CARD_FORMAT!r}")
     known = set(AgentCard.__dataclass_fields__)
-    card = AgentCard(**{"features": 1, **{k: v for k, v in raw.items() if k in known}})
+    unrecorded = {"features": 1, "placement": UNRECORDED_TAPNET_PLACEMENT}
+    card = AgentCard(**{**unrecorded, **{k: v for k, v in raw.items() if k in known}})
+    if card.placement not in choices(TapnetPlacement):
+        raise ConfigError(
+            f"{path}: placement = {card.placement!r}: expected one of "
+            f"{', '.join(choices(TapnetPlacement))}"
+        )
     if card.features != FEATURES_VERSION:
         raise ConfigError(
             f"{path}: features = {card.features}: this packlab's agents read item rows of version "

@@ -7,7 +7,14 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from packlab.core.choices import RLAgent, RLReward, VecKind, require_choice
+from packlab.core.choices import (
+    DEFAULT_TAPNET_PLACEMENT,
+    RLAgent,
+    RLReward,
+    TapnetPlacement,
+    VecKind,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.policies.candidates import STUDENT_K
 
@@ -38,9 +45,12 @@ class RLTrainConfig:
     seed: int = 0
     threads: int = 1  # torch threads of the learner
     init: str = ""  # a model directory (e.g. ``packlab train rl-imitate``'s) to start from
+    #: tapnet: the rule that places the chosen object (an --init model must have the same).
+    placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT
 
     def __post_init__(self) -> None:
         require_choice(self.agent, RLAgent, "agent")
+        require_choice(self.placement, TapnetPlacement, "placement")
         require_choice(self.reward, RLReward, "reward")
         require_choice(self.vec, VecKind, "vec")
         positive = ("steps", "envs", "k", "n_steps", "batch", "epochs", "width", "eval_every")
@@ -81,9 +91,11 @@ class ImitationConfig:
     value_weight: float = 0.5  # weight of the value regression (samples with a value only)
     seed: int = 0
     threads: int = 1
+    placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT  # tapnet: places the chosen object
 
     def __post_init__(self) -> None:
         require_choice(self.agent, RLAgent, "agent")
+        require_choice(self.placement, TapnetPlacement, "placement")
         for name in ("k", "width", "epochs", "batch", "threads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

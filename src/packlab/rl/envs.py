@@ -35,12 +35,14 @@ from gymnasium import spaces
 from packlab.cases import load_cases
 from packlab.core.choices import (
     DEFAULT_SIDES,
+    DEFAULT_TAPNET_PLACEMENT,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
     RLAgent,
     RLReward,
     SideNames,
+    TapnetPlacement,
 )
 from packlab.core.types import Action, Case
 from packlab.policies.candidates import STUDENT_K
@@ -91,6 +93,7 @@ class ListedActionEnv(gym.Env):
         execution: ExecutionMode = "exact",
         noise: NoisePreset = DEFAULT_NOISE,
         sides: SideNames = DEFAULT_SIDES,
+        placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT,
     ) -> None:
         # The bench's modes (packlab.sim.modes): the agent sees the perceived state; the reward
         # is always judged on the true one. Exact observation names sides as the bench does.
@@ -100,7 +103,7 @@ class ListedActionEnv(gym.Env):
         self.cases = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)
         if not self.cases:
             raise ValueError("the env needs at least one case")
-        self.spec_features = FeatureSpec.default(agent, k)
+        self.spec_features = FeatureSpec.default(agent, k, placement)
         self.observation_space = observation_space(self.spec_features)
         # The terminal observation: zeros of each space's shape (never acted on). Every Box
         # here has a shape; gymnasium types it Optional.
@@ -198,7 +201,7 @@ class CandidatePlacementEnv(ListedActionEnv):
 
 
 class ObjectChoiceEnv(ListedActionEnv):
-    """TAP-Net-style: the action picks a shown object; DBLF's rule places it."""
+    """TAP-Net-style: the action picks a shown object; a rule (``placement``) places it."""
 
     def __init__(self, cases=None, backend="geometric", reward="overall", physics=None, **modes):
         super().__init__("tapnet", cases, backend, reward, physics=physics, **modes)

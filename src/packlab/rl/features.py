@@ -14,8 +14,9 @@ container size and buffer size the levels use:
 
   - ``irbpp``: the K placements listed by the shared proposer
     (:func:`packlab.policies.candidates.propose`): the IR-BPP-style candidate action space;
-  - ``tapnet``: one per shown object, placed by :func:`rule_placement` (DBLF's rule for that
-    object alone): the TAP-Net-style object-choice action space.
+  - ``tapnet``: one per shown object, placed by the spec's rule (:func:`object_placements`: the
+    proposer's first listing of that object, or DBLF's rule for it alone): the TAP-Net-style
+    object-choice action space.
 
 The action is the row index. Rows list items in the proposer's order or the shown order (shuffled
 every step by the episode); the networks score each row with shared weights, so an agent cannot
@@ -28,7 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from packlab.core.choices import RLAgent, require_choice
+from packlab.core.choices import (
+    DEFAULT_TAPNET_PLACEMENT,
+    RLAgent,
+    TapnetPlacement,
+    require_choice,
+)
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Observation
 from packlab.policies.candidates import (
@@ -74,20 +80,28 @@ MAX_BUFFER = 10
 
 @dataclass(frozen=True, slots=True)
 class FeatureSpec:
-    """Which action space and how many item rows (``n_items``)."""
+    """Which action space, how many item rows (``n_items``) and, for tapnet, the rule that
+    places the chosen object (``placement``; irbpp's rows are the proposer's anyway)."""
 
     agent: RLAgent
     n_items: int
+    placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT
 
     def __post_init__(self) -> None:
         require_choice(self.agent, RLAgent, "agent")
+        require_choice(self.placement, TapnetPlacement, "placement")
         if isinstance(self.n_items, bool) or not isinstance(self.n_items, int) or self.n_items < 1:
             raise ValueError(f"FeatureSpec.n_items = {self.n_items!r}: must be an int >= 1")
 
     @classmethod
-    def default(cls, agent: RLAgent, k: int = STUDENT_K) -> FeatureSpec:
+    def default(
+        cls,
+        agent: RLAgent,
+        k: int = STUDENT_K,
+        placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT,
+    ) -> FeatureSpec:
         """irbpp: ``k`` listed placements; tapnet: one row per buffer slot of the largest level."""
-        return cls(agent, k if agent == "irbpp" else MAX_BUFFER)
+        return cls(agent, k if agent == "irbpp" else MAX_BUFFER, placement)
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,11 +219,32 @@ def rule_placement(cands: CandidateSet, object_index: int) -> int | None:
     return int(pool[np.lexsort((cands.y[pool], cands.x[pool], cands.z[pool]))[0]])
 
 
+#: Placements the proposer lists when it places tapnet's objects: enough that every shown
+#: object of the largest buffer gets its own first listing.
+OBJECT_LISTING_K = 64
+
+
+def object_placements(
+    cands: CandidateSet, n_objects: int, placement: TapnetPlacement
+) -> list[int | None]:
+    """Flat index of the placement ``placement`` gives each of the first ``n_objects`` shown
+    objects (None where it fits nowhere): ``proposer``, the proposer's first listing of the
+    object (DBLF's rule where the proposer lists none of it); ``dblf``, :func:`rule_placement`."""
+    first: dict[int, int | None] = {}
+    if placement == "proposer":
+        for c in propose_from(cands, ProposerConfig(k=OBJECT_LISTING_K)):
+            if c.object_index not in first:
+                first[c.object_index] = placement_index(cands, c.object_index, c.rotation, c.x, c.y)
+    return [
+        first[j] if first.get(j) is not None else rule_placement(cands, j) for j in range(n_objects)
+    ]
+
+
 def _listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
     """Flat candidate indices of the item rows, in row order."""
     if spec.agent == "tapnet":
-        picks = (rule_placement(cands, j) for j in range(min(cands.buffer_size, spec.n_items)))
-        return [i for i in picks if i is not None]
+        n = min(cands.buffer_size, spec.n_items)
+        return [i for i in object_placements(cands, n, spec.placement) if i is not None]
     listed = propose_from(cands, ProposerConfig(k=spec.n_items))
     out = [placement_index(cands, c.object_index, c.rotation, c.x, c.y) for c in listed]
     return [i for i in out if i is not None]

@@ -130,7 +130,7 @@ def new_model(cfg: ImitationConfig, out: Path) -> Any:
     """A fresh MaskablePPO agent as ``packlab train rl`` makes one (spaces from the demo case)."""
     agent: Any = cfg.agent
     rl_cfg = RLTrainConfig(agent=agent, k=cfg.k, width=cfg.width, seed=cfg.seed, envs=1)
-    venv = DummyVecEnv([lambda: ListedActionEnv(agent, None, k=cfg.k)])
+    venv = DummyVecEnv([lambda: ListedActionEnv(agent, None, k=cfg.k, placement=cfg.placement)])
     return make_model(rl_cfg, venv, out)
 
 
@@ -154,6 +154,7 @@ def imitate(
     card = AgentCard(
         agent=cfg.agent,
         n_items=FeatureSpec.default(cfg.agent, cfg.k).n_items,  # type: ignore[arg-type]
+        placement=cfg.placement,
         reward="overall",
         wall_time_s=round(result.wall_time_s, 1),
         cases=card_source(cases[0], out) if cases[0] else "imitation",

@@ -61,7 +61,9 @@ class RLRunResult:
 
 
 def _make_env(cfg: RLTrainConfig, cases: Sequence[Case]) -> ListedActionEnv:
-    return ListedActionEnv(cfg.agent, list(cases), "geometric", cfg.reward, cfg.k)
+    return ListedActionEnv(
+        cfg.agent, list(cases), "geometric", cfg.reward, cfg.k, placement=cfg.placement
+    )
 
 
 def make_vec_env(cfg: RLTrainConfig, cases: Sequence[Case]) -> VecMonitor:
@@ -155,7 +157,7 @@ class _Run:
 
     def __init__(self, cfg, out, source, held, on_log) -> None:
         self.cfg, self.out, self.source, self.held, self.on_log = cfg, out, source, held, on_log
-        self.spec = FeatureSpec.default(cfg.agent, cfg.k)
+        self.spec = FeatureSpec.default(cfg.agent, cfg.k, cfg.placement)
         state_path = out / "state.json"
         self.state: dict[str, Any] = (
             json.loads(state_path.read_text())
@@ -252,6 +254,11 @@ def load_init(model: MaskablePPO, directory: str | Path, spec: FeatureSpec) -> N
         raise ConfigError(
             f"init = {str(directory)!r} is a {card.agent!r} agent with {card.n_items} rows; "
             f"this run trains {spec.agent!r} with {spec.n_items}"
+        )
+    if spec.agent == "tapnet" and card.placement != spec.placement:
+        raise ConfigError(
+            f"init = {str(directory)!r} places objects by {card.placement!r}; this run by "
+            f"{spec.placement!r} (--placement {card.placement} continues it)"
         )
     source = MaskablePPO.load(directory / MODEL_FILE, device="cpu")
     try:

@@ -28,12 +28,12 @@ from typing import Any
 from tqdm import tqdm
 
 from packlab.cases.fingerprint import case_fingerprint
+from packlab.core.choices import NoisePreset
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
-from packlab.core.choices import NoisePreset
 from packlab.sim.episode import run_episode
 from packlab.sim.modes import DEFAULT_NOISE, EpisodeModes, episode_modes
 from packlab.vlm.candidate.states import LabelledState, append_states, make_state, read_states
@@ -137,7 +137,9 @@ def collect(
     ``robot`` plays on the honest robot path instead of exact observations."""
     ListedTeacher(teacher)  # refuse an unknown teacher before starting workers
     done = done_cases(out)
-    jobs = [_Job(c, teacher, proposer, source, actor, robot) for c in cases if c.episode_id not in done]
+    jobs = [
+        _Job(c, teacher, proposer, source, actor, robot) for c in cases if c.episode_id not in done
+    ]
     out.parent.mkdir(parents=True, exist_ok=True)
     written = 0
     bar = tqdm(total=len(jobs), desc=f"collect {source}", unit="case", disable=not progress)
