@@ -200,7 +200,7 @@ def _replay_shot(browser, path: Path) -> None:
 #: The default bench's 11 rows as the page names them (long names make the widest table).
 DEFAULT_ROWS = (
     ("dblf", "DBLF"), ("hm", "HM"), ("mta", "MTA"), ("ffp", "FFP"), ("sdf", "SDF-Pack"),
-    ("plan-fast", "Plan (completion + lookahead, fast)"), ("vlm", "PackLab-VLM"),
+    ("plan-fast", "Plan (completion + lookahead, fast)"), ("vlm", "PackLab pointer LM"),
     ("irbpp", "IR-BPP"), ("tapnet", "TAP-Net"), ("random", "Random"),
     ("oracle", "Oracle (gt plan)"),
 )  # fmt: skip

@@ -249,14 +249,31 @@ def test_both_runtimes_play_the_same_episode():
 
 
 @needs_export
-def test_blank_image_plays_under_onnx():
+def test_blank_image_plays_under_onnx_and_changes_what_the_model_reads():
+    # Issue 36: a test that passed with blanking ignored only checked a flag. Here the shipped
+    # model scores the same listed placements of a state with boxes in it, with its map shown
+    # and blanked: the scores must differ (the map is an input), and a blanked episode plays.
     from packlab.cases.load import load_cases
+    from packlab.policies.candidates import propose
     from packlab.sim.env import demo_cases_path
-    from packlab.sim.episode import run_episode
+    from packlab.sim.episode import Episode, run_episode
 
-    policy = make_policy("vlm", blank_image=True)
-    result = run_episode(load_cases(demo_cases_path())[0], policy, seed=0, backend="geometric")
-    assert policy._settings.blank_map and policy.decisions == len(result.steps)
+    case = load_cases(demo_cases_path())[0]
+    episode = Episode("geometric")
+    observation = episode.reset(case, 0)
+    for _ in range(3):  # a floor with boxes on it
+        episode.step(make_policy("sdf").act(observation))
+        observation = episode.observe()
+    assert observation.heightmap.any()
+    shown, blank = make_policy("vlm"), make_policy("vlm", blank_image=True)
+    for p in (shown, blank):
+        p.load()
+    listed = propose(observation, shown._proposer)
+    a = shown._score(shown._model, observation, listed, shown._settings)
+    b = blank._score(blank._model, observation, listed, blank._settings)
+    assert not np.allclose(a, b)
+    result = run_episode(case, blank, seed=0, backend="geometric")
+    assert blank._settings.blank_map and blank.decisions == len(result.steps)
 
 
 def test_runtime_names_are_checked():
@@ -284,8 +301,8 @@ def test_a_directory_without_a_card_says_to_export_it(tmp_path):
 @needs_export
 def test_a_missing_graph_is_named(tmp_path):
     path = _copy_shipped(tmp_path)
-    (path / "vision.onnx").unlink()
-    with pytest.raises(ConfigError, match=r"vision\.onnx: ONNX graph missing.*export onnx"):
+    (path / "text.onnx").unlink()  # the shipped model reads its map as digits: no vision.onnx
+    with pytest.raises(ConfigError, match=r"text\.onnx: ONNX graph missing.*export onnx"):
         _load(path)
 
 

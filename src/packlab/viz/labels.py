@@ -15,11 +15,13 @@ DISPLAY_NAMES = {
     "plan-fast": "Plan (completion + lookahead, fast)",
     "plan-lookahead": "Plan (lookahead only)",
     "proposer": "Proposer (index 0)",
-    "vlm-small": "PackLab-VLM (vlm-small, candidate mode)",
+    "vlm-small": "PackLab pointer LM (vlm-small, candidate mode)",
     # The learned rows of the default table: the paper's names for its baselines (the agents are
-    # IR-BPP- and TAP-Net-style, trained here; docs/rl.md) and the packing VLM, whatever
-    # checkpoint `--policy-arg vlm:model=` names.
-    "vlm": "PackLab-VLM",
+    # IR-BPP- and TAP-Net-style, trained here; docs/rl.md) and the candidate-mode model, whatever
+    # checkpoint `--policy-arg vlm:model=` names. Its row says what the shipped model is (issue
+    # 36): a Qwen3-VL text stack with a pointer head that reads the heightmap as digits; its image
+    # input never changed a decision (docs/vlm.md), so it ships without the vision tower.
+    "vlm": "PackLab pointer LM",
     "irbpp": "IR-BPP",
     "tapnet": "TAP-Net",
     "random": "Random",
