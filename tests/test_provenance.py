@@ -6,6 +6,8 @@ import dataclasses
 import json
 from pathlib import Path
 
+import pytest
+
 from packlab.bench.suites import load_suite
 from packlab.policies.provenance import (
     card_path,
@@ -76,6 +78,22 @@ def test_an_rl_card_holds_the_fields_and_no_absolute_path(tmp_path):
     assert {"seed", "commit", "dirty", "init", "states", "selection"} <= set(json.loads(text))
 
 
-def test_a_shipped_card_without_the_fields_still_reads():
-    card = read_card(ROOT / "src" / "packlab" / "data" / "models" / "irbpp")
+def test_a_card_without_the_fields_still_reads(tmp_path):
+    # Cards written before issue 36 have no provenance fields: they read with them empty.
+    shipped = json.loads((ROOT / "src/packlab/data/models/irbpp/card.json").read_text())
+    fields = ("seed", "commit", "dirty", "init", "states", "selection")
+    (tmp_path / "card.json").write_text(
+        json.dumps({k: v for k, v in shipped.items() if k not in fields})
+    )
+    card = read_card(tmp_path)
     assert card.seed is None and card.init is None and card.states == []
+
+
+@pytest.mark.parametrize("agent", ["irbpp", "tapnet"])
+def test_the_shipped_cards_say_how_they_were_made(agent):
+    # Issue 36: seed, commit, init checkpoint, cases' digest and selection set; no scratch path.
+    text = (ROOT / "src/packlab/data/models" / agent / "card.json").read_text()
+    card = read_card(ROOT / "src/packlab/data/models" / agent)
+    assert card.seed is not None and card.commit and card.init and card.init["sha256"]
+    assert len(card.cases_sha256) == 64 and card.selection and card.selection["sha256"]
+    assert "runs/" not in text and "/work" not in text and "/tmp" not in text
