@@ -66,6 +66,9 @@ def main() -> None:
         help="how a model from random weights (--model tiny:...) sees the heightmap",
     )
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="where the updates run: cpu or cuda")
+    p.add_argument("--batch", type=int, default=16, help="states per update")
+    p.add_argument("--eval-every", type=int, default=350, help="updates between evaluations")
     a = p.parse_args()
     cases = require_training_cases(load_cases(a.cases), a.cases)
     # The states are checked too, row by row, by their cases' content: not a suite's, and each
@@ -79,7 +82,8 @@ def main() -> None:
         line_vectors=bool(meta.get("line_vectors", False)), k=meta["proposer"]["k"],
         shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr,
         warmup=100 if a.model.startswith("tiny:") else 20,
-        seed=a.seed, threads=a.threads, minutes=a.minutes, eval_every=350,
+        seed=a.seed, threads=a.threads, minutes=a.minutes, eval_every=a.eval_every,
+        device=a.device, batch=a.batch,
         # The card records the model continued from as "init" (name + sha256) and the cases
         # by name and content digest: no scratch path (packlab.policies.provenance).
         meta={"teacher": meta.get("teacher", ""), "note": a.note,

@@ -77,6 +77,10 @@ class PointerTrainConfig:
     heldout_every: int = 10  # every n-th case (by hash) is held out
     seed: int = 0
     threads: int | None = None
+    #: Where the updates run (a torch device: "cpu", "cuda"). Evaluation and the saved model
+    #: stay on the CPU, so a model trained on a GPU plays and resumes anywhere. Only the CPU
+    #: promises the same model for the same seed; a GPU's kernels may differ in the last bits.
+    device: str = "cpu"
     minutes: float | None = None  # stop early (with a checkpoint) after this long
     #: Stop (with a checkpoint) once this many updates are done, counted like ``steps`` (which
     #: alone sets the schedule): a rerun with a larger ``stop_after`` or none goes on exactly.
@@ -151,7 +155,8 @@ def _schedule(cfg: PointerTrainConfig):
 def _batch(train: Sequence[Encoded], cfg: PointerTrainConfig, step: int, pad: int) -> dict:
     rng = np.random.default_rng([cfg.seed, step])
     picks = rng.choice(len(train), size=min(cfg.batch, len(train)), replace=False)
-    return collate([train[i] for i in picks], pad)
+    batch = collate([train[i] for i in picks], pad)
+    return {k: v.to(cfg.device) for k, v in batch.items()}
 
 
 @dataclass
@@ -164,13 +169,13 @@ class _State:
 
 
 def _setup(cfg: PointerTrainConfig) -> _State:
-    model = _model(cfg)
+    model = _model(cfg).to(cfg.device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, _schedule(cfg))
     st = _State(model, opt, sched)
     ckpt = Path(cfg.out) / CHECKPOINT
     if ckpt.is_file():
-        saved = torch.load(ckpt, weights_only=False)
+        saved = torch.load(ckpt, weights_only=False, map_location="cpu")
         model.load_state_dict(saved["model"])
         opt.load_state_dict(saved["opt"])
         sched.load_state_dict(saved["sched"])
@@ -183,7 +188,7 @@ def _save(cfg: PointerTrainConfig, st: _State) -> None:
     tmp = ckpt.with_suffix(".tmp")
     torch.save(
         {
-            "model": st.model.state_dict(),
+            "model": {k: v.cpu() for k, v in st.model.state_dict().items()},
             "opt": st.opt.state_dict(),
             "sched": st.sched.state_dict(),
             "step": st.step,
@@ -220,11 +225,11 @@ OnLog = Callable[[Path, Path], None]
 def _evaluate(
     cfg, st: _State, held: Heldout, cases: Sequence[Case], loss: float, on_log: OnLog | None
 ) -> None:
-    st.model.eval()
+    st.model.eval().cpu()  # the same parameters, moved: the optimizer keeps its references
     row = {"step": st.step, "seconds": round(st.seconds, 1), "train_loss": round(loss, 4)}
     row.update(heldout_metrics(st.model, held, cfg.answer))
     row.update(closed_loop(st.model, cases, _card(cfg)))
-    st.model.train()
+    st.model.train().to(cfg.device)
     log = Path(cfg.out) / LOG
     new = not log.is_file()
     with open(log, "a") as f:
@@ -305,7 +310,7 @@ def train_pointer(
         if over:
             break
     bar.close()
-    st.model.eval()
+    st.model.eval().cpu()
     card = {**_card(cfg), "trained_steps": st.step, "train_seconds": round(st.seconds, 1),
             "train_states": len(train), "heldout_states": len(held_list),
             **_provenance(cfg, eval_cases)}  # fmt: skip
