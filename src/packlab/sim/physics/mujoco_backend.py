@@ -405,13 +405,19 @@ class MujocoBackend:
                 low = mid
         self._data.qpos[z_adr] = high + cfg.clearance_mm * _MM
 
+    def _mine(self, geom: int) -> np.ndarray:
+        """Whether each current contact (``data.contact``, as last collided) involves ``geom``.
+        The contact list's fields are read as arrays: iterating its entries one Python object
+        at a time was a third of an honest episode's wall time."""
+        contact = self._data.contact
+        return (contact.geom1 == geom) | (contact.geom2 == geom)
+
     def _touching(self, geom: int) -> set[int]:
         """The geoms ``geom`` touches across a side (horizontal normal), as last collided."""
-        return {
-            c.geom2 if c.geom1 == geom else c.geom1
-            for c in self._data.contact[: self._data.ncon]
-            if geom in (c.geom1, c.geom2) and abs(c.frame[2]) <= 0.5
-        }
+        contact = self._data.contact
+        side = self._mine(geom) & (np.abs(contact.frame[:, 2]) <= 0.5)
+        g1, g2 = contact.geom1[side], contact.geom2[side]
+        return {int(g) for g in np.where(g1 == geom, g2, g1)}
 
     def _touching_back(self, geom: int, axis: int) -> float:
         """How far (m) a box pressed into what it met along ``axis`` must back off for its true
@@ -421,12 +427,12 @@ class MujocoBackend:
         leave every seated box that much too far (1 mm against a box), and rows seated one box
         after another would creep into the room planned for later boxes."""
         deepest, _ = self._deepest_across(geom, axis)
-        insets = 1
-        for c in self._data.contact[: self._data.ncon]:
-            if geom in (c.geom1, c.geom2) and abs(c.frame[axis]) > 0.5:
-                other = c.geom2 if c.geom1 == geom else c.geom1
-                if self._model.geom_bodyid[other] != 0:  # a box, not the floor or a wall
-                    insets = 2
+        contact = self._data.contact
+        across = self._mine(geom) & (np.abs(contact.frame[:, axis]) > 0.5)
+        g1, g2 = contact.geom1[across], contact.geom2[across]
+        others = np.where(g1 == geom, g2, g1)
+        # Two insets against a box, one against the floor or a wall (body 0).
+        insets = 2 if (self._model.geom_bodyid[others] != 0).any() else 1
         return deepest + insets * self.config.collision_inset_mm * _MM
 
     def _wrench(
@@ -447,17 +453,17 @@ class MujocoBackend:
             return force, torque, centre, centre.copy()
         mujoco.mj_forward(model, data)
         wrench = np.zeros(6)
-        for i, contact in enumerate(data.contact[: data.ncon]):
-            if geom not in (contact.geom1, contact.geom2):
-                continue
-            mujoco.mj_contactForce(model, data, i, wrench)
+        contacts = data.contact
+        frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
+        for i in np.flatnonzero(self._mine(geom)):  # in contact order, as the sums were
+            mujoco.mj_contactForce(model, data, int(i), wrench)
             # The normal points from geom1 to geom2; the force pushes geom2 along it.
-            on_box = wrench[0] * contact.frame[:3] * (1.0 if contact.geom2 == geom else -1.0)
+            on_box = wrench[0] * frames[i, :3] * (1.0 if second[i] == geom else -1.0)
             force += on_box
-            r = contact.pos[:2] - axis_xy
+            r = positions[i, :2] - axis_xy
             torque += float(r[0] * on_box[1] - r[1] * on_box[0])
-            kind = int(abs(contact.frame[2]) > 0.5)
-            pressure[kind] += abs(wrench[0]) * contact.pos[:2]
+            kind = int(abs(frames[i, 2]) > 0.5)
+            pressure[kind] += abs(wrench[0]) * positions[i, :2]
             total[kind] += abs(wrench[0])
         side, support = (pressure[k] / total[k] if total[k] > 0 else centre for k in (0, 1))
         return force, torque, side, support
@@ -466,13 +472,15 @@ class MujocoBackend:
         """Deepest penetration (m) of ``geom`` in a contact whose normal lies along ``axis``,
         and the sign (+1, -1) of the way out of it along the axis (0, 0 if none)."""
         self._penetration(geom)  # runs the collision
-        deepest, out = 0.0, 0.0
-        for c in self._data.contact[: self._data.ncon]:
-            if geom in (c.geom1, c.geom2) and abs(c.frame[axis]) > 0.5 and -c.dist > deepest:
-                # The normal points from geom1 to geom2: geom2 goes out along it.
-                deepest = -c.dist
-                out = math.copysign(1.0, c.frame[axis]) * (1.0 if c.geom2 == geom else -1.0)
-        return deepest, out
+        contact = self._data.contact
+        depth = -contact.dist
+        across = self._mine(geom) & (np.abs(contact.frame[:, axis]) > 0.5) & (depth > 0.0)
+        if not across.any():
+            return 0.0, 0.0
+        i = int(np.flatnonzero(across)[np.argmax(depth[across])])  # the first of the deepest
+        # The normal points from geom1 to geom2: geom2 goes out along it.
+        out = math.copysign(1.0, contact.frame[i, axis]) * (1.0 if contact.geom2[i] == geom else -1.0)
+        return float(depth[i]), out
 
     def _side_load(self, geom: int, address: int) -> tuple[np.ndarray, float, np.ndarray]:
         """Force (N, world x and y), torque about z (N m, about the box's centre) and centre
@@ -487,16 +495,16 @@ class MujocoBackend:
             return force, torque, centre
         mujoco.mj_forward(model, data)
         wrench = np.zeros(6)
-        for i, contact in enumerate(data.contact[: data.ncon]):
-            if geom not in (contact.geom1, contact.geom2) or abs(contact.frame[2]) > 0.5:
-                continue
-            mujoco.mj_contactForce(model, data, i, wrench)
+        contacts = data.contact
+        frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
+        for i in np.flatnonzero(self._mine(geom) & (np.abs(frames[:, 2]) <= 0.5)):
+            mujoco.mj_contactForce(model, data, int(i), wrench)
             # The normal points from geom1 to geom2; the force pushes geom2 along it.
-            on_box = wrench[0] * contact.frame[:2] * (1.0 if contact.geom2 == geom else -1.0)
+            on_box = wrench[0] * frames[i, :2] * (1.0 if second[i] == geom else -1.0)
             force += on_box
-            r = contact.pos[:2] - centre
+            r = positions[i, :2] - centre
             torque += float(r[0] * on_box[1] - r[1] * on_box[0])
-            pressure += abs(wrench[0]) * contact.pos[:2]
+            pressure += abs(wrench[0]) * positions[i, :2]
             total += abs(wrench[0])
         return force, torque, pressure / total if total > 0 else centre
 
@@ -532,9 +540,8 @@ class MujocoBackend:
         model, data = self._model, self._data
         mujoco.mj_kinematics(model, data)  # also wakes a tree whose qpos was just set
         mujoco.mj_collision(model, data)
-        return max(
-            (-c.dist for c in data.contact[: data.ncon] if geom in (c.geom1, c.geom2)), default=0.0
-        )
+        mine = self._mine(geom)
+        return float(-data.contact.dist[mine].min()) if mine.any() else 0.0
 
     def _highest_top(self, skip: int) -> float:
         """Height (m) of the highest point of any placed box but ``skip`` (0 if none)."""
