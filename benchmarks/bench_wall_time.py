@@ -4,10 +4,13 @@ Usage:
     python benchmarks/bench_wall_time.py                   # a quarter of the suite, extrapolated
     python benchmarks/bench_wall_time.py --fraction 1      # the whole default run, measured
     python benchmarks/bench_wall_time.py --records DIR     # only the tables, from an existing run
+    python benchmarks/bench_wall_time.py --honest structured-light \
+        --policies dblf,hm,mta,ffp,sdf,plan-fast,vlm,irbpp,tapnet,proposer,random  # the robot path
 
 It runs the default configuration (every heuristic + random + oracle, seeds 0,1,2, mujoco, all
 local cores) on every k-th case of each difficulty of packlab-bench-v1, in a scratch directory,
-and reports:
+and reports (``--honest PRESET``: the robot path instead, perceived + noisy with depth
+segmentation under the preset, as the README's honest table; ``--policies`` the rows):
 
 * the measured wall time and the extrapolation to the full suite: per difficulty, the summed
   episode CPU time scaled by (cases in the suite / cases run), divided by the parallel speed-up
@@ -154,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
         "--fraction", type=float, default=0.25, help="share of each difficulty's cases to run"
     )
     p.add_argument("--workers", type=int, default=0, help="0 = all local cores")
+    p.add_argument("--policies", default="", help="comma-separated rows (default: the bench's)")
+    p.add_argument(
+        "--honest",
+        metavar="PRESET",
+        help="run the robot path: perceived + noisy, depth segmentation, this noise preset",
+    )
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--backend", default="mujoco", choices=("mujoco", "geometric"))
     p.add_argument(
@@ -199,6 +208,12 @@ def main(argv: list[str] | None = None) -> int:
             seeds=tuple(int(s) for s in args.seeds.split(",")),
             workers=args.workers,
             physics_overrides=parse_physics(args.physics),
+            policies=tuple(p for p in args.policies.split(",") if p),
+            **(
+                {"observation": "perceived", "execution": "noisy", "noise": args.honest}
+                if args.honest
+                else {}
+            ),
         )
         t0 = time.perf_counter()
         outcome = run_bench(cfg, figures=False)
@@ -207,7 +222,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{len(cases)} of {sum(counts.values())} cases "
         f"({', '.join(f'{d} {n}' for d, n in counts.items())} "
-        f"in the suite), seeds {args.seeds}, backend {args.backend}, {outcome.planned} episodes; "
+        f"in the suite), seeds {args.seeds}, backend {args.backend}, "
+        f"{'honest ' + args.honest if args.honest else 'exact'}, {outcome.planned} episodes; "
         f"load average now {os.getloadavg()[0]:.2f}"
     )
     print(timing_tables(records, counts if args.fraction < 1 else None, wall, outcome_workers(cfg)))
