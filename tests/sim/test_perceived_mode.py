@@ -14,7 +14,7 @@ from packlab.core.errors import ConfigError
 from packlab.core.records import EpisodeOk
 from packlab.core.types import Action
 from packlab.policies import make_policy
-from packlab.sim.episode import Episode, run_episode
+from packlab.sim.episode import LOOKS_BEFORE_SET_ASIDE, Episode, run_episode
 from packlab.sim.modes import episode_modes
 from packlab.sim.replan import (
     Perception,
@@ -160,6 +160,37 @@ def _missing_first_box(scene: Scene, rng: np.random.Generator) -> Perception:
     return replace(exact, sizes_mm=sizes, missed=missed)
 
 
+def _missing_first_box_once():
+    """A stub perceiver: does not find the case's first box the first time it is shown."""
+    looks = []
+
+    def perceiver(scene: Scene, rng: np.random.Generator) -> Perception:
+        exact = exact_perceiver(scene, rng)
+        if 0 not in scene.shown or looks:
+            return exact
+        looks.append(1)
+        missed = (scene.shown.index(0),)
+        sizes = tuple((0, 0, 0) if i in missed else s for i, s in enumerate(exact.sizes_mm))
+        return replace(exact, sizes_mm=sizes, missed=missed)
+
+    return perceiver
+
+
+def test_an_object_not_found_once_stays_in_the_buffer_and_is_packed_after_another_look():
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_missing_first_box_once())
+    observation = episode.reset(case, 0)
+    # Held back, not set aside: the policy is shown the rest of the window.
+    assert episode.looked_again == 1 and episode.missed == 0
+    assert len(observation.shown) == min(case.buffer_size, len(case.objects) - 1)
+    result = run_episode(case, make_policy("dblf"), 0, "geometric",
+                         perceiver=_missing_first_box_once())  # fmt: skip
+    assert result.missed == 0 and result.looked_again == 1
+    assert len(result.steps) == len(case.objects)
+    assert case.objects[0].internal_id in {s.internal_id for s in result.steps if s.valid}
+    assert result.to_record()["metrics"]["looked_again"] == 1
+
+
 def test_missed_objects_are_set_aside_counted_and_never_shown():
     case = make_layered_case(0, pieces=5)
     episode = Episode("geometric", perceiver=_missing_first_box)
@@ -179,6 +210,8 @@ def test_missed_objects_are_set_aside_counted_and_never_shown():
     assert metrics.n_set_aside >= 1 and metrics.success_ratio < 1.0
     result = run_episode(case, make_policy("dblf"), 0, "geometric", perceiver=_missing_first_box)
     assert result.missed == 1 and result.to_record()["metrics"]["missed"] == 1
+    # Looked at again at the observations before it was given up.
+    assert result.looked_again == LOOKS_BEFORE_SET_ASIDE - 1
 
 
 def _swapped_sides(scene: Scene, rng: np.random.Generator) -> Perception:

@@ -194,6 +194,7 @@ class _PerceptionCounts(TypedDict, total=False):
 
     replans_per_episode: float
     missed_per_episode: float
+    looked_again_per_episode: float
     dims_error_mm: float | None
     yaw_error_deg: float | None
     heightmap_mae_mm: float | None
@@ -224,6 +225,10 @@ def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
     counts: _PerceptionCounts = {"replans_per_episode": math.fsum(replans) / len(replans)}
     if missed:
         counts["missed_per_episode"] = math.fsum(missed) / len(missed)
+        again = [r.metrics.looked_again for r in mine]
+        counts["looked_again_per_episode"] = math.fsum(
+            0 if a is UNSET else a for a in again
+        ) / len(again)
     counts["dims_error_mm"] = _number(_mean(dims))
     counts["yaw_error_deg"] = _number(_mean(yaws))
     counts["heightmap_mae_mm"] = _number(_mean(maes))

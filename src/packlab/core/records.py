@@ -207,6 +207,9 @@ class MetricsRecord(Struct, frozen=True):
     replans: int | UnsetType = UNSET
     #: Perceived observation only: objects perception did not find (set aside, not packed).
     missed: int | UnsetType = UNSET
+    #: Perceived observation only, where it happened: times an object was not found and left in
+    #: the buffer for another look at the next observation (``sim.episode.LOOKS_BEFORE_SET_ASIDE``).
+    looked_again: int | UnsetType = UNSET
     #: Issue 34, noisy execution only: the place skill's counts summed over the episode's
     #: steps, by kind; absent from older records.
     skill: dict[str, int] | UnsetType = UNSET
@@ -352,6 +355,7 @@ class PolicyCounts(Struct, frozen=True):
     #: and over every step (heightmap mean absolute error, mm).
     replans_per_episode: float | UnsetType = UNSET
     missed_per_episode: float | UnsetType = UNSET
+    looked_again_per_episode: float | UnsetType = UNSET
     dims_error_mm: float | None | UnsetType = UNSET
     yaw_error_deg: float | None | UnsetType = UNSET
     heightmap_mae_mm: float | None | UnsetType = UNSET

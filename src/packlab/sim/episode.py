@@ -71,6 +71,11 @@ from packlab.sim.placement import (
 )
 from packlab.sim.replan import Perceiver, Perception, ReplanRule, deviates
 
+#: Observations at which an object must go unfound before it is set aside (perceived mode): the
+#: first, and two more after the boxes beside it changed. Each observation's perception already
+#: scans the buffer twice (``sensing.buffer.MAX_SCANS``).
+LOOKS_BEFORE_SET_ASIDE = 3
+
 #: The re-plan threshold of perceived-mode episodes (``packlab.sim.replan.ReplanRule``).
 DEFAULT_REPLAN = ReplanRule()
 
@@ -153,6 +158,10 @@ class Episode:
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
         self.missed = 0  # objects perception did not find, set aside (perceived mode)
+        #: Perceived mode: observations at which each object was not found (case index -> n);
+        #: one that reaches ``LOOKS_BEFORE_SET_ASIDE`` is set aside.
+        self._not_found: dict[int, int] = {}
+        self.looked_again = 0  # objects left in the buffer unidentified for another look
         self._next_seen_id = 0  # the next fresh id a perceived box is shown under
         self._history: list[HistoryEntry] = []
         self.steps = []
@@ -218,26 +227,44 @@ class Episode:
         return self._heightmap
 
     def _reshuffle(self) -> int:
-        """Show the next objects and perceive them. Objects perception missed are set aside
-        (as a robot cell passes them on) and the buffer refilled until none is missed; returns
-        the final settle's steps when that emptied the stream, else 0."""
+        """Show the next objects and perceive them. An object perception did not find stays in
+        the buffer, not shown to the policy, and is looked at again at the next observation,
+        when the boxes beside it have changed (a robot cell picks what it can identify and
+        scans again); the window is refilled meanwhile. One not found at
+        ``LOOKS_BEFORE_SET_ASIDE`` observations is set aside (as a robot cell passes it on) and
+        counted as missed. Returns the final settle's steps when that emptied the stream, else
+        0."""
+        held_back: set[int] = set()
         while True:
-            self._show_window()
+            self._show_window(held_back)
+            if not self._shown_indices and held_back:
+                # Only unidentified objects are left: look at them again now. Terminates: every
+                # miss counts towards a set-aside.
+                held_back.clear()
+                continue
             missed = self._perceive()
             if not missed:
                 return 0
             for index in missed:
+                self._not_found[index] = self._not_found.get(index, 0) + 1
+                if self._not_found[index] < LOOKS_BEFORE_SET_ASIDE:
+                    held_back.add(index)
+                    self.looked_again += 1
+                    continue
                 self._set_aside.add(index)
                 self._pending.remove(index)
-            self.missed += len(missed)
+                self.missed += 1
             if not self._pending:
                 settle_steps = self._final_settle()
                 self._show_nothing()
                 return settle_steps
 
-    def _show_window(self) -> None:
-        shown = self._protocol.shown_count(self._case.buffer_size, len(self._pending))
-        window = visible_window(self._pending, shown)
+    def _show_window(self, held_back: set[int] | frozenset[int] = frozenset()) -> None:
+        """Show the window of the stream, without the objects ``held_back`` (perceived mode:
+        in the buffer but not identified at this observation)."""
+        candidates = [i for i in self._pending if i not in held_back]
+        shown = self._protocol.shown_count(self._case.buffer_size, len(candidates))
+        window = visible_window(candidates, shown)
         # Online: shown in arrival order (the first is the one to place), no shuffle drawn.
         self._shown_indices = window if self._protocol.online else shuffled_view(window, self._rng)
         self._shown = exact_items(self._case, self._shown_indices, self._sides)
@@ -551,6 +578,7 @@ def run_episode(
         decision_cpu_s=tuple(decision_cpu),
         replans=None if perceiver is None else sum(bool(s.replan) for s in episode.steps),
         missed=None if perceiver is None else episode.missed,
+        looked_again=None if perceiver is None else episode.looked_again,
         skill=None if execution is None else skill_totals(episode.steps),
         online=episode.online_outcome(metrics),
     )

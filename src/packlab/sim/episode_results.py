@@ -158,6 +158,9 @@ class EpisodeResult:
     replans: int | None = None
     #: Perceived mode only (else None): objects perception did not find, set aside unpacked.
     missed: int | None = None
+    #: Perceived mode only (else None): times an object was not found and left in the buffer
+    #: for another look at the next observation (``sim.episode.LOOKS_BEFORE_SET_ASIDE``).
+    looked_again: int | None = None
     #: Noisy execution only (else None): the place skill's counts summed over the steps
     #: (``StepResult.skill``), by kind; what it had to do to recover and how.
     skill: dict[str, int] | None = None
@@ -183,6 +186,8 @@ class EpisodeResult:
             metrics["replans"] = self.replans
         if self.missed is not None:
             metrics["missed"] = self.missed
+        if self.looked_again:  # only where it happened: records without misses are unchanged
+            metrics["looked_again"] = self.looked_again
         if self.skill is not None:  # noisy execution only
             metrics["skill"] = dict(self.skill)
         if self.online is not None:  # online protocol only: buffer records are unchanged

@@ -53,7 +53,8 @@ class Perception:
     #: error with its sign reversed (``execution.perturb_drop``). Empty: no error (exact).
     grasp_errors: tuple[tuple[float, float, float], ...] = ()
     #: Shown objects the perceiver could not find or split after a re-scan (positions in the
-    #: scene's ``shown``): the episode sets them aside, as a robot cell would, and counts them.
+    #: scene's ``shown``): the episode leaves them in the buffer unshown and looks again at the
+    #: next observation, and sets one aside (counted) after ``LOOKS_BEFORE_SET_ASIDE`` misses.
     missed: tuple[int, ...] = ()
     #: Simulator bookkeeping per shown object: True where the perceived first side (the longer
     #: one: a camera cannot see which side a catalogue calls l) is the box's own w side, so the
