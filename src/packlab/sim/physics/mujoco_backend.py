@@ -479,7 +479,8 @@ class MujocoBackend:
             return 0.0, 0.0
         i = int(np.flatnonzero(across)[np.argmax(depth[across])])  # the first of the deepest
         # The normal points from geom1 to geom2: geom2 goes out along it.
-        out = math.copysign(1.0, contact.frame[i, axis]) * (1.0 if contact.geom2[i] == geom else -1.0)
+        side = 1.0 if contact.geom2[i] == geom else -1.0
+        out = math.copysign(1.0, contact.frame[i, axis]) * side
         return float(depth[i]), out
 
     def _side_load(self, geom: int, address: int) -> tuple[np.ndarray, float, np.ndarray]:
