@@ -204,7 +204,9 @@ def test_missed_objects_are_set_aside_counted_and_never_shown():
         if not episode.done:
             observation = episode.observe()
     first = case.objects[0].internal_id
+    # Shown ids are fresh per observation (never the case's); what was processed says more.
     assert first not in seen_ids and episode.missed == 1
+    assert first not in {step.internal_id for step in episode.steps}
     assert len(episode.steps) == len(case.objects) - 1
     metrics = episode.metrics()
     assert metrics.n_set_aside >= 1 and metrics.success_ratio < 1.0
