@@ -225,10 +225,9 @@ def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
     counts: _PerceptionCounts = {"replans_per_episode": math.fsum(replans) / len(replans)}
     if missed:
         counts["missed_per_episode"] = math.fsum(missed) / len(missed)
-        again = [r.metrics.looked_again for r in mine]
-        counts["looked_again_per_episode"] = math.fsum(0 if a is UNSET else a for a in again) / len(
-            again
-        )
+        # Records carry looked_again only where it happened: absent counts as 0.
+        again = [0 if r.metrics.looked_again is UNSET else r.metrics.looked_again for r in mine]
+        counts["looked_again_per_episode"] = math.fsum(again) / len(again)
     counts["dims_error_mm"] = _number(_mean(dims))
     counts["yaw_error_deg"] = _number(_mean(yaws))
     counts["heightmap_mae_mm"] = _number(_mean(maes))

@@ -405,7 +405,7 @@ class MujocoBackend:
                 low = mid
         self._data.qpos[z_adr] = high + cfg.clearance_mm * _MM
 
-    def _mine(self, geom: int) -> np.ndarray:
+    def _contacts_with(self, geom: int) -> np.ndarray:
         """Whether each current contact (``data.contact``, as last collided) involves ``geom``.
         The contact list's fields are read as arrays: iterating its entries one Python object
         at a time was a third of an honest episode's wall time."""
@@ -415,7 +415,7 @@ class MujocoBackend:
     def _touching(self, geom: int) -> set[int]:
         """The geoms ``geom`` touches across a side (horizontal normal), as last collided."""
         contact = self._data.contact
-        side = self._mine(geom) & (np.abs(contact.frame[:, 2]) <= 0.5)
+        side = self._contacts_with(geom) & (np.abs(contact.frame[:, 2]) <= 0.5)
         g1, g2 = contact.geom1[side], contact.geom2[side]
         return {int(g) for g in np.where(g1 == geom, g2, g1)}
 
@@ -428,7 +428,7 @@ class MujocoBackend:
         after another would creep into the room planned for later boxes."""
         deepest, _ = self._deepest_across(geom, axis)
         contact = self._data.contact
-        across = self._mine(geom) & (np.abs(contact.frame[:, axis]) > 0.5)
+        across = self._contacts_with(geom) & (np.abs(contact.frame[:, axis]) > 0.5)
         g1, g2 = contact.geom1[across], contact.geom2[across]
         others = np.where(g1 == geom, g2, g1)
         # Two insets against a box, one against the floor or a wall (body 0).
@@ -455,7 +455,7 @@ class MujocoBackend:
         wrench = np.zeros(6)
         contacts = data.contact
         frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
-        for i in np.flatnonzero(self._mine(geom)):  # in contact order, as the sums were
+        for i in np.flatnonzero(self._contacts_with(geom)):  # in contact order, as the sums were
             mujoco.mj_contactForce(model, data, int(i), wrench)
             # The normal points from geom1 to geom2; the force pushes geom2 along it.
             on_box = wrench[0] * frames[i, :3] * (1.0 if second[i] == geom else -1.0)
@@ -474,7 +474,7 @@ class MujocoBackend:
         self._penetration(geom)  # runs the collision
         contact = self._data.contact
         depth = -contact.dist
-        across = self._mine(geom) & (np.abs(contact.frame[:, axis]) > 0.5) & (depth > 0.0)
+        across = self._contacts_with(geom) & (np.abs(contact.frame[:, axis]) > 0.5) & (depth > 0.0)
         if not across.any():
             return 0.0, 0.0
         i = int(np.flatnonzero(across)[np.argmax(depth[across])])  # the first of the deepest
@@ -498,7 +498,7 @@ class MujocoBackend:
         wrench = np.zeros(6)
         contacts = data.contact
         frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
-        for i in np.flatnonzero(self._mine(geom) & (np.abs(frames[:, 2]) <= 0.5)):
+        for i in np.flatnonzero(self._contacts_with(geom) & (np.abs(frames[:, 2]) <= 0.5)):
             mujoco.mj_contactForce(model, data, int(i), wrench)
             # The normal points from geom1 to geom2; the force pushes geom2 along it.
             on_box = wrench[0] * frames[i, :2] * (1.0 if second[i] == geom else -1.0)
@@ -541,7 +541,7 @@ class MujocoBackend:
         model, data = self._model, self._data
         mujoco.mj_kinematics(model, data)  # also wakes a tree whose qpos was just set
         mujoco.mj_collision(model, data)
-        mine = self._mine(geom)
+        mine = self._contacts_with(geom)
         return float(-data.contact.dist[mine].min()) if mine.any() else 0.0
 
     def _highest_top(self, skip: int) -> float:
