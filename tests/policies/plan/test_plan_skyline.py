@@ -7,64 +7,17 @@ import random
 
 import numpy as np
 import pytest
+from _guillotine_cases import CELL_MM, guillotine_boxes, replay, shuffled_blocks
 
 from packlab.core.types import Box, Case, Container
 from packlab.policies import make_policy
 from packlab.policies.plan.skyline import Block, filling_ceiling, skyline_fill
 from packlab.sim.episode import run_episode
 
-CELL_MM = 25
-
-
-def guillotine_boxes(seed: int, cells=(12, 10), height_mm=400, lo=(3, 3, 80), hi=(7, 7, 250)):
-    """A random 3-D guillotine cut of a cuboid (cells x cells x mm) into boxes whose sides lie
-    in [lo, hi] (z in 10 mm steps): a perfect packing of mixed heights."""
-    rng = random.Random(seed)
-    todo, done = [(0, 0, 0, cells[0], cells[1], height_mm)], []
-    while todo:
-        x, y, z, dx, dy, dz = todo.pop()
-        dims = [dx, dy, dz]
-        axes = [a for a in range(3) if dims[a] > hi[a]]
-        if not axes:
-            done.append((x, y, z, dx, dy, dz))
-            continue
-        a = rng.choice(axes)
-        step = 10 if a == 2 else 1  # heights in whole cm, footprints in whole cells
-        cut = rng.randrange(lo[a], dims[a] - lo[a] + 1, step)
-        first, second = list(dims), list(dims)
-        first[a], second[a] = cut, dims[a] - cut
-        origin = [x, y, z]
-        origin[a] += cut
-        todo.append((x, y, z, *first))
-        todo.append((*origin, *second))
-    return done
-
-
-def _blocks(seed):
-    rng = random.Random(seed)
-    out = []
-    for i, (_, _, _, dx, dy, dz) in enumerate(guillotine_boxes(seed)):
-        if rng.random() < 0.5:
-            dx, dy = dy, dx
-        out.append(Block(i, dx, dy, dz))
-    rng.shuffle(out)
-    return out
-
-
-def _replay(heightmap, placements):
-    """Apply a filling; every box must rest flat on what was placed before it."""
-    hm = np.array(heightmap, dtype=np.int64)
-    for p in placements:
-        under = hm[p.x : p.x + p.fx, p.y : p.y + p.fy]
-        assert under.shape == (p.fx, p.fy), "footprint leaves the container"
-        assert (under == p.z_mm).all(), "a box rests on a step"
-        hm[p.x : p.x + p.fx, p.y : p.y + p.fy] = p.top_mm
-    return hm
-
 
 @pytest.mark.parametrize("seed", range(6))
 def test_guillotine_packings_of_mixed_heights_are_filled_exactly(seed):
-    blocks = _blocks(seed)
+    blocks = shuffled_blocks(seed)
     hm = np.zeros((12, 10), dtype=np.int32)
     ceiling = filling_ceiling(hm, blocks)
     assert ceiling == 400
@@ -76,19 +29,19 @@ def test_guillotine_packings_of_mixed_heights_are_filled_exactly(seed):
         b = sizes[p.key]
         assert (p.fx, p.fy) == ((b.length, b.width) if p.rotation == 0 else (b.width, b.length))
         assert p.height_mm == b.height_mm
-    assert (_replay(hm, found.placements) == 400).all()
+    assert (replay(hm, found.placements) == 400).all()
 
 
 def test_a_partly_packed_surface_is_finished_from_where_it_stands():
-    blocks = _blocks(1)
+    blocks = shuffled_blocks(1)
     full = skyline_fill(np.zeros((12, 10), np.int32), blocks, 400, max_nodes=20_000)
     placed, rest = full.placements[:5], full.placements[5:]
-    hm = _replay(np.zeros((12, 10)), placed).astype(np.int32)
+    hm = replay(np.zeros((12, 10)), placed).astype(np.int32)
     left = [b for b in blocks if b.key in {p.key for p in rest}]
     assert filling_ceiling(hm, left) == 400
     found = skyline_fill(hm, left, 400)
     assert found.placements is not None
-    assert (_replay(hm, found.placements) == 400).all()
+    assert (replay(hm, found.placements) == 400).all()
 
 
 def test_no_filling_when_the_volume_or_the_shapes_do_not_allow_one():
@@ -141,7 +94,7 @@ def test_plan_packs_most_mixed_height_layouts_perfectly_when_shown_every_box():
 
 def test_the_endgame_can_be_turned_off_and_then_is_not_used():
     case = _case(0, buffer_size=99)
-    policy = make_policy("plan-fast", endgame_nodes=0)
+    policy = make_policy("plan-fast", endgame_nodes=0, guillotine_nodes=0)
     run_episode(case, policy, backend="geometric")
     assert policy.endgame.decided == 0 and policy.endgame.searches == 0
 

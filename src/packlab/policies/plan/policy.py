@@ -172,8 +172,15 @@ _COMPLETION_KEYS = {
     "guesses": "guesses",
 }
 #: Options of the endgame (:class:`.endgame.EndgameConfig`): ``endgame_nodes`` (node budget
-#: of one skyline search; 0 turns the endgame off), ``endgame_boxes`` (most boxes in view).
-_ENDGAME_KEYS = {"endgame_nodes": "max_nodes", "endgame_boxes": "max_boxes"}
+#: of one skyline search; 0 turns it off), ``endgame_boxes`` (most boxes in view for it),
+#: ``guillotine_nodes`` (node budget of one guillotine assembly on a flat surface; 0 turns it
+#: off) and ``guillotine_boxes`` (most boxes in view for it).
+_ENDGAME_KEYS = {
+    "endgame_nodes": "max_nodes",
+    "endgame_boxes": "max_boxes",
+    "guillotine_nodes": "guillotine_nodes",
+    "guillotine_boxes": "guillotine_boxes",
+}
 #: ``complete`` (the completion stage at all) and ``mixed`` (its last stage: a tiling of mixed
 #: heights, :attr:`.complete.CompletionConfig.mixed`).
 _SWITCHES = ("complete", "mixed")
