@@ -37,7 +37,7 @@ def test_guillotine_packings_are_found_and_replay_to_a_full_cuboid(seed):
 
 def test_large_packings_of_thirty_boxes_and_more_are_found():
     # The cut family's hard level has 19-32 boxes; the skyline search rarely finds those. Of
-    # seeds 0-7 of this cut (26-51 boxes) six were found; these four have 32-35 boxes.
+    # seeds 0-7 of this cut (26-51 boxes) seven were found; these four have 32-35 boxes.
     for seed in (0, 3, 5, 7):
         cells, lo, hi = (30, 24), (3, 3, 80), (14, 14, 350)
         cut = guillotine_boxes(seed, cells=cells, height_mm=700, lo=lo, hi=hi)
