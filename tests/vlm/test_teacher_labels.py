@@ -21,12 +21,18 @@ from packlab.vlm.candidate.states import listed_of, make_state, read_states, shu
 
 @pytest.fixture(scope="module")
 def states():
-    """(observation, listed, label) along plan-fast's own trajectories on generated cases."""
+    """(observation, listed, label, plan-fast's own action) along plan-fast's own trajectories on
+    generated cases. The planner keeps state within an episode (an endgame filling it follows),
+    so its own action comes from a plan-fast policy run along the same trajectory, not from a
+    fresh one per state."""
     out = []
     cases = generate_cases("hard", 2, 23, validate=False, domain="train")
     cases += generate_cases("medium", 2, 23, validate=False, domain="train")
+    teacher = ListedTeacher("plan")  # one teacher for every case: reset must forget the last
     for case in cases:
-        teacher = ListedTeacher("plan")
+        teacher.reset(case, 0)
+        planner = make_policy("plan-fast")
+        planner.reset(case, 0)
         episode = Episode("geometric")
         obs = episode.reset(case, 0)
         while not episode.done:
@@ -35,7 +41,7 @@ def states():
             if not listed:
                 break
             told = teacher.label(obs, cands, listed)
-            out.append((obs, listed, told))
+            out.append((obs, listed, told, planner.act(obs)))
             episode.step(told.action)
             if not episode.done:
                 obs = episode.observe()
@@ -48,9 +54,7 @@ def _shape(c, obs):
 
 def test_plan_teacher_lists_the_planners_own_pick(states):
     added = 0
-    for obs, listed, told in states:
-        planner = make_policy("plan-fast")
-        action = planner.act(obs)
+    for obs, listed, told, action in states:
         assert told.action == action
         assert told.label >= 0
         picked = told.listed[told.label]
@@ -68,7 +72,7 @@ def test_plan_teacher_lists_the_planners_own_pick(states):
 
 
 def test_soft_targets_share_the_mass_over_boxes_of_one_tiling(states):
-    soft_states = [(obs, told) for obs, _, told in states if told.soft]
+    soft_states = [(obs, told) for obs, _, told, _ in states if told.soft]
     assert len(soft_states) >= 5
     for obs, told in soft_states:
         soft = np.asarray(told.soft)
@@ -83,14 +87,14 @@ def test_soft_targets_share_the_mass_over_boxes_of_one_tiling(states):
 
 
 def test_candidate_for_rebuilds_a_listed_line(states):
-    obs, listed, _ = states[3]
+    obs, listed, _, _ = states[3]
     cands = observation_candidates(obs)
     for c in listed:
         assert candidate_for(cands, c.action, c.index) == c
 
 
 def test_soft_targets_move_with_shuffling_and_are_stored(states, tmp_path):
-    obs, _, told = next((o, li, t) for o, li, t in states if t.soft)
+    obs, _, told = next((o, li, t) for o, li, t, _ in states if t.soft)
     state = make_state("c", "hard", obs, told.listed, "plan", told.label, "teacher", told.soft,
                        told.added)  # fmt: skip
     path = tmp_path / "states.jsonl"
@@ -105,7 +109,7 @@ def test_soft_targets_move_with_shuffling_and_are_stored(states, tmp_path):
 
 
 def test_format_1_files_read_and_bad_soft_is_named(states, tmp_path):
-    obs, listed, _ = states[0]
+    obs, listed, _, _ = states[0]
     row = json.loads(msgspec.json.encode(make_state("c", "hard", obs, listed, "sdf", 0, "t")))
     row["format"] = "packlab-states-1"
     del row["soft"], row["teacher_added"]

@@ -107,6 +107,9 @@ class ListedTeacher:
     def reset(self, case: Case, seed: int) -> None:
         if self.teacher.startswith("oracle"):
             self._oracle.reset(case, seed)
+        # The planner keeps an episode's state (a filling it follows, a proof that none exists):
+        # a new episode must not inherit the last one's.
+        self._plan.reset(case, seed)
 
     def own_action(self, observation: Observation) -> Action:
         """The teacher's own action where its pick is not listed (the raw oracle's layout)."""
