@@ -104,3 +104,24 @@ def test_the_planner_packs_more_boxes_than_the_skyline_search_can_when_shown_eve
     off = make_policy("plan-fast", guillotine_nodes=0)
     run_episode(case, off, backend="geometric")
     assert off.endgame.decided < len(case.objects)
+
+
+#: A cut of Zhao et al.'s shape (a 10-unit cube, sides 2-5 units; here 20 x 20 cells, heights in
+#: mm): few distinct sizes, so many pieces share a face by coincidence. The merge search does
+#: not find it within its budget; the top-down cut search does.
+_ZHAO_SHAPED = [
+    (4, 6, 150), (4, 8, 150), (6, 4, 150), (6, 8, 150), (6, 10, 150), (6, 6, 150), (6, 8, 150),
+    (8, 8, 150), (8, 8, 150), (6, 6, 150), (4, 10, 150), (10, 10, 150), (8, 10, 150),
+    (10, 6, 150), (6, 10, 150), (6, 4, 150), (8, 10, 200), (8, 6, 200), (4, 4, 200),
+    (6, 8, 200), (8, 4, 200), (8, 8, 200), (8, 10, 200), (4, 8, 200),
+]  # fmt: skip
+
+
+def test_the_cut_search_finds_a_packing_of_few_sizes_that_the_merges_miss():
+    blocks = [Block(i, *size) for i, size in enumerate(_ZHAO_SHAPED)]
+    height = sum(b.length * b.width * b.height_mm for b in blocks) // (20 * 20)
+    merges_only = guillotine_fill(blocks, (20, 20), height, cut_nodes=0)
+    assert merges_only.placements is None and merges_only.exhausted
+    found = guillotine_fill(blocks, (20, 20), height)
+    assert found.placements is not None
+    _check(blocks, found.placements, (20, 20), height)
