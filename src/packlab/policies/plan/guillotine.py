@@ -436,7 +436,7 @@ class _CutSearch:
         cut = self.memo[(part, sizes)]
         if cut is None:
             return pieces[part].pop()
-        assert cut is not False
+        assert isinstance(cut, tuple), "tree() of a part that was not solved"
         axis, p, first, second = cut
         a, b = self._parts(part, axis, p)
         one, two = self.tree(a, first, pieces), self.tree(b, second, pieces)
