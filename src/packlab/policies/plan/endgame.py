@@ -57,7 +57,7 @@ class EndgameConfig:
     max_boxes: int = 24
     #: Nodes of one guillotine assembly (:mod:`.guillotine`), tried first whenever the surface
     #: is flat (an empty container; a closed layer). About 0.1 ms per node for 30 boxes; on
-    #: generated hard cut training cases 99 of 100 packings were found within 50 000 nodes,
+    #: generated hard cut training cases 123 of 124 packings were found within 50 000 nodes,
     #: most within as many nodes as boxes.
     guillotine_nodes: int = 50_000
     #: At most this many boxes in view for the assembly (a node's cost grows with the square

@@ -100,6 +100,12 @@ _Piece = _Leaf | _Stack | _Side
 _Merge = tuple[Size, Size, Size]
 
 
+def _fits(size: Size, part: Size) -> bool:
+    """Whether a piece fits in a part, turned or not (both sizes shorter side first, so the
+    shorter sides and the longer sides compare)."""
+    return size[0] <= part[0] and size[1] <= part[1] and size[2] <= part[2]
+
+
 def _joins(p: Size, q: Size) -> list[Size]:
     """Every size that pieces of sizes ``p`` and ``q`` make when merged."""
     out = []
@@ -131,9 +137,6 @@ class _Search:
     def exhausted(self) -> bool:
         return self.nodes >= self.max_nodes
 
-    def _fits(self, size: Size) -> bool:
-        return size[0] <= self.goal[0] and size[1] <= self.goal[1] and size[2] <= self.goal[2]
-
     def _moves(self, state: Counter[Size]) -> list[_Merge]:
         sizes = sorted(state)
         moves: dict[_Merge, None] = {}
@@ -143,7 +146,7 @@ class _Search:
                 if p == q and state[p] < 2:
                     continue
                 for r in _joins(p, q):
-                    if self._fits(r) and (p, q, r) not in moves:
+                    if _fits(r, self.goal) and (p, q, r) not in moves:
                         moves[(p, q, r)] = None
                         partners[p] += 1
                         partners[q] += 1
@@ -210,42 +213,31 @@ def guillotine_fill(
     volume = sum(b.length * b.width * b.height_mm for b in blocks)
     if not blocks or volume != goal[0] * goal[1] * goal[2]:
         return SkylineResult(None, 0, False)
-    merged = _merge_fill(blocks, goal, max_nodes)
-    if merged.merges is not None or not merged.exhausted or not cut_nodes:
-        return _laid_out(blocks, merged, footprint, base_mm)
-    cut = _CutSearch(cut_nodes)
-    start = tuple(sorted(Counter(piece_size(*b.size) for b in blocks).items()))
-    try:
-        found = cut.solve(goal, start)
-    except _OutOfBudget:
-        found = False
-    nodes = merged.nodes + cut.nodes
-    if not found:
-        return SkylineResult(None, nodes, True)
-    root = cut.tree(goal, start, _leaves(blocks))
+    merges, nodes, exhausted = _merge_fill(blocks, goal, max_nodes)
+    if merges is not None:
+        root = _assemble(blocks, merges)
+    elif exhausted and cut_nodes:
+        cut = _CutSearch(cut_nodes)
+        start = tuple(sorted(Counter(piece_size(*b.size) for b in blocks).items()))
+        try:
+            found = cut.solve(goal, start)
+        except _OutOfBudget:
+            found = False
+        nodes += cut.nodes
+        if not found:
+            return SkylineResult(None, nodes, True)
+        root = cut.tree(goal, start, _leaves(blocks))
+    else:
+        return SkylineResult(None, nodes, exhausted)
     placed = _place(root, 0, 0, base_mm, footprint[0], footprint[1])
     return SkylineResult(tuple(sorted(placed, key=_build_key)), nodes, False)
 
 
-@dataclass(frozen=True, slots=True)
-class _Merged:
-    merges: list[_Merge] | None
-    nodes: int
-    exhausted: bool
-
-
-def _laid_out(
-    blocks: Sequence[Block], merged: _Merged, footprint: tuple[int, int], base_mm: int
-) -> SkylineResult:
-    if merged.merges is None:
-        return SkylineResult(None, merged.nodes, merged.exhausted)
-    root = _assemble(blocks, merged.merges)
-    placed = _place(root, 0, 0, base_mm, footprint[0], footprint[1])
-    return SkylineResult(tuple(sorted(placed, key=_build_key)), merged.nodes, False)
-
-
-def _merge_fill(blocks: Sequence[Block], goal: Size, max_nodes: int) -> _Merged:
-    """The merge search with its restarts (module docstring)."""
+def _merge_fill(
+    blocks: Sequence[Block], goal: Size, max_nodes: int
+) -> tuple[list[_Merge] | None, int, bool]:
+    """The merge search with its restarts (module docstring): (the merges of a packing or None,
+    nodes spent, whether the budget ran out)."""
     start = Counter(piece_size(*b.size) for b in blocks)
     failed: set[tuple[tuple[Size, int], ...]] = set()
     spent, attempt = 0, 0
@@ -256,11 +248,11 @@ def _merge_fill(blocks: Sequence[Block], goal: Size, max_nodes: int) -> _Merged:
         found = search.solve(Counter(start))
         spent += search.nodes
         if found:
-            return _Merged(search.merges, spent, False)
+            return search.merges, spent, False
         if not search.exhausted():  # searched to the end: no guillotine packing
-            return _Merged(None, spent, False)
+            return None, spent, False
         attempt += 1
-    return _Merged(None, spent, True)
+    return None, spent, True
 
 
 def _build_key(p: Placed) -> tuple[int, int, int]:
@@ -349,7 +341,7 @@ class _CutSearch:
         if len(sizes) == 1 and sizes[0][1] == 1:
             self.memo[key] = None if sizes[0][0] == part else False
             return self.memo[key] is None
-        if not all(self._fits(s, part) for s, _ in sizes):
+        if not all(_fits(s, part) for s, _ in sizes):
             self.memo[key] = False
             return False
         for cut in self._cuts(part, sizes):
@@ -395,8 +387,8 @@ class _CutSearch:
         every piece fitting the part it goes to (larger pieces decided first)."""
         order = sorted(sizes, key=lambda sn: -sn[0][0] * sn[0][1] * sn[0][2])
         volumes = [s[0] * s[1] * s[2] for s, _ in order]
-        fit1 = [self._fits(s, first) for s, _ in order]
-        fit2 = [self._fits(s, second) for s, _ in order]
+        fit1 = [_fits(s, first) for s, _ in order]
+        fit2 = [_fits(s, second) for s, _ in order]
         if not all(f1 or f2 for f1, f2 in zip(fit1, fit2)):
             return
         target = first[0] * first[1] * first[2]
