@@ -56,10 +56,12 @@ from tqdm import tqdm
 from packlab.core.choices import Executor, require_choice
 from packlab.core.errors import ConfigError, RunAborted
 from packlab.core.stop import (
+    adopt_orphans,
     clock_ticks_since_boot,
     descendants,
     end_processes,
     holding_files_under,
+    reap,
     started_at_ticks,
 )
 
@@ -533,8 +535,8 @@ def _run_ray(
     lose: Callable[[T, Lost], R],
 ) -> Iterator[R]:
     """Items as Ray tasks. Time limits inside an item work as in a pool (Ray runs a task in its
-    worker's main thread). At the deadline every pending task is cancelled (``force=True``
-    kills the worker processes running them)."""
+    worker's main thread). At the deadline every pending task ends: with the cluster when Ray
+    was started here, else cancelled (``force=True`` kills the worker processes running them)."""
     ray = _import_ray()
     started_here = not ray.is_initialized()
     before_ray: set[int] = set()
@@ -546,6 +548,8 @@ def _run_ray(
         handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
         before_ray = set(descendants(os.getpid()))  # the caller's own children are not Ray's
         ray_started_ticks = clock_ticks_since_boot()
+        # Orphans become ours, not init's: an agent whose raylet ends first stays findable.
+        adopt_orphans(True)
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         if threading.current_thread() is threading.main_thread():
             for signum, handler in handlers.items():
@@ -598,8 +602,13 @@ def _end_ray(
             # started here by pid after its own shutdown.
             started = set(descendants(os.getpid(), skip=before_ray))
             session = _ray_session_dir(ray)
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        if not started_here:
+            # The caller's cluster outlives this run: end its tasks here. A cluster started
+            # here is ended whole by the shutdown below; a force cancel racing a task that
+            # is just completing aborts the driver in Ray 2.x ("Tried to complete task that
+            # was not pending", exit 1) before this cleanup ends what Ray started.
+            for ref in pending:
+                ray.cancel(ref, force=True)
     finally:
         try:
             if started_here:
@@ -616,7 +625,12 @@ def _end_ray(
                         for p in holding_files_under(session)
                         if (started_at_ticks(p) or 0) >= ray_started_ticks
                     } - before_ray
-                end_processes(sorted(started - {os.getpid()}))
+                # What Ray left, adopted by this process once its parent ended (adopt_orphans).
+                started |= set(descendants(os.getpid(), skip=before_ray))
+                ended = sorted(started - {os.getpid()})
+                end_processes(ended)
+                reap(ended)
+                adopt_orphans(False)
 
 
 def _ray_session_dir(ray: Any) -> str | None:

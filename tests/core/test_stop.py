@@ -210,3 +210,42 @@ def test_start_ticks_order_processes_by_age():
     finally:
         child.kill()
         child.wait()
+
+
+_ORPHAN_SCRIPT = """
+import os, subprocess, sys, time
+from packlab.core.stop import adopt_orphans, descendants, end_processes, is_alive, reap
+adopted = adopt_orphans(sys.argv[1] == "adopt")
+# A child that starts a long-lived grandchild, prints its pid and exits: the grandchild's
+# parent is gone (as Ray's agents once their raylet has ended).
+child = subprocess.run(
+    [sys.executable, "-c",
+     "import subprocess, sys; "
+     "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], "
+     "stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL); "
+     "print(p.pid)"],
+    capture_output=True, text=True, check=True,
+)
+orphan = int(child.stdout)
+found = orphan in descendants(os.getpid())
+end_processes([orphan])
+reap([orphan])
+print(adopted, found, is_alive(orphan), os.path.exists(f"/proc/{orphan}"))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl and /proc")
+@pytest.mark.parametrize("mode", ["adopt", "leave"])
+def test_an_adopted_orphan_stays_a_descendant_and_is_reaped(mode):
+    """``adopt_orphans``: a grandchild whose parent ended is still this process's descendant
+    (so a cleanup by parentage ends it) and, once ended, leaves no zombie; without it, the
+    orphan belongs to init and a parentage search misses it (the control)."""
+    out = subprocess.run(
+        [sys.executable, "-c", _ORPHAN_SCRIPT, mode],
+        capture_output=True, text=True, check=True, timeout=60,
+    )  # fmt: skip
+    adopted, found, alive, listed = out.stdout.split()
+    if mode == "adopt":
+        assert (adopted, found, alive, listed) == ("True", "True", "False", "False")
+    else:
+        assert (found, alive) == ("False", "False")

@@ -20,8 +20,10 @@ that stops such a job with SIGINT would otherwise not stop it at all.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Collection, Iterator
@@ -179,6 +181,33 @@ def end_processes(pids: Collection[int], grace_s: float = 1.0) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
+#: Linux's prctl option that makes a process the new parent of its orphaned descendants.
+_PR_SET_CHILD_SUBREAPER = 36
+
+
+def adopt_orphans(on: bool) -> bool:
+    """Make this process (Linux) the parent of any of its descendants orphaned while ``on``,
+    instead of init: a library helper whose own parent ended first (Ray's agents once their
+    raylet is gone) stays this process's descendant, so a cleanup by parentage still finds it.
+    Returns whether the kernel accepted the setting (False elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return bool(libc.prctl(_PR_SET_CHILD_SUBREAPER, int(on), 0, 0, 0) == 0)
+    except (OSError, AttributeError):
+        return False
+
+
+def reap(pids: Collection[int]) -> None:
+    """Collect the exit status of those of ``pids`` that are this process's ended children
+    (adopted orphans are nobody else's to wait for): no zombie is left for a later process
+    listing to trip over. Never blocks, never touches other children."""
+    for pid in pids:
+        with suppress(ChildProcessError, OSError):
+            os.waitpid(pid, os.WNOHANG)
+
+
 def end_descendants(grace_s: float = 1.0, keep: Collection[int] = ()) -> int:
     """End every process this one started that still runs, and theirs, except those in ``keep``
     (the ones that were there before the command: a caller that runs the CLI in-process, a test
@@ -219,6 +248,7 @@ def describe_stop(interrupt: KeyboardInterrupt) -> str:
 __all__ = [
     "STOP_SIGNALS",
     "StopRequested",
+    "adopt_orphans",
     "clock_ticks_since_boot",
     "descendants",
     "describe_stop",
@@ -226,6 +256,7 @@ __all__ = [
     "end_processes",
     "exit_code_of",
     "is_alive",
+    "reap",
     "started_at_ticks",
     "stop_handlers",
 ]
