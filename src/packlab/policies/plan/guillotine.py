@@ -324,13 +324,6 @@ class _CutSearch:
         #: (part, sizes) -> how it was cut (None: a single piece), or False: not packable.
         self.memo: dict[tuple[Size, _Sizes], _Cut | None | bool] = {}
 
-    @staticmethod
-    def _fits(size: Size, part: Size) -> bool:
-        return size[2] <= part[2] and (
-            (size[0] <= part[0] and size[1] <= part[1])
-            or (size[1] <= part[0] and size[0] <= part[1])
-        )
-
     def solve(self, part: Size, sizes: _Sizes) -> bool:
         key = (part, sizes)
         if key in self.memo:
@@ -399,7 +392,8 @@ class _CutSearch:
 
         def walk(i: int, volume: int):
             if volume == target:
-                if all(fit2[j] or taken[j] == order[j][1] for j in range(i, len(order))):
+                # every size not reached yet goes whole to the second part (taken[j] is 0 there)
+                if all(fit2[j] for j in range(i, len(order))):
                     one = tuple(sorted((order[j][0], taken[j]) for j in range(i) if taken[j]))
                     two = tuple(
                         sorted(
