@@ -56,6 +56,20 @@ def slow(item: int, ctx: Context) -> int:
     return item
 
 
+def started_then_fail_on_1(item: tuple[int, str], ctx: Context) -> int:
+    """Leaves a file per started item, so a test can count what ran."""
+    number, folder = item
+    open(os.path.join(folder, str(number)), "w").close()
+    if number == 1:
+        raise ValueError("one is not allowed")
+    time.sleep(0.3)
+    return number
+
+
+def deadline_seen(item: int, ctx: Context) -> float | None:
+    return ctx.deadline
+
+
 def lost_marker(item: int, lost: Lost) -> tuple:
     return ("lost", item, lost.kind, lost.detail, lost.executor)
 
@@ -165,6 +179,35 @@ def test_ray_gives_the_same_results_and_reports(ray_cluster):
     out = run_items(die_on_2, ITEMS, executor="ray", workers=2, on_lost=lost_marker)
     lost = [r for r in out if isinstance(r, tuple)]
     assert [r[:3] + r[4:] for r in lost] == [("lost", 2, "died", "ray")]
+
+
+@pytest.mark.slow
+def test_ray_never_cancels_and_starts_only_a_window_of_items(ray_cluster, tmp_path, monkeypatch):
+    """ray.cancel racing a task's completion aborts the driver in Ray 2.60 (forced or not;
+    benchmarks/ray_cancel_race.py): a run stopped early on a caller's cluster cancels nothing,
+    and leaves at most its window of tasks in flight instead of every item of the run."""
+    import ray
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("ray.cancel was called")
+
+    monkeypatch.setattr(ray, "cancel", refuse)
+    items = [(i, str(tmp_path)) for i in range(20)]
+    with pytest.raises(ValueError, match="one is not allowed"):
+        list(run_items(started_then_fail_on_1, items, executor="ray", workers=2))
+    time.sleep(1.5)  # what was in flight has ended by now (0.3 s each)
+    started = sorted(int(f.name) for f in tmp_path.iterdir())
+    assert 1 in started and len(started) <= 4, started
+
+
+@pytest.mark.slow
+def test_ray_tasks_get_the_run_deadline_on_their_own_clock(ray_cluster):
+    """A caller's cluster is never cancelled into: the work's own alarm (the bench's episode
+    alarm) ends a task at the deadline, so the task must know it."""
+    deadline = time.monotonic() + 60
+    seen = list(run_items(deadline_seen, ITEMS[:2], executor="ray", workers=2, deadline=deadline))
+    assert all(d is not None and abs(d - deadline) < 1.0 for d in seen), seen
+    assert list(run_items(deadline_seen, ITEMS[:2], executor="ray", workers=2)) == [None, None]
 
 
 def test_terminate_ends_a_starting_worker_even_under_an_inherited_sigterm_handler():

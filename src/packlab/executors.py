@@ -8,8 +8,9 @@ One interface for the bench (an item is an episode) and the data engine (an item
 
 ``work(item, ctx)`` runs one item and returns its result. ``ctx.report(payload)`` sends a small
 progress message to the caller's ``on_report`` (as it happens on a pool, at the item's end on
-Ray); ``ctx.deadline`` is the run's deadline when the item runs in this process, where nothing
-else could stop it, and None in a worker, which the executor stops itself.
+Ray); ``ctx.deadline`` is the run's deadline (on the running process's ``time.monotonic()``)
+where the item runs in this process or on Ray, where nothing else could stop it, and None in a
+pool worker, which the executor stops itself.
 
 Executors (``packlab.core.choices.Executor``):
   * ``process`` with ``workers=1``: in this process, one item after another; cheapest and
@@ -31,12 +32,14 @@ for which ``recycle(result)`` is true, its worker is replaced by a fresh process
 Stopping: ``close()`` (or leaving the ``with`` block, or a ``for`` loop by an exception) stops
 every worker at once; items in flight produce nothing. With a ``deadline`` (``time.monotonic()``)
 no item starts after it, and the iterator raises ``DeadlineReached`` once it passes, after
-stopping the workers (Ray tasks are cancelled).
+stopping the workers (on a caller's Ray cluster, which is never cancelled into, the tasks in
+flight stop at their own alarm: Ray passes the deadline to the work as ``ctx.deadline``).
 """
 
 from __future__ import annotations
 
 import ctypes
+import itertools
 import multiprocessing as mp
 import os
 import pickle
@@ -520,10 +523,15 @@ def _import_ray() -> Any:
     return ray
 
 
-def _on_ray(work: Work[T, R], item: T) -> tuple[R, list[Any]]:
-    """One item in a Ray worker: its result and its reports (delivered when it ends)."""
+def _on_ray(work: Work[T, R], item: T, deadline_wall: float | None) -> tuple[R, list[Any]]:
+    """One item in a Ray worker: its result and its reports (delivered when it ends).
+
+    The run's deadline travels as wall-clock time (a worker on another node has its own
+    monotonic clock) and reaches the work as ``ctx.deadline`` on this worker's clock: the
+    item's own alarm is what ends it there, since the driver never cancels a Ray task."""
     reports: list[Any] = []
-    return work(item, Context(None, reports.append)), reports
+    deadline = None if deadline_wall is None else time.monotonic() + deadline_wall - time.time()
+    return work(item, Context(deadline, reports.append)), reports
 
 
 def _run_ray(
@@ -534,9 +542,16 @@ def _run_ray(
     report: Callable[[Any], None],
     lose: Callable[[T, Lost], R],
 ) -> Iterator[R]:
-    """Items as Ray tasks. Time limits inside an item work as in a pool (Ray runs a task in its
-    worker's main thread). At the deadline every pending task ends: with the cluster when Ray
-    was started here, else cancelled (``force=True`` kills the worker processes running them)."""
+    """Items as Ray tasks, at most ``workers`` submitted at a time. Time limits inside an item
+    work as in a pool (Ray runs a task in its worker's main thread), and so does the deadline,
+    which each task gets as ``ctx.deadline``.
+
+    No task is ever cancelled: in Ray 2.60 ``ray.cancel`` racing a task's completion aborts
+    the driver ("Tried to complete task that was not pending", exit 1), forced or not
+    (benchmarks/ray_cancel_race.py reproduces it). When the run stops early, a cluster started
+    here is shut down whole; on a caller's cluster the few tasks in flight run on until they
+    end or reach their own time limit or the deadline, and the items never submitted never
+    start."""
     ray = _import_ray()
     started_here = not ray.is_initialized()
     before_ray: set[int] = set()
@@ -559,7 +574,18 @@ def _run_ray(
     try:
         work_ref = ray.put(work)  # once, not once per item (the bench's cases, a dataset config)
         remote = ray.remote(num_cpus=1)(_on_ray)
-        pending = {remote.remote(work_ref, item): item for item in items}
+        deadline_wall = None if deadline is None else time.time() + deadline - time.monotonic()
+        waiting = iter(items)
+
+        def submit(n: int) -> None:
+            if deadline is not None and time.monotonic() >= deadline:
+                return  # no item starts after the deadline
+            for item in itertools.islice(waiting, n):
+                pending[remote.remote(work_ref, item, deadline_wall)] = item
+
+        # A window of `workers` tasks: what is still in flight when the run stops is bounded
+        # by the workers, never the whole run (nothing is cancelled, see above).
+        submit(workers)
         while pending:
             wait_s = None if deadline is None else max(0.0, deadline - time.monotonic())
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=wait_s)
@@ -567,6 +593,7 @@ def _run_ray(
                 raise DeadlineReached("the run deadline was reached")
             for ref in ready:
                 item = pending.pop(ref)
+                submit(1)
                 try:
                     result, reports = ray.get(ref)
                 except ray.exceptions.RayTaskError:
@@ -579,58 +606,42 @@ def _run_ray(
                     report(payload)
                 yield result
     finally:
-        _end_ray(ray, pending, started_here, before_ray, ray_started_ticks)
+        _end_ray(ray, started_here, before_ray, ray_started_ticks)
 
 
 def _end_ray(
-    ray: Any,
-    pending: dict[Any, Any],
-    started_here: bool,
-    before_ray: set[int],
-    ray_started_ticks: int | None,
+    ray: Any, started_here: bool, before_ray: set[int], ray_started_ticks: int | None
 ) -> None:
-    """Cancel what is pending and, when this run started Ray, shut it down and end what it
-    started. Each step runs whatever the one before raised (a cancel of a task whose worker
-    died during a stop, a shutdown interrupted by the stop itself): the last, ending what Ray
-    started here, is what keeps a stopped run from leaving processes behind."""
-    started: set[int] = set()
-    session = None
+    """When this run started Ray, shut it down and end what it started. A caller's cluster is
+    left as it is (its tasks in flight end by themselves, see _run_ray). The last step runs
+    whatever the one before raised (a shutdown interrupted by the stop itself): ending what
+    Ray started here is what keeps a stopped run from leaving processes behind."""
+    if not started_here:
+        return
+    # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds once
+    # their raylet is gone, no longer our descendants by then: end what Ray started here by
+    # pid after its own shutdown.
+    started = set(descendants(os.getpid(), skip=before_ray))
+    session = _ray_session_dir(ray)
     try:
-        if started_here:
-            # Ray's per-node agents (dashboard, runtime env) outlive ray.shutdown() by seconds
-            # once their raylet is gone, no longer our descendants by then: end what Ray
-            # started here by pid after its own shutdown.
-            started = set(descendants(os.getpid(), skip=before_ray))
-            session = _ray_session_dir(ray)
-        if not started_here:
-            # The caller's cluster outlives this run: end its tasks here. A cluster started
-            # here is ended whole by the shutdown below; a force cancel racing a task that
-            # is just completing aborts the driver in Ray 2.x ("Tried to complete task that
-            # was not pending", exit 1) before this cleanup ends what Ray started.
-            for ref in pending:
-                ray.cancel(ref, force=True)
+        ray.shutdown()
     finally:
-        try:
-            if started_here:
-                ray.shutdown()
-        finally:
-            if started_here:
-                # An agent whose raylet ended before the snapshot was no longer our
-                # descendant: it is still found by the session's logs it keeps open. Only
-                # processes younger than this ray.init: never this process's ancestors, nor
-                # another program that happens to read Ray's logs.
-                if session is not None and ray_started_ticks is not None:
-                    started |= {
-                        p
-                        for p in holding_files_under(session)
-                        if (started_at_ticks(p) or 0) >= ray_started_ticks
-                    } - before_ray
-                # What Ray left, adopted by this process once its parent ended (adopt_orphans).
-                started |= set(descendants(os.getpid(), skip=before_ray))
-                ended = sorted(started - {os.getpid()})
-                end_processes(ended)
-                reap(ended)
-                adopt_orphans(False)
+        # An agent whose raylet ended before the snapshot was no longer our descendant: it is
+        # still found by the session's logs it keeps open. Only processes younger than this
+        # ray.init: never this process's ancestors, nor another program that happens to read
+        # Ray's logs.
+        if session is not None and ray_started_ticks is not None:
+            started |= {
+                p
+                for p in holding_files_under(session)
+                if (started_at_ticks(p) or 0) >= ray_started_ticks
+            } - before_ray
+        # What Ray left, adopted by this process once its parent ended (adopt_orphans).
+        started |= set(descendants(os.getpid(), skip=before_ray))
+        ended = sorted(started - {os.getpid()})
+        end_processes(ended)
+        reap(ended)
+        adopt_orphans(False)
 
 
 def _ray_session_dir(ray: Any) -> str | None:

@@ -97,7 +97,8 @@ class EpisodeWork:
     modes: EpisodeModes = EXACT_MODES  # issue 15's observation / execution (exact: empty)
 
     def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
-        # ctx.deadline is set only in this process: there the episode's alarm is the only stop.
+        # ctx.deadline is set in this process and on Ray: there the episode's alarm is the only
+        # stop (a pool worker is stopped by the pool).
         return run_task(
             self.cases[task.case_index],
             task.policy,
