@@ -40,6 +40,7 @@ from scipy import ndimage
 from packlab.core.types import ShownItem
 from packlab.policies.candidates import Candidate
 from packlab.policies.features import at_or_below, same_level
+from packlab.policies.windows import ring4
 
 RUN_SCALE = 32.0
 AREA_CAP = 3.0
@@ -95,9 +96,9 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
     ]
     back = [_run(level, c.x - 1, c.y, -1, 0), _run(level, c.x, c.y - 1, 0, -1)]
     labels, _ = ndimage.label(level, structure=_FOUR)
-    ring = ndimage.binary_dilation(footprint, structure=_FOUR) & ~footprint
-    touching = np.setdiff1d(np.unique(labels[ring & level]), [0])
-    region = int(np.isin(labels, touching).sum()) if touching.size else 0
+    ring = ring4(footprint)
+    touching = np.unique(labels[ring & level])
+    region = int(np.bincount(labels.ravel())[touching[touching > 0]].sum())
     areas = [s.size_cells[0] * s.size_cells[1] for s in others]
     closes = region == 0 or bool(_subset_areas(areas, region)[region])
     tops = hm[ring]

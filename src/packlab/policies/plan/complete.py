@@ -30,6 +30,7 @@ from scipy import ndimage
 from packlab.core.types import ShownItem
 from packlab.policies.features import LEVEL_TOLERANCE_MM, at_or_below, same_level
 from packlab.policies.plan.cover import JOKER, CoverResult, CoverRules, Piece, Slot, exact_cover
+from packlab.policies.windows import ring4
 
 #: 4-connectivity: two cells of a level belong together only when they share a side.
 _FOUR = ndimage.generate_binary_structure(2, 1)
@@ -110,8 +111,7 @@ def lowest_components(
 
 def rim_heights(heightmap: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Heights (mm) of the cells just outside ``mask`` (4-neighbours), walls excluded."""
-    ring = ndimage.binary_dilation(mask, structure=_FOUR) & ~mask
-    return np.asarray(heightmap)[ring]
+    return np.asarray(heightmap)[ring4(mask)]
 
 
 def height_order(
