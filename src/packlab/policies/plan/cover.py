@@ -203,6 +203,8 @@ class _Search:
             self.order.append((p.key, p.area, min(p.length, p.width), 1 << rank, orients))
             self.sides.append((p.length, p.width))
         self.unused_sets: dict[int, _Unused] = {}  # mask of unused pieces -> what it holds
+        #: (mask, run along x, run along y, jokers left) -> the placements to try (_choices)
+        self.choices: dict[tuple[int, int, int, bool], list[tuple[_Rec, _Orient]]] = {}
 
     def _window(self, fx: int, fy: int) -> int:
         """The bits of an fx x fy rectangle with its corner at bit 0 (see :func:`_bits`): one
@@ -272,33 +274,13 @@ class _Search:
         mask: int,
         unused: _Unused,
     ) -> bool:
-        free, _, first, second, owner, _ = unused
-        if jokers_left:
-            # the gap may also be left for a joker
-            first, second = min(first, self.joker_side), min(second, self.joker_side)
-        run_x = reach[1]
-        # A piece that spans the whole free run in either direction first: it leaves the rest
-        # as simple as it was (the tiling a guess is built on); within each group by rank in
-        # the search order, rotation 0 before 1.
-        spanning: list[tuple[_Rec, _Orient]] = []
-        others: list[tuple[_Rec, _Orient]] = []
-        for rec in free:
-            for o in rec[4]:
-                fx, fy = o[1], o[2]
-                if fx <= run_x and fy <= run_y:
-                    (spanning if fy == run_y or fx == run_x else others).append((rec, o))
-        if not spanning and not others:
-            return False
+        key = (mask, reach[1], run_y, bool(jokers_left))
+        choices = self.choices.get(key)
+        if choices is None:
+            choices = self._choices(unused, reach[1], run_y, bool(jokers_left))
+            self.choices[key] = choices
         x0, y0 = divmod(pos, self.stride)
-        tried: set[int] = set()
-        for rec, (rotation, fx, fy, footprint, window) in spanning + others:
-            if footprint in tried:
-                continue
-            tried.add(footprint)
-            rest = run_y - fy
-            # a gap left in the run must take the smallest side of the other pieces (or a joker)
-            if rest and rest < (second if rec[3] == owner else first):
-                continue
+        for rec, (rotation, fx, fy, _, window) in choices:
             if fx > reach[fy]:
                 continue  # a cell of the rectangle is not the region's
             self.placed.append((rec[0], rotation, x0, y0, fx, fy))
@@ -312,6 +294,41 @@ class _Search:
                 return True
             self.placed.pop()
         return False
+
+    def _choices(
+        self, unused: _Unused, run_x: int, run_y: int, jokers: bool
+    ) -> list[tuple[_Rec, _Orient]]:
+        """The placements to try at a first empty cell, in order: everything of
+        :meth:`_pieces_at` that does not depend on where the cell is, so one list serves every
+        node with the same unused pieces and free runs (the search revisits them often)."""
+        free, _, first, second, owner, _ = unused
+        if jokers:
+            # the gap may also be left for a joker
+            first, second = min(first, self.joker_side), min(second, self.joker_side)
+        # A piece that spans the whole free run in either direction first: it leaves the rest
+        # as simple as it was (the tiling a guess is built on); within each group by rank in
+        # the search order, rotation 0 before 1.
+        spanning: list[tuple[_Rec, _Orient]] = []
+        others: list[tuple[_Rec, _Orient]] = []
+        for rec in free:
+            for o in rec[4]:
+                fx, fy = o[1], o[2]
+                if fx <= run_x and fy <= run_y:
+                    (spanning if fy == run_y or fx == run_x else others).append((rec, o))
+        tried: set[int] = set()
+        choices = []
+        for rec, o in spanning + others:
+            # one footprint once: pieces of the same footprint are interchangeable (the first
+            # in order stands for all, whether or not it passes the gap test below)
+            if o[3] in tried:
+                continue
+            tried.add(o[3])
+            rest = run_y - o[2]
+            # a gap left in the run must take the smallest side of the other pieces (or a joker)
+            if rest and rest < (second if rec[3] == owner else first):
+                continue
+            choices.append((rec, o))
+        return choices
 
     def _jokers_at(
         self,
