@@ -255,35 +255,19 @@ class _Search:
         here = grid >> pos
         run_y = (here ^ (here + 1)).bit_length() - 1  # the lowest 0 bit: the run along y
         reach = self.reach.get(pos) or self._reach(pos)
-        unused = self.unused_sets.get(mask) or self._unused(mask)
-        if self._pieces_at(grid, pos, reach, run_y, left, unused_area, jokers_left, mask, unused):
-            return True
-        return bool(jokers_left) and self._jokers_at(
-            grid, pos, reach, run_y, left, unused_area, jokers_left, mask, unused
-        )
-
-    def _pieces_at(
-        self,
-        grid: int,
-        pos: int,
-        reach: list[int],
-        run_y: int,
-        left: int,
-        unused_area: int,
-        jokers_left: int,
-        mask: int,
-        unused: _Unused,
-    ) -> bool:
-        key = (mask, reach[1], run_y, bool(jokers_left))
+        # The pieces first (inlined: this runs at every node). What to try depends only on the
+        # unused pieces, the free runs and whether jokers are left: computed once per key.
+        key = (mask, reach[1], run_y, jokers_left > 0)
         choices = self.choices.get(key)
         if choices is None:
-            choices = self._choices(unused, reach[1], run_y, bool(jokers_left))
-            self.choices[key] = choices
+            unused = self.unused_sets.get(mask) or self._unused(mask)
+            choices = self.choices[key] = self._choices(unused, reach[1], run_y, jokers_left > 0)
         x0, y0 = divmod(pos, self.stride)
+        placed = self.placed
         for rec, (rotation, fx, fy, _, window) in choices:
             if fx > reach[fy]:
                 continue  # a cell of the rectangle is not the region's
-            self.placed.append((rec[0], rotation, x0, y0, fx, fy))
+            placed.append((rec[0], rotation, x0, y0, fx, fy))
             if self.run(
                 grid ^ (window << pos),
                 left - fx * fy,
@@ -292,15 +276,20 @@ class _Search:
                 mask ^ rec[3],
             ):
                 return True
-            self.placed.pop()
-        return False
+            placed.pop()
+        if not jokers_left:
+            return False
+        unused = self.unused_sets.get(mask) or self._unused(mask)
+        return self._jokers_at(
+            grid, pos, reach, run_y, left, unused_area, jokers_left, mask, unused
+        )
 
     def _choices(
         self, unused: _Unused, run_x: int, run_y: int, jokers: bool
     ) -> list[tuple[_Rec, _Orient]]:
-        """The placements to try at a first empty cell, in order: everything of
-        :meth:`_pieces_at` that does not depend on where the cell is, so one list serves every
-        node with the same unused pieces and free runs (the search revisits them often)."""
+        """The placements to try at a first empty cell, in order: all of :meth:`run`'s choice
+        that does not depend on where the cell is, so one list serves every node with the same
+        unused pieces and free runs (the search revisits them often)."""
         free, _, first, second, owner, _ = unused
         if jokers:
             # the gap may also be left for a joker
