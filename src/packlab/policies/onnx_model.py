@@ -14,8 +14,13 @@ this can fail: no ONNX Runtime, no card, another format version, a graph missing
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import json
-from collections.abc import Sequence
+import platform
+import sys
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -115,9 +120,94 @@ def stale_sources(directory: Path, card: OnnxCard) -> list[str]:
     return stale
 
 
-def new_session(path: Path, threads: int | None = 1) -> Any:
-    """An ``onnxruntime.InferenceSession`` on CPU with ``threads`` intra-op threads (one per
-    bench worker by default, as the torch path)."""
+# -- denormals ----------------------------------------------------------------------------------
+#
+# Denormal floats are flushed to zero while a graph runs, for speed: a causal mask's large
+# negative logits make softmax produce denormals (ONNX Runtime's exp clamps its input near
+# -88, just above float32's underflow), which x86 handles in microcode. The pointer LM's
+# softmax took 21 of its ~35 ms a decision with them and 3 ms without, its scores
+# bit-identical. The flags (MXCSR's flush-to-zero and denormals-are-zero) are the calling
+# thread's floating-point state, so they are set around each run and the caller's state is put
+# back after it: left set, they would change every float the program computes after the first
+# model loads, MuJoCo's physics included (the test suite's property tests noticed). ONNX
+# Runtime's own option (``session.set_denormal_as_zero``) sets them on the thread that creates
+# the first such session, for good, so it is not used for that thread. Done through the C
+# library's ``fegetenv``/``fesetenv``, whose ``fenv_t`` holds MXCSR at byte 28 on x86-64 glibc;
+# anywhere else nothing is changed (slower there, same results).
+
+_FENV_SIZE = 32
+_MXCSR_OFFSET = 28
+_FLUSH_BITS = 0x8040  # MXCSR: flush to zero (bit 15), denormals are zero (bit 6)
+
+
+def _load_libm() -> Any:
+    if not (sys.platform.startswith("linux") and platform.machine() == "x86_64"):
+        return None
+    name = ctypes.util.find_library("m")
+    return ctypes.CDLL(name) if name else None
+
+
+_LIBM = _load_libm()
+
+
+def _fp_env() -> Any:
+    """This thread's floating-point environment (a ``fenv_t``), or None where unsupported."""
+    if _LIBM is None:
+        return None
+    env = ctypes.create_string_buffer(_FENV_SIZE)
+    return env if _LIBM.fegetenv(env) == 0 else None
+
+
+@contextmanager
+def denormals_flushed() -> Iterator[None]:
+    """Flush denormal floats to zero on this thread inside the block; the thread's previous
+    floating-point environment is restored after it, whatever happens inside."""
+    saved = _fp_env()
+    if saved is None:
+        yield
+        return
+    flushed = bytearray(saved.raw)
+    mxcsr = int.from_bytes(flushed[_MXCSR_OFFSET : _MXCSR_OFFSET + 4], "little")
+    flushed[_MXCSR_OFFSET : _MXCSR_OFFSET + 4] = (mxcsr | _FLUSH_BITS).to_bytes(4, "little")
+    _LIBM.fesetenv(ctypes.create_string_buffer(bytes(flushed), _FENV_SIZE))
+    try:
+        yield
+    finally:
+        _LIBM.fesetenv(saved)
+
+
+@contextmanager
+def _fp_env_kept() -> Iterator[None]:
+    """Whatever the block does to this thread's floating-point environment is undone."""
+    saved = _fp_env()
+    try:
+        yield
+    finally:
+        if saved is not None:
+            _LIBM.fesetenv(saved)
+
+
+@dataclass(frozen=True, slots=True)
+class Session:
+    """An ``onnxruntime.InferenceSession`` whose runs flush denormals (:func:`denormals_flushed`):
+    ``run(outputs, feed)`` and ``get_inputs()`` as ORT's own."""
+
+    session: Any
+
+    def run(self, outputs: Sequence[str] | None, feed: dict[str, Any]) -> list[Any]:
+        with denormals_flushed():
+            return list(self.session.run(outputs, feed))
+
+    def get_inputs(self) -> list[Any]:
+        return list(self.session.get_inputs())
+
+    def get_outputs(self) -> list[Any]:
+        return list(self.session.get_outputs())
+
+
+def new_session(path: Path, threads: int | None = 1) -> Session:
+    """An ONNX Runtime session on CPU with ``threads`` intra-op threads (one per bench worker by
+    default, as the torch path) whose runs flush denormals."""
     try:
         import onnxruntime as ort
     except ModuleNotFoundError:
@@ -127,12 +217,12 @@ def new_session(path: Path, threads: int | None = 1) -> Any:
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
     options.log_severity_level = 3  # errors only: ORT's warnings about unused initialisers
-    # Flush denormals to zero. A causal mask's large negative logits make softmax produce
-    # denormal floats, which x86 handles in microcode: the pointer LM's softmax ran 7x slower
-    # for it (21 -> 3 ms of a decision) while its scores stayed bit-identical
-    # (benchmarks/learned_decision_time.py; tests/policies/test_onnx_model.py).
+    # For the session's own pool threads (threads > 1); the thread creating the first such
+    # session would keep the flags for good, so its environment is restored right after.
     options.add_session_config_entry("session.set_denormal_as_zero", "1")
-    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    with _fp_env_kept():
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    return Session(session)
 
 
 @dataclass(slots=True)
