@@ -159,10 +159,10 @@ def support_grid(
     hm = np.asarray(heightmap)
     if tolerance_mm == 0 or not _has_near_levels(hm, tolerance_mm):
         return window_count_of_max(hm, fx, fy)[1].astype(np.int64, copy=False)
+    if not np.issubdtype(hm.dtype, np.signedinteger):
+        hm = hm.astype(np.int64)  # whole mm as same_level reads them; z - tolerance cannot wrap
     windows = sliding_window_view(hm, (fx, fy))  # (X', Y', fx, fy)
     z = footprint_max(hm, fx, fy)  # the windows' max, separably
-    if not np.issubdtype(z.dtype, np.signedinteger):
-        z = z.astype(np.int64)  # z - tolerance must not wrap (unsigned) or round (float)
     # Every cell of a window is <= its max, so "same level as z" (same_level) is "at least
     # z - tolerance": one comparison per cell in the map's own dtype (about twice as fast as
     # taking int64 differences of every window).

@@ -159,32 +159,29 @@ def _fp_env() -> Any:
 
 
 @contextmanager
-def denormals_flushed() -> Iterator[None]:
-    """Flush denormal floats to zero on this thread inside the block; the thread's previous
-    floating-point environment is restored after it, whatever happens inside."""
-    saved = _fp_env()
-    if saved is None:
-        yield
-        return
-    flushed = bytearray(saved.raw)
-    mxcsr = int.from_bytes(flushed[_MXCSR_OFFSET : _MXCSR_OFFSET + 4], "little")
-    flushed[_MXCSR_OFFSET : _MXCSR_OFFSET + 4] = (mxcsr | _FLUSH_BITS).to_bytes(4, "little")
-    _LIBM.fesetenv(ctypes.create_string_buffer(bytes(flushed), _FENV_SIZE))
-    try:
-        yield
-    finally:
-        _LIBM.fesetenv(saved)
-
-
-@contextmanager
-def _fp_env_kept() -> Iterator[None]:
-    """Whatever the block does to this thread's floating-point environment is undone."""
+def _fp_env_kept() -> Iterator[Any]:
+    """Whatever the block does to this thread's floating-point environment is undone; yields
+    the environment it restores (None where unsupported)."""
     saved = _fp_env()
     try:
-        yield
+        yield saved
     finally:
         if saved is not None:
             _LIBM.fesetenv(saved)
+
+
+@contextmanager
+def denormals_flushed() -> Iterator[None]:
+    """Flush denormal floats to zero on this thread inside the block; the thread's previous
+    floating-point environment is restored after it, whatever happens inside."""
+    with _fp_env_kept() as saved:
+        if saved is not None:
+            flushed = bytearray(saved.raw)
+            at = slice(_MXCSR_OFFSET, _MXCSR_OFFSET + 4)
+            mxcsr = int.from_bytes(flushed[at], "little") | _FLUSH_BITS
+            flushed[at] = mxcsr.to_bytes(4, "little")
+            _LIBM.fesetenv(ctypes.create_string_buffer(bytes(flushed), _FENV_SIZE))
+        yield
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,9 +197,6 @@ class Session:
 
     def get_inputs(self) -> list[Any]:
         return list(self.session.get_inputs())
-
-    def get_outputs(self) -> list[Any]:
-        return list(self.session.get_outputs())
 
 
 def new_session(path: Path, threads: int | None = 1) -> Session:
