@@ -32,6 +32,23 @@ def test_footprint_max_matches_every_window():
                 assert out[x, y] == hm[x : x + fx, y : y + fy].max()
 
 
+@pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint16, np.float64])
+def test_footprint_max_matches_every_window_at_every_size(dtype):
+    """Every footprint, odd and even sides alike (the running max is shifted by half a window),
+    on maps of several dtypes: the max of each whole window, in the map's dtype."""
+    rng = np.random.default_rng(4)
+    hm = rng.integers(0, 500, size=(8, 11)).astype(dtype)
+    for fx in range(1, 9):
+        for fy in range(1, 12):
+            out = footprint_max(hm, fx, fy)
+            assert out.dtype == hm.dtype
+            expected = [
+                [hm[x : x + fx, y : y + fy].max() for y in range(11 - fy + 1)]
+                for x in range(8 - fx + 1)
+            ]
+            assert np.array_equal(out, np.array(expected, dtype=dtype).reshape(out.shape))
+
+
 def test_footprint_larger_than_map_has_no_candidates():
     assert footprint_max(np.zeros((3, 3), np.int32), 4, 1).size == 0
 

@@ -246,3 +246,30 @@ def test_mta_keeps_exact_support(seed) -> None:
     for i in range(len(c)):
         x, y, fx, fy, h = (int(a[i]) for a in (c.x, c.y, c.fx, c.fy, c.h))
         assert int(got[i]) == _loop_features(hm, rim, x, y, fx, fy, h, tol=0)[3]
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_flush_grid_on_a_rectangle_matches_the_loop_by_either_method(seed) -> None:
+    """Both exact ways of counting flush side cells (one pass per side cell, one per distinct
+    height) agree with the cell-by-cell loop, on the whole grid and on any rectangle of it read
+    from its ``origin`` (the proposer reads only the positions it can rank)."""
+    rng = np.random.default_rng(1000 + seed)
+    hm, shown, rim = _state(seed)
+    walls = F.walled(hm, rim)
+    c = search_candidates(hm, shown, rim, CELL)
+    for g in c.groups:
+        px, py = g.z.shape
+        x0, y0 = int(rng.integers(0, px)), int(rng.integers(0, py))
+        x1, y1 = int(rng.integers(x0 + 1, px + 1)), int(rng.integers(y0 + 1, py + 1))
+        z = g.z[x0:x1, y0:y1]
+        expected = np.array(
+            [
+                [_loop_features(hm, rim, x, y, g.fx, g.fy, g.height_mm)[2] for y in range(y0, y1)]
+                for x in range(x0, x1)
+            ]
+        )
+        heights = np.unique(z)
+        by_cell = F._flush_by_side_cell(walls, g.fx, g.fy, z, x0, y0)
+        by_height = F._flush_by_height(walls, g.fx, g.fy, z, x0, y0, heights)
+        assert np.array_equal(by_cell, expected) and np.array_equal(by_height, expected)
+        assert np.array_equal(F.flush_grid(walls, g.fx, g.fy, z, origin=(x0, y0)), expected)

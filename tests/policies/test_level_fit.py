@@ -91,3 +91,48 @@ def test_line_vectors_join_geometry_and_level_fit():
     assert np.array_equal(rows[1, : len(geometry(obs, listed[1]))], geometry(obs, listed[1]))
     assert np.array_equal(rows[1, -N_FEATURES:], level_fit(hm, shown, listed[1]))
     assert rows[1, 2] == pytest.approx(1.0)  # the second box reaches the far x wall
+
+
+def _region_by_search(hm, c, tol=4):
+    """Free cells at or below z's level connected (4-neighbours) to the box's ring, the box's
+    own cells excluded: a plain breadth-first search, independent of the labelling."""
+    nx, ny = hm.shape
+    inside = {(i, j) for i in range(c.x, c.x + c.fx) for j in range(c.y, c.y + c.fy)}
+
+    def free(i, j):
+        return 0 <= i < nx and 0 <= j < ny and (i, j) not in inside and hm[i, j] <= c.z_mm + tol
+
+    steps = ((1, 0), (-1, 0), (0, 1), (0, -1))
+    todo = [(i + di, j + dj) for i, j in inside for di, dj in steps if free(i + di, j + dj)]
+    seen = set(todo)
+    while todo:
+        i, j = todo.pop()
+        for di, dj in steps:
+            n = (i + di, j + dj)
+            if n not in seen and free(*n):
+                seen.add(n)
+                todo.append(n)
+    return len(seen)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_region_matches_a_search_and_shared_levels_change_nothing(seed):
+    """``region`` from the state's shared labelling equals a breadth-first search, at Eq. 2's
+    height and at a z below the footprint's top (read without the shortcut), and a row made with
+    the state's :class:`Levels` equals one made alone."""
+    from packlab.core.feasibility import footprint_max
+    from packlab.policies.level_fit import Levels
+
+    rng = np.random.default_rng(seed)
+    nx, ny = (int(v) for v in rng.integers(4, 14, size=2))
+    hm = rng.choice([0, 0, 0, 100, 102, 200], size=(nx, ny)).astype(np.int32)
+    shown = _shown(*[(int(rng.integers(1, 4)), int(rng.integers(1, 4)), 100) for _ in range(4)])
+    levels = Levels(hm)
+    for obj in range(4):
+        c = _at(shown, obj, int(rng.integers(0, nx - 3)), int(rng.integers(0, ny - 3)))
+        z = int(footprint_max(hm, c.fx, c.fy)[c.x, c.y])
+        for at in (z, z - 100):
+            placed = _at(shown, obj, c.x, c.y, z=at)
+            row = level_fit(hm, shown, placed, levels)
+            assert _feature(row, "region") * nx * ny == pytest.approx(_region_by_search(hm, placed))
+            assert np.array_equal(row, level_fit(hm, shown, placed))

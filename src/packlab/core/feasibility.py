@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from scipy.ndimage import maximum_filter1d
 
 from packlab.core.types import Observation, ShownItem
 
@@ -32,16 +32,19 @@ def footprint_max(heightmap: np.ndarray, fx: int, fy: int) -> np.ndarray:
     """Max of ``heightmap`` over every (fx, fy)-cell window; shape (X - fx + 1, Y - fy + 1).
 
     Entry [x, y] is paper Eq. 2's drop height z for a footprint whose minimum cell is (x, y).
-    Two separable 1-D sliding maxima keep it O(cells * (fx + fy)). Empty when the footprint is
-    larger than the map.
+    Two separable 1-D running maxima (scipy's, a constant number of comparisons per cell
+    whatever the footprint) keep it O(cells); each entry is the max of its whole window, so the
+    result is exact. Empty when the footprint is larger than the map.
     """
     nx, ny = heightmap.shape
     if fx < 1 or fy < 1:
         raise ValueError(f"footprint must be at least one cell, got ({fx}, {fy})")
     if fx > nx or fy > ny:
         return np.zeros((max(nx - fx + 1, 0), max(ny - fy + 1, 0)), dtype=heightmap.dtype)
-    along_x = sliding_window_view(heightmap, fx, axis=0).max(axis=-1)
-    maxima: np.ndarray = sliding_window_view(along_x, fy, axis=1).max(axis=-1)
+    # origin -(n // 2) makes entry i of the filter the max over cells [i, i + n); the entries
+    # past X - fx (Y - fy) would reach beyond the map and are cut off.
+    along_x = maximum_filter1d(heightmap, fx, axis=0, origin=-(fx // 2))[: nx - fx + 1]
+    maxima: np.ndarray = maximum_filter1d(along_x, fy, axis=1, origin=-(fy // 2))[:, : ny - fy + 1]
     return maxima
 
 
@@ -198,13 +201,15 @@ def _flatten(
     """Concatenate the per-orientation grids into the flat scan-order arrays."""
     names = ("obj", "rotation", "x", "y", "z", "fx", "fy", "h")
     fields = {name: np.empty(n, dtype=np.int64) for name in names}
+    cells: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # grid shape -> (x, y)
     for g in groups:
         sl = slice(g.offset, g.offset + g.size)
-        gx, gy = np.indices(g.z.shape)  # row-major = x then y, matching scan order
+        if g.z.shape not in cells:
+            px, py = g.z.shape  # row-major = x then y, matching scan order
+            cells[g.z.shape] = (np.repeat(np.arange(px), py), np.tile(np.arange(py), px))
         fields["obj"][sl] = g.object_index
         fields["rotation"][sl] = g.rotation
-        fields["x"][sl] = gx.ravel()
-        fields["y"][sl] = gy.ravel()
+        fields["x"][sl], fields["y"][sl] = cells[g.z.shape]
         fields["z"][sl] = g.z.ravel()
         fields["fx"][sl] = g.fx
         fields["fy"][sl] = g.fy

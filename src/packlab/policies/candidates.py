@@ -47,6 +47,7 @@ from packlab.core.choices import ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.features import (
+    flush_cells_at,
     flush_grid,
     side_cells,
     space_under_at,
@@ -109,11 +110,11 @@ class Candidate:
 @dataclass(frozen=True, slots=True)
 class _Shape:
     """One proposed (object, rotation): its ranked pool positions (flat candidate indices) and
-    the flushness of every position, indexed like the group's grid."""
+    the flushness of each of them."""
 
     group: Orientation
     ranked: np.ndarray  # (m,) flat indices into the CandidateSet, best first, m <= k
-    flush: np.ndarray  # (X', Y') side cells against a wall or a column above z
+    flush: np.ndarray  # (m,) side cells of each ranked position against a wall or a taller column
 
 
 def _distinct_groups(cands: CandidateSet) -> list[Orientation]:
@@ -135,15 +136,27 @@ def _shape(
     ``walls`` is the heightmap inside a ring of walls at the rim's height
     (:func:`~packlab.policies.features.walled`).
     """
-    flat = np.arange(g.offset, g.offset + g.size)
-    mask = in_pool[flat]
-    if not mask.any():
+    pool = in_pool[g.offset : g.offset + g.size].reshape(g.z.shape)
+    if not pool.any():
         return None
-    flush = flush_grid(walls, g.fx, g.fy, g.z)
+    # Only pool positions no higher than the k-th lowest can be among the best k (at least k
+    # lie at or below it), so flushness, the costly part, is taken over their bounding
+    # rectangle alone: the same ranking as over the whole grid.
+    low = g.z[pool]
+    cut = low.max() if low.size <= k else np.partition(low, k - 1)[k - 1]
+    wanted = pool & (g.z <= cut)
+    xs, ys = np.nonzero(wanted)
+    box = (slice(int(xs.min()), int(xs.max()) + 1), slice(int(ys.min()), int(ys.max()) + 1))
+    z, keep = g.z[box], wanted[box]
+    # Positions not wanted are dropped below whatever their flushness; reading them at ``cut``
+    # adds no height for flush_grid to go through.
+    z_read = np.where(keep, z, cut)
+    flush = flush_grid(walls, g.fx, g.fy, z_read, origin=(box[0].start, box[1].start)).ravel()
+    flat = (g.offset + np.arange(g.size).reshape(g.z.shape)[box]).ravel()
     # Row-major grids list x then y, so the flat index breaks the last ties by x, then y.
-    order = np.lexsort((flat, -flush.ravel(), g.z.ravel()))
-    ranked = flat[order[mask[order]]][:k]
-    return _Shape(g, ranked, flush)
+    order = np.lexsort((flat, -flush, z.ravel()))
+    best = order[keep.ravel()[order]][:k]
+    return _Shape(g, flat[best], flush[best])
 
 
 def _round_keys(cands: CandidateSet, shapes: list[_Shape], r: int, by_volume: bool) -> list[int]:
@@ -154,9 +167,8 @@ def _round_keys(cands: CandidateSet, shapes: list[_Shape], r: int, by_volume: bo
         shape = shapes[s]
         i = int(shape.ranked[r])
         g = shape.group
-        cell = (int(cands.x[i]), int(cands.y[i]))
         volume = g.fx * g.fy * g.height_mm
-        low = (int(cands.z[i]), -_percent(int(shape.flush[cell]), side_cells(g.fx, g.fy)))
+        low = (int(cands.z[i]), -_percent(int(shape.flush[r]), side_cells(g.fx, g.fy)))
         return (-volume, *low, s) if by_volume else (*low, -volume, s)
 
     return sorted(members, key=key)
@@ -185,8 +197,9 @@ def _percent(part: int, whole: int) -> int:
     return round(100 * part / whole)
 
 
-def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candidate:
-    g = shape.group
+def _candidate(cands: CandidateSet, g: Orientation, flush: int, i: int, index: int) -> Candidate:
+    """Listed placement ``index`` of flat candidate ``i`` of group ``g`` (``flush``: its side
+    cells against a wall or a taller column)."""
     x, y = int(cands.x[i]), int(cands.y[i])
     z = int(cands.z[i])
     area = g.fx * g.fy
@@ -203,7 +216,7 @@ def _candidate(cands: CandidateSet, shape: _Shape, i: int, index: int) -> Candid
         z_mm=z,
         top_mm=int(cands.top[i]),
         support_pct=_percent(support_cells_at(hm, x, y, g.fx, g.fy, z), area),
-        flush_pct=_percent(int(shape.flush[x, y]), side_cells(g.fx, g.fy)),
+        flush_pct=_percent(flush, side_cells(g.fx, g.fy)),
         void_mm=round(space_under_at(hm, x, y, g.fx, g.fy, z) / area),
     )
 
@@ -221,9 +234,9 @@ def propose_from(
         shape = _shape(cands, g, in_pool, walls, config.k)
         if shape is not None:
             shapes.append(shape)
-    owner = {int(i): s for s in shapes for i in s.ranked}
+    owner = {int(i): (s.group, int(f)) for s in shapes for i, f in zip(s.ranked, s.flush)}
     picks = _select(cands, shapes, config)
-    return tuple(_candidate(cands, owner[i], i, n) for n, i in enumerate(picks))
+    return tuple(_candidate(cands, *owner[i], i, n) for n, i in enumerate(picks))
 
 
 def _group_at(
@@ -257,8 +270,8 @@ def candidate_for(cands: CandidateSet, action: Action, index: int) -> Candidate 
         return None
     g, i = found
     walls = walled(cands.heightmap, cands.container_height_mm)
-    shape = _Shape(g, np.zeros(0, dtype=np.int64), flush_grid(walls, g.fx, g.fy, g.z))
-    return _candidate(cands, shape, i, index)
+    flush = flush_cells_at(walls, action.x, action.y, g.fx, g.fy, int(cands.z[i]))
+    return _candidate(cands, g, flush, i, index)
 
 
 def propose(

@@ -76,18 +76,60 @@ def _subset_areas(areas: Sequence[int], limit: int) -> np.ndarray:
     return reach
 
 
-def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -> np.ndarray:
-    """(N_FEATURES,) float32 for one listed placement (module docstring)."""
-    hm = np.asarray(heightmap)
+class Levels:
+    """The levels of one heightmap, each labelled once: what :func:`level_fit` reads, shared by
+    every listed placement of one state (a decision lists up to 16 of them, most at one z)."""
+
+    def __init__(self, heightmap: np.ndarray) -> None:
+        self.heightmap = np.asarray(heightmap)
+        self.lowest = int(self.heightmap.min())
+        self._levels: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def at(self, z: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(level, labels, sizes) at ``z``: the cells at or below its level, their 4-connected
+        components and each component's cell count (indexed by label)."""
+        if z not in self._levels:
+            level = at_or_below(self.heightmap, z)
+            labels, _ = ndimage.label(level, structure=_FOUR)
+            self._levels[z] = (level, labels, np.bincount(labels.ravel()))
+        return self._levels[z]
+
+
+def _ring_tops(hm: np.ndarray, c: Candidate) -> np.ndarray:
+    """Heights of the footprint's 4-neighbour ring inside the map (the cells ``ring4`` marks)."""
+    nx, ny = hm.shape
+    x1, y1 = c.x + c.fx, c.y + c.fy
+    strips = [
+        hm[c.x - 1, c.y : y1] if c.x > 0 else hm[:0, 0],
+        hm[x1, c.y : y1] if x1 < nx else hm[:0, 0],
+        hm[c.x : x1, c.y - 1] if c.y > 0 else hm[:0, 0],
+        hm[c.x : x1, y1] if y1 < ny else hm[:0, 0],
+    ]
+    return np.concatenate(strips)
+
+
+def level_fit(
+    heightmap: np.ndarray,
+    shown: Sequence[ShownItem],
+    c: Candidate,
+    levels: Levels | None = None,
+) -> np.ndarray:
+    """(N_FEATURES,) float32 for one listed placement (module docstring).
+
+    ``levels``: the state's :class:`Levels` when several placements of one heightmap are read.
+    """
+    levels = Levels(heightmap) if levels is None else levels
+    hm = levels.heightmap
     nx, ny = hm.shape
     height = shown[c.object_index].size_mm[2]
-    footprint = np.zeros(hm.shape, dtype=bool)
-    footprint[c.x : c.x + c.fx, c.y : c.y + c.fy] = True
-    level = at_or_below(hm, c.z_mm) & ~footprint
+    level, labels, sizes = levels.at(c.z_mm)
+    footprint = (slice(c.x, c.x + c.fx), slice(c.y, c.y + c.fy))
     others = [s for s in shown if s.shown_index != c.object_index and s.size_mm[2] == height]
     sides = {int(v) for s in others for v in s.size_cells[:2]}
     closable = sides | {a + b for a in sides for b in sides} | {0}
     x1, y1 = c.x + c.fx, c.y + c.fy
+    # Runs start beside the footprint and lead away from it, so the level with the footprint
+    # still in it reads the same.
     far = [
         _run(level, x1, c.y, 1, 0),
         _run(level, x1, y1 - 1, 1, 0),
@@ -95,13 +137,20 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
         _run(level, x1 - 1, y1, 0, 1),
     ]
     back = [_run(level, c.x - 1, c.y, -1, 0), _run(level, c.x, c.y - 1, 0, -1)]
-    labels, _ = ndimage.label(level, structure=_FOUR)
-    ring = ring4(footprint)
-    touching = np.unique(labels[ring & level])
-    region = int(np.bincount(labels.ravel())[touching[touching > 0]].sum())
+    if level[footprint].all():
+        # The free area connected to the box, once the box stands there, is its level component
+        # less the footprint: every cell the footprint joined to the rest touches its ring.
+        region = int(sizes[labels[c.x, c.y]]) - c.fx * c.fy
+    else:  # z below the footprint's top (not Eq. 2's height): label the level without the box
+        free = level.copy()
+        free[footprint] = False
+        own, _ = ndimage.label(free, structure=_FOUR)
+        ring = ring4(_mask(hm.shape, footprint))
+        touching = np.unique(own[ring & free])
+        region = int(np.bincount(own.ravel())[touching[touching > 0]].sum())
     areas = [s.size_cells[0] * s.size_cells[1] for s in others]
     closes = region == 0 or bool(_subset_areas(areas, region)[region])
-    tops = hm[ring]
+    tops = _ring_tops(hm, c)
     level_with = np.mean(same_level(tops, c.z_mm + height)) if tops.size else 0.0
     row = [
         *(r / RUN_SCALE for r in far[:2]),
@@ -113,9 +162,15 @@ def level_fit(heightmap: np.ndarray, shown: Sequence[ShownItem], c: Candidate) -
         float(closes),
         float(level_with),
         len(others) / COUNT_SCALE,
-        float(at_or_below(c.z_mm, int(hm.min()))),
+        float(at_or_below(c.z_mm, levels.lowest)),
     ]
     return np.asarray(row, dtype=np.float32)
+
+
+def _mask(shape: tuple[int, ...], cells: tuple[slice, slice]) -> np.ndarray:
+    out = np.zeros(shape, dtype=bool)
+    out[cells] = True
+    return out
 
 
 def level_fit_rows(
@@ -124,4 +179,5 @@ def level_fit_rows(
     """(len(listed), N_FEATURES) float32: :func:`level_fit` of every listed placement."""
     if not listed:
         return np.zeros((0, N_FEATURES), dtype=np.float32)
-    return np.stack([level_fit(heightmap, shown, c) for c in listed])
+    levels = Levels(heightmap)
+    return np.stack([level_fit(heightmap, shown, c, levels) for c in listed])

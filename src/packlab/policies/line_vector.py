@@ -20,7 +20,7 @@ import numpy as np
 
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
-from packlab.policies.level_fit import FEATURE_NAMES, level_fit
+from packlab.policies.level_fit import FEATURE_NAMES, level_fit_rows
 
 GEOMETRY_NAMES = (
     "x0", "y0", "x1", "y1", "area", "height", "z", "top", "support", "flush", "void", "rotation",
@@ -46,10 +46,6 @@ def line_vectors(observation: Observation, listed: Sequence[Candidate]) -> np.nd
     """(len(listed), LINE_VECTOR_SIZE) float32, one row per listed placement."""
     if not listed:
         return np.zeros((0, LINE_VECTOR_SIZE), dtype=np.float32)
-    rows = [
-        np.concatenate(
-            [geometry(observation, c), level_fit(observation.heightmap, observation.shown, c)]
-        )
-        for c in listed
-    ]
-    return np.stack(rows).astype(np.float32)
+    geometries = np.stack([geometry(observation, c) for c in listed])
+    fits = level_fit_rows(observation.heightmap, observation.shown, listed)
+    return np.concatenate([geometries, fits], axis=1).astype(np.float32)

@@ -53,7 +53,7 @@ from packlab.policies.features import (
 )
 from packlab.policies.heuristics.select import object_rank
 from packlab.policies.level_fit import N_FEATURES as N_LEVEL_FIT
-from packlab.policies.level_fit import level_fit
+from packlab.policies.level_fit import Levels, level_fit
 
 #: Side of the resampled heightmap.
 GRID = 32
@@ -187,23 +187,30 @@ def placement_row(cands: CandidateSet, walls: np.ndarray, index: int, rank: int)
 
 
 def item_row(
-    observation: Observation, cands: CandidateSet, walls: np.ndarray, index: int, rank: int
+    observation: Observation,
+    cands: CandidateSet,
+    walls: np.ndarray,
+    index: int,
+    rank: int,
+    levels: Levels | None = None,
 ) -> np.ndarray:
     """(N_ITEM_FEATURES,) float32: the whole item row of candidate ``index`` (its geometry,
     :func:`placement_row`, then its level fit, :func:`level_fit_at`)."""
     return np.concatenate(
-        [placement_row(cands, walls, index, rank), level_fit_at(observation, cands, index)]
+        [placement_row(cands, walls, index, rank), level_fit_at(observation, cands, index, levels)]
     )
 
 
-def level_fit_at(observation: Observation, cands: CandidateSet, index: int) -> np.ndarray:
+def level_fit_at(
+    observation: Observation, cands: CandidateSet, index: int, levels: Levels | None = None
+) -> np.ndarray:
     """(N_LEVEL_FIT,) float32: :func:`packlab.policies.level_fit.level_fit` of candidate
-    ``index`` (clipped like every column)."""
+    ``index`` (clipped like every column); ``levels``: the state's, shared by its rows."""
     x, y, z = int(cands.x[index]), int(cands.y[index]), int(cands.z[index])
     fx, fy, h = int(cands.fx[index]), int(cands.fy[index]), int(cands.h[index])
     placement = Candidate(0, int(cands.obj[index]), int(cands.rotation[index]), x, y, fx, fy,
                           z, z + h, 0, 0, 0)  # fmt: skip
-    row = level_fit(cands.heightmap, observation.shown, placement)
+    row = level_fit(cands.heightmap, observation.shown, placement, levels)
     return np.clip(row, 0.0, FEATURE_MAX)
 
 
@@ -262,8 +269,10 @@ def encode(
     items = np.zeros((spec.n_items, N_ITEM_FEATURES), dtype=np.float32)
     actions = []
     walls = walled(cands.heightmap, cands.container_height_mm)
+    levels = Levels(cands.heightmap)
     for row, i in enumerate(_listed_indices(cands, spec)):
-        items[row] = item_row(observation, cands, walls, i, int(ranks[int(cands.obj[i])]))
+        rank = int(ranks[int(cands.obj[i])])
+        items[row] = item_row(observation, cands, walls, i, rank, levels)
         actions.append(
             Action(int(cands.obj[i]), int(cands.rotation[i]), int(cands.x[i]), int(cands.y[i]))
         )
