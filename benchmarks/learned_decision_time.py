@@ -3,15 +3,19 @@ and torch), and of the proposer and plan-fast, on one core, on generated hard ca
 
 Usage: python benchmarks/learned_decision_time.py [--cases 3] [--repeats 2]
        [--policies proposer,vlm,irbpp,tapnet,plan-fast] [--runtimes onnx,torch]
+       [--suite packlab-bench-v1]
 
 One core: ``OMP_NUM_THREADS=1`` is set before numpy, torch and ONNX Runtime load, torch runs one
 thread and every learned policy gets ``threads=1``. The learned policies (vlm, irbpp, tapnet)
 play once per runtime (``runtime=onnx`` | ``runtime=torch``); a policy without the option is
 reported as such. Each row plays ``--cases`` generated hard cases (train seed domain, user seed
-7413, geometric backend) ``--repeats`` times after one untimed warm-up case; ``act`` is timed at
-every step and the fastest of the repeats kept per step (the machine is shared: the minimum is
-the least disturbed). Prints mean, median and p95 per row. A decision includes everything the
-policy does: the proposer's listing, the line vectors, the image, tokenising and the forward
+7413, geometric backend; ``--suite NAME``: the first hard cases of a bundled suite instead, the
+cases issue 36's ratio to ``plan-fast`` is stated on, as the planner takes about 1 ms a decision
+on generated hard cases and far longer on the suite's; timing only, nothing is chosen by it)
+``--repeats`` times after one untimed warm-up case; ``act`` is timed at every step and the
+fastest of the repeats kept per step (the machine is shared: the minimum is the least
+disturbed). Prints mean, median and p95 per row. A decision includes everything the policy
+does: the proposer's listing, the line vectors, the image, tokenising and the forward
 pass.
 """
 
@@ -27,6 +31,7 @@ import time
 import numpy as np
 import torch
 
+from packlab.bench.suites import load_suite
 from packlab.core.errors import ConfigError
 from packlab.datagen import generate_cases
 from packlab.policies.registry import make_policy
@@ -79,10 +84,16 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--policies", default="proposer,vlm,irbpp,tapnet,plan-fast")
     p.add_argument("--runtimes", default="onnx,torch")
+    p.add_argument("--suite", default=None, help="a bundled suite's hard cases instead")
     a = p.parse_args()
     torch.set_num_threads(1)
-    cases = generate_cases("hard", a.cases, 7413, False, domain="train")
-    print(f"{a.cases} hard cases, {a.repeats} repeats, one core (OMP_NUM_THREADS=1)")
+    if a.suite is None:
+        cases = generate_cases("hard", a.cases, 7413, False, domain="train")
+        where = "generated"
+    else:
+        cases = [c for c in load_suite(a.suite) if c.difficulty == "hard"][: a.cases]
+        where = a.suite
+    print(f"{len(cases)} {where} hard cases, {a.repeats} repeats, one core (OMP_NUM_THREADS=1)")
     print("| policy | decisions | mean ms | median ms | p95 ms |\n|---|---:|---:|---:|---:|")
     for label, options in rows(a.policies.split(","), a.runtimes.split(",")):
         name = label.split(" ")[0]
