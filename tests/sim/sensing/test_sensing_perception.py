@@ -198,3 +198,41 @@ def test_flat_tops_move_no_cell_by_more_than_the_tolerance():
     flat = flatten_tops(slope, 1.5)
     assert np.abs(flat - slope).max() <= 1.5
     np.testing.assert_array_equal(flat[[0, -1]], slope[[0, -1]])
+
+
+def _grow_by_filter(cores, heights, foreground, steps, tolerance_mm):
+    """The growth as first written: a 3 x 3 maximum filter of the labels at every ring."""
+    from scipy import ndimage
+
+    count = int(cores.max()) + 1
+    inside = cores >= 0
+    total = np.bincount(cores[inside], weights=heights[inside], minlength=count)
+    level = total / np.maximum(np.bincount(cores[inside], minlength=count), 1)
+    out = cores.copy()
+    for _ in range(steps):
+        grown = ndimage.maximum_filter(out, size=3)
+        take = (out < 0) & foreground & (grown >= 0)
+        take &= np.abs(heights - level[np.maximum(grown, 0)]) <= tolerance_mm
+        if not take.any():
+            break
+        out[take] = grown[take]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_growth_reads_only_unlabelled_pixels_and_matches_the_filter(seed):
+    """Growing cores back over the foreground by reading only the unlabelled pixels'
+    neighbourhoods gives the labels a 3 x 3 maximum filter over the whole image gives, at the
+    image's edges too (cores and foreground touching every border)."""
+    from packlab.sim.sensing.perception import _grow
+
+    rng = np.random.default_rng(seed)
+    nx, ny = (int(v) for v in rng.integers(5, 40, size=2))
+    heights = rng.choice([0.0, 100.0, 104.0, 180.0], size=(nx, ny)) + rng.normal(0, 2, (nx, ny))
+    foreground = heights > 10
+    cores = np.where(foreground & (rng.random((nx, ny)) < 0.3), rng.integers(0, 4, (nx, ny)), -1)
+    cores = cores.astype(np.int32)
+    for tolerance in (5.0, 100.0):
+        got = _grow(cores, heights, foreground, 7, tolerance)
+        expected = _grow_by_filter(cores, heights, foreground, 7, tolerance)
+        assert got.dtype == cores.dtype and np.array_equal(got, expected)

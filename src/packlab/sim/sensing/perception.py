@@ -182,15 +182,27 @@ def _grow(cores, heights, foreground, steps: int, tolerance_mm: float) -> np.nda
     inside = cores >= 0  # a core's mean height: its cut-free top, noise averaged out
     total = np.bincount(cores[inside], weights=heights[inside], minlength=count)
     level = total / np.maximum(np.bincount(cores[inside], minlength=count), 1)
-    out = cores.copy()
+    # Only foreground pixels without a label can change, a thin band along the cuts, so each
+    # ring reads just their 3 x 3 neighbourhoods (the highest label among them, as a 3 x 3
+    # maximum filter would give) from a copy with a border of -1 (no label beyond the image).
+    nx, ny = cores.shape
+    wide = ny + 2
+    labelled = np.full((nx + 2, wide), -1, dtype=cores.dtype)
+    labelled[1:-1, 1:-1] = cores
+    flat = labelled.ravel()
+    free_x, free_y = np.nonzero(foreground & ~inside)
+    free = (free_x + 1) * wide + free_y + 1  # flat indices into the bordered copy
+    free_heights = heights[free_x, free_y]
+    ring = np.array([dx * wide + dy for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
     for _ in range(steps):
-        grown = ndimage.maximum_filter(out, size=3)
-        take = (out < 0) & foreground & (grown >= 0)
-        take &= np.abs(heights - level[np.maximum(grown, 0)]) <= tolerance_mm
+        grown = flat[free[:, None] + ring].max(axis=1)
+        take = grown >= 0
+        take &= np.abs(free_heights - level[np.maximum(grown, 0)]) <= tolerance_mm
         if not take.any():
             break
-        out[take] = grown[take]
-    return out
+        flat[free[take]] = grown[take]  # every pixel of this ring read the ring before it
+        free, free_heights = free[~take], free_heights[~take]
+    return labelled[1:-1, 1:-1].copy()
 
 
 @dataclass(frozen=True, slots=True)
