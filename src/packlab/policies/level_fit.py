@@ -116,7 +116,8 @@ def level_fit(
 ) -> np.ndarray:
     """(N_FEATURES,) float32 for one listed placement (module docstring).
 
-    ``levels``: the state's :class:`Levels` when several placements of one heightmap are read.
+    ``levels``: the state's :class:`Levels` when several placements of one heightmap are read;
+    the heightmap is then read from it (it must be made from ``heightmap``).
     """
     levels = Levels(heightmap) if levels is None else levels
     hm = levels.heightmap

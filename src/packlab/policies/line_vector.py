@@ -48,4 +48,4 @@ def line_vectors(observation: Observation, listed: Sequence[Candidate]) -> np.nd
         return np.zeros((0, LINE_VECTOR_SIZE), dtype=np.float32)
     geometries = np.stack([geometry(observation, c) for c in listed])
     fits = level_fit_rows(observation.heightmap, observation.shown, listed)
-    return np.concatenate([geometries, fits], axis=1).astype(np.float32)
+    return np.concatenate([geometries, fits], axis=1).astype(np.float32, copy=False)
