@@ -31,7 +31,7 @@ def states():
     teacher = ListedTeacher("plan")  # one teacher for every case: reset must forget the last
     for case in cases:
         teacher.reset(case, 0)
-        planner = make_policy("plan-fast")
+        planner = make_policy("plan-fast", overflow="place")  # the teacher's rule
         planner.reset(case, 0)
         episode = Episode("geometric")
         obs = episode.reset(case, 0)

@@ -24,6 +24,7 @@ from packlab.core.choices import (
     RUNTIMES,
     HistoryMode,
     ImageMode,
+    OverflowRule,
     ProposerRule,
     StabilityCheck,
     TieBreak,
@@ -146,7 +147,10 @@ class PolicyOptions:
     model: Callable[[str, str, Any, dict[str, Any]], None] | None = None
 
 
-_HEURISTIC = PolicyOptions(("tie_break",), {"tie_break": _one_of(choices(TieBreak))})
+_HEURISTIC = PolicyOptions(
+    ("tie_break", "overflow"),
+    {"tie_break": _one_of(choices(TieBreak)), "overflow": _one_of(choices(OverflowRule))},
+)
 #: ``plan``'s budget, weights, completion stage and switches (packlab.policies.plan.policy).
 _PLAN = PolicyOptions(
     (
@@ -171,6 +175,7 @@ _PLAN = PolicyOptions(
         "complete",
         "mixed",
         "stability",
+        "overflow",
     ),
     {
         "mixed": _switch,
@@ -184,6 +189,7 @@ _PLAN = PolicyOptions(
         "time_s": _positive,
         "complete": _switch,
         "stability": _one_of(choices(StabilityCheck)),
+        "overflow": _one_of(choices(OverflowRule)),
     },
 )
 _RL = PolicyOptions(

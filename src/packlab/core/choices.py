@@ -41,6 +41,10 @@ LayoutFamily = Literal["layered", "stepped", "random", "cut", "rs"]
 ArrivalOrder = Literal["removal", "layers", "base-height", "support"]
 #: The ``plan`` policy's check of its chosen placement before committing it.
 StabilityCheck = Literal["off", "support"]
+#: What a policy does when no shown box fits under the rim (``policies/overflow.py``): ``place``
+#: the box that sticks out least (the literature's rule, every heuristic's default) or
+#: ``score``: place one only where that raises the episode's Overall, else set one aside.
+OverflowRule = Literal["place", "score"]
 #: SFT export of a dataset: one chat example per step (its history as context), per episode, none.
 SFTExport = Literal["per_step", "per_episode", "none"]
 #: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).

@@ -132,6 +132,18 @@ class Action:
     x: int
     y: int
 
+    @classmethod
+    def set_aside(cls, object_id: int) -> Action:
+        """Set shown box ``object_id`` aside on purpose (it counts as unpacked): what a robot
+        cell does with a box it will not put in this container. (x, y) = (-1, -1), where no
+        footprint starts; the episode records the step with reason ``set_aside``."""
+        return cls(object_id, 0, -1, -1)
+
+    @property
+    def sets_aside(self) -> bool:
+        """Whether this is :meth:`set_aside`'s action."""
+        return self.x == -1 and self.y == -1
+
     def to_dict(self) -> dict[str, int]:
         return {"object_id": self.object_id, "x": self.x, "y": self.y, "rotation": self.rotation}
 

@@ -115,6 +115,15 @@ class _Recording:
         return action
 
 
+#: Options a teacher plays with here: a dataset's actions are placements, which cannot say "set
+#: this box aside", so the planner teaches the rim rule they can hold (``overflow=place``,
+#: :mod:`packlab.policies.overflow`) instead of setting boxes aside.
+TEACHER_OPTIONS: dict[str, dict[str, Any]] = {
+    "plan": {"overflow": "place"},
+    "plan-lookahead": {"overflow": "place"},
+}
+
+
 def replay(
     case: Case,
     backend: str = "mujoco",
@@ -127,7 +136,7 @@ def replay(
     default, the oracle, replays ``case.gt_plan``. The observations recorded, and so the sizes
     and actions a dataset writes, name sides as ``sides`` says (the oracle turns the plan's
     catalogue rotations to match)."""
-    policy = _Recording(make_policy(teacher))
+    policy = _Recording(make_policy(teacher, **TEACHER_OPTIONS.get(teacher, {})))
     result = run_episode(case, policy, run_seed, backend=backend, physics=physics, sides=sides)
     return Trajectory(
         case=case,

@@ -102,7 +102,9 @@ class ListedTeacher:
             raise ConfigError(f"teacher = {teacher!r}: expected one of {', '.join(TEACHERS)}")
         self.teacher = teacher
         self._oracle = OraclePolicy()
-        self._plan = make_plan_fast()
+        # A listed placement cannot say "set this box aside": the planner labels with the rim
+        # rule the list can hold (packlab.policies.overflow).
+        self._plan = make_plan_fast(overflow="place")
 
     def reset(self, case: Case, seed: int) -> None:
         if self.teacher.startswith("oracle"):

@@ -307,6 +307,8 @@ class Episode:
         if self._protocol.online and int(action.object_id) != 0:
             return "not_first", self._shown_indices[0]
         index = self._shown_indices[int(action.object_id)]
+        if action.sets_aside:
+            return "set_aside", index
         if action.rotation not in (0, 1):
             return "bad_rotation", index
         rotation = self._turned(int(action.object_id), int(action.rotation))

@@ -24,7 +24,16 @@ from packlab.sim.replan import Perception
 
 #: Reasons a step can be invalid (``not_first``: the online protocol's action named a shown box
 #: other than the first, the only one it may place).
-INVALID_REASONS = ("bad_object_id", "bad_rotation", "out_of_bounds", "unparsable", "not_first")
+#: Why a step placed nothing. All but ``set_aside`` are errors; ``set_aside`` is a policy's
+#: deliberate choice (:meth:`packlab.core.types.Action.set_aside`).
+INVALID_REASONS = (
+    "bad_object_id",
+    "bad_rotation",
+    "out_of_bounds",
+    "unparsable",
+    "not_first",
+    "set_aside",
+)
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,6 +8,9 @@ Options (factory keywords, so ``packlab bench --policy-arg dblf:tie_break=shown_
 
 - ``tie_break``: how placements that tie on every key are settled, one of
   :data:`~packlab.policies.heuristics.select.TIE_BREAKS`; default ``"larger_volume"``.
+- ``overflow``: when no shown box fits under the rim, ``place`` the one sticking out least
+  (the literature's rule, the default) or ``score`` (:mod:`packlab.policies.overflow`: place
+  one only where that raises the episode's Overall, else set one aside).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any
 
+from packlab.core.choices import OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
@@ -28,6 +32,7 @@ from packlab.policies.heuristics.select import (
     first_object,
     to_action,
 )
+from packlab.policies.overflow import overflow_action, overflowing
 
 #: Heuristic scorers by registered policy name.
 SCORERS: dict[str, Scorer] = {
@@ -46,14 +51,19 @@ NO_CANDIDATE_ACTION = Action(object_id=0, rotation=0, x=0, y=0)
 
 
 #: Factory keywords every heuristic accepts.
-OPTIONS = ("tie_break",)
+OPTIONS = ("tie_break", "overflow")
 
 
 def decide(
-    observation: Observation, scorer: Scorer, tie_break: TieBreak = DEFAULT_TIE_BREAK
+    observation: Observation,
+    scorer: Scorer,
+    tie_break: TieBreak = DEFAULT_TIE_BREAK,
+    overflow: OverflowRule = "place",
 ) -> Action:
     """The action a scorer chooses for an observation (pure)."""
     cands = observation_candidates(observation)
+    if overflow == "score" and not observation.must_place_first and overflowing(cands):
+        return overflow_action(observation, cands)
     index = choose(cands, scorer(cands), tie_break)
     if index is None:
         return replace(NO_CANDIDATE_ACTION, object_id=first_object(cands, tie_break))
@@ -67,15 +77,17 @@ class HeuristicPolicy:
     name: str
     scorer: Scorer
     tie_break: TieBreak = DEFAULT_TIE_BREAK
+    overflow: OverflowRule = "place"
 
     def __post_init__(self) -> None:
         check_tie_break(self.tie_break, self.name)
+        require_choice(self.overflow, OverflowRule, f"policy-arg {self.name}:overflow")
 
     def reset(self, case: Case, seed: int) -> None:
         """Nothing to prepare: the heuristics keep no state across steps."""
 
     def act(self, observation: Observation) -> Action:
-        return decide(observation, self.scorer, self.tie_break)
+        return decide(observation, self.scorer, self.tie_break, self.overflow)
 
 
 def make_heuristic(name: str, **options: Any) -> HeuristicPolicy:
@@ -87,7 +99,8 @@ def make_heuristic(name: str, **options: Any) -> HeuristicPolicy:
             f"known: {', '.join(OPTIONS)}"
         )
     tie_break = check_tie_break(options.get("tie_break", DEFAULT_TIE_BREAK), name)
-    return HeuristicPolicy(name=name, scorer=SCORERS[name], tie_break=tie_break)
+    overflow = options.get("overflow", "place")
+    return HeuristicPolicy(name=name, scorer=SCORERS[name], tie_break=tie_break, overflow=overflow)
 
 
 # The entry-point factories (pyproject ``packlab.policies``): one per heuristic.

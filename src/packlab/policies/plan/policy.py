@@ -14,7 +14,9 @@ Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``dep
 ``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`) and
 ``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
 support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
-choice), and for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
+choice), ``overflow`` (``score``, the default, or ``place``: what to do when no shown box fits
+under the rim, :mod:`packlab.policies.overflow`; ``overflowed`` counts those decisions), and
+for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
 ``jokers``, ``joker_seen``, ``guesses`` (see :class:`.complete.CompletionConfig`;
 ``completed`` counts the decisions it took).
 """
@@ -24,9 +26,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from packlab.core.choices import StabilityCheck, require_choice
+from packlab.core.choices import OverflowRule, StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.overflow import overflow_action, overflowing
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
@@ -77,6 +81,12 @@ class PlanPolicy:
     completed: int = 0
     #: With every remaining box in view, an exact filling of the rest (``endgame_nodes=0``: off).
     endgame: Endgame = field(default_factory=Endgame)
+    #: When no shown box fits under the rim: ``score`` places one only where that raises the
+    #: episode's Overall and otherwise sets one aside; ``place`` takes the lookahead's choice
+    #: among the boxes sticking out least (:mod:`packlab.policies.overflow`).
+    overflow: OverflowRule = "score"
+    #: Decisions taken by the ``score`` overflow rule.
+    overflowed: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Forget the last episode's filling; the plan never reads the case (its future objects)."""
@@ -102,9 +112,19 @@ class PlanPolicy:
                 self.completed += 1
                 action = Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
                 return PlanDecision(action, found)
+        cands = observation_candidates(observation)
+        # Online, the arriving box must be placed: the overflow rule is for the buffer.
+        if self.overflow == "score" and not observation.must_place_first and overflowing(cands):
+            self.decisions += 1
+            self.overflowed += 1
+            return PlanDecision(overflow_action(observation, cands), None)
         problem = observation_problem(observation, self.weights)
         outcome = search(
-            observation.heightmap, problem, self.budget, check_support=self.stability == "support"
+            observation.heightmap,
+            problem,
+            self.budget,
+            check_support=self.stability == "support",
+            candidates=cands,
         )
         self.decisions += 1
         self.fallbacks += int(outcome.fell_back)
@@ -209,11 +229,13 @@ def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
     stability = options.pop("stability", "off")
     require_choice(stability, StabilityCheck, "plan: stability")
+    overflow = options.pop("overflow", "score")
+    require_choice(overflow, OverflowRule, "plan: overflow")
     option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES)
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
-        known = ", ".join(sorted(known_keys | {"stability"}))
+        known = ", ".join(sorted(known_keys | {"stability", "overflow"}))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
     weights = Weights(
@@ -242,6 +264,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         complete=switches.get("complete", True),
         completion=completion,
         endgame=Endgame(endgame),
+        overflow=overflow,
     )
 
 

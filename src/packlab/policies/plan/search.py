@@ -192,16 +192,18 @@ def search(
     budget: Budget,
     check_support: bool = False,
     firsts: Sequence[int] | None = None,
+    candidates: CandidateSet | None = None,
 ) -> Outcome:
     """The first placement of the cheapest rollout (see the module docstring).
 
     ``firsts`` replaces step 1's proposals by these indices into the shared candidate search of
     the whole shown buffer (the planner restricted to another proposer's set, for measuring it).
+    ``candidates``: that search when the caller already ran it on this heightmap and problem.
     """
     start = time.perf_counter()
     hm = np.asarray(heightmap)
     everything = tuple(range(len(problem.shown)))
-    cands = _candidates(hm, problem, everything)
+    cands = _candidates(hm, problem, everything) if candidates is None else candidates
     firsts = first_placements(cands, budget.first) if firsts is None else list(firsts)
     if not firsts:
         return Outcome(None, 0, float("inf"))

@@ -1,0 +1,81 @@
+"""What to do when no shown box fits under the rim: place one sticking out, or set one aside.
+
+The shared rim rule (:func:`packlab.policies.heuristics.select.rim_pool`) places the box that
+sticks out least when no placement stays within the rim. The metric (DESIGN.md section 5)
+punishes that twice: a box counts as packed only when its settled centre is inside the
+container, and compactness divides by the final heightmap's highest cell, which a box sticking
+out raises whether it counts or not. With every box's volume fixed, Overall = SR x compactness
+is proportional to V**2 / H (V: the volume packed inside, H: the highest cell), so
+
+* placing a box whose centre stays inside turns (V, H) into (V + v, max(H, top));
+* placing one whose centre rises above the rim turns it into (V, max(H, top)): never better;
+* setting a box aside leaves (V, H) as it is.
+
+Rule ``score`` (:data:`packlab.core.choices.OverflowRule`) takes, among the candidates (all of
+them over the rim), the placement with the largest (V + v)**2 / max(H, top) and places it when
+that beats V**2 / H; otherwise it sets a box aside (:meth:`Action.set_aside`). A box that fits
+nowhere under the rim now never will (the heightmap only rises), so waiting cannot save it.
+
+V and H are the policy's own estimates: H is the highest cell of the heightmap it sees, V the
+volume of the boxes it placed this episode whose centre (Eq. 2 height on the heightmap it saw
+then, plus half the box's height) stayed within the rim, from the sizes it was shown. The rule
+is greedy: boxes still to come add to V whichever way this box goes, and are not counted.
+
+Under the online protocol the arriving box must be placed, so the rule is never asked there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from packlab.core.feasibility import CandidateSet
+from packlab.core.types import Action, Observation
+
+
+def overflowing(cands: CandidateSet) -> bool:
+    """Whether the rule applies: no candidate at all, or none whose top stays within the rim."""
+    return not bool(cands.fits_in_rim.any())
+
+
+def packed_inside_volume(observation: Observation) -> int:
+    """V above (mm^3): the boxes this episode placed whose centre stayed within the rim, by the
+    observation's own history (shown sizes, Eq. 2 heights on the heightmaps seen then)."""
+    rim = observation.container.height_mm
+    volume = 0
+    for entry in observation.history:
+        action = entry.action
+        if not entry.valid or not isinstance(action, Action):
+            continue
+        item = entry.shown[action.object_id]
+        cells_x, cells_y = item.size_cells[0], item.size_cells[1]
+        fx, fy = (cells_x, cells_y) if action.rotation == 0 else (cells_y, cells_x)
+        under = np.asarray(entry.heightmap)[action.x : action.x + fx, action.y : action.y + fy]
+        if under.size == 0:
+            continue
+        length, width, height = item.size_mm
+        if 2 * int(under.max()) + height <= 2 * rim:
+            volume += length * width * height
+    return volume
+
+
+def overflow_action(observation: Observation, cands: CandidateSet) -> Action:
+    """Rule ``score`` (module docstring) for a step where :func:`overflowing` holds."""
+    if len(cands) == 0:  # nothing fits the floor at all: the box cannot be placed
+        return Action.set_aside(0)
+    rim = observation.container.height_mm
+    height_now = max(int(np.asarray(observation.heightmap).max()), 1)
+    volume_now = float(packed_inside_volume(observation))
+    inside = 2 * cands.z + cands.h <= 2 * rim
+    box_volume = np.prod(cands.shown_sizes_mm[cands.obj], axis=1).astype(np.float64)
+    after = (volume_now + box_volume * inside) ** 2 / np.maximum(height_now, cands.top)
+    best = int(np.argmax(after))  # first of equals: scan order
+    if after[best] > volume_now**2 / height_now:
+        return Action(
+            int(cands.obj[best]), int(cands.rotation[best]), int(cands.x[best]), int(cands.y[best])
+        )
+    # No box is worth placing. Set aside the one that would stick out most: all are lost to
+    # this container, and a box arriving next may still fit.
+    # (A shown box with no candidate at all fits nowhere: it goes first.)
+    lowest_top = np.full(cands.buffer_size, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(lowest_top, cands.obj, cands.top)
+    return Action.set_aside(int(np.argmax(lowest_top)))
