@@ -97,7 +97,7 @@ def test_set_aside_steps_are_recorded_as_such_and_count_as_unpacked():
     assert result.metrics.n_set_aside == 1
 
 
-@pytest.mark.parametrize("policy", ["plan-fast", "sdf"])
+@pytest.mark.parametrize("policy", ["plan-fast", "sdf", "irbpp", "tapnet", "proposer", "vlm"])
 def test_the_score_rule_beats_placing_the_box_that_sticks_out_least(policy):
     # The second box cannot stay under the rim; placed on top, its centre is outside (it adds
     # nothing) and the highest cell rises from 90 to 140 mm.
@@ -109,13 +109,17 @@ def test_the_score_rule_beats_placing_the_box_that_sticks_out_least(policy):
     assert placed.metrics.overall == pytest.approx((90 / 140) ** 2)
 
 
-def test_overflow_defaults_plan_scores_heuristics_place():
-    assert make_policy("plan").overflow == "score"
-    assert make_policy("plan-fast").overflow == "score"
-    assert make_policy("sdf").overflow == "place"
+@pytest.mark.parametrize("policy", ["plan", "plan-fast", "irbpp", "tapnet", "proposer", "vlm"])
+def test_the_projects_own_policies_score_by_default(policy):
+    assert make_policy(policy).overflow == "score"
 
 
-@pytest.mark.parametrize("policy", ["plan", "dblf"])
+@pytest.mark.parametrize("policy", ["dblf", "hm", "mta", "ffp", "sdf"])
+def test_the_literature_heuristics_place_by_default(policy):
+    assert make_policy(policy).overflow == "place"
+
+
+@pytest.mark.parametrize("policy", ["plan", "dblf", "irbpp", "proposer", "vlm"])
 def test_an_unknown_overflow_rule_is_refused_by_name(policy):
     with pytest.raises(ConfigError, match="overflow = 'later'"):
         make_policy(policy, overflow="later")

@@ -193,8 +193,12 @@ _PLAN = PolicyOptions(
     },
 )
 _RL = PolicyOptions(
-    ("model", "threads", "runtime"),
-    {"threads": _whole(1), "runtime": _one_of(RUNTIMES)},
+    ("model", "threads", "runtime", "overflow"),
+    {
+        "threads": _whole(1),
+        "runtime": _one_of(RUNTIMES),
+        "overflow": _one_of(choices(OverflowRule)),
+    },
     model=_rl_model,
 )
 #: ``vlm``: a text-answer checkpoint's options (VLMPolicy) and a candidate-mode one's.
@@ -214,8 +218,10 @@ _VLM_KEYS = (
     "name",
     "blank_image",
     "runtime",
+    "overflow",
 )
 _VLM_CHECKS: dict[str, Check] = {
+    "overflow": _one_of(choices(OverflowRule)),
     "history": _one_of(choices(HistoryMode)),
     "image": _one_of(choices(ImageMode)),
     "max_new_tokens": _whole(1),
@@ -261,7 +267,12 @@ POLICY_OPTIONS: dict[str, PolicyOptions] = {
     "plan-fast": _PLAN,
     "plan-lookahead": _PLAN,
     "proposer": PolicyOptions(
-        ("k", "rule"), {"k": _whole(1), "rule": _one_of(choices(ProposerRule))}
+        ("k", "rule", "overflow"),
+        {
+            "k": _whole(1),
+            "rule": _one_of(choices(ProposerRule)),
+            "overflow": _one_of(choices(OverflowRule)),
+        },
     ),
     "vlm": PolicyOptions(_VLM_KEYS, _VLM_CHECKS, model=_vlm_model),
     "vlm-small": PolicyOptions(_VLM_KEYS, _VLM_CHECKS, model=_refuse_model),

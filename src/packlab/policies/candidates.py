@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from packlab.core.choices import ProposerRule, require_choice
+from packlab.core.choices import OverflowRule, ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.features import (
@@ -56,6 +56,7 @@ from packlab.policies.features import (
 )
 from packlab.policies.heuristics.policy import make_sdf
 from packlab.policies.heuristics.select import rim_pool
+from packlab.policies.overflow import overflow_decision
 
 #: Default number of listed placements.
 DEFAULT_K = 8
@@ -287,15 +288,25 @@ class ProposerPolicy:
 
     name = "proposer"
 
-    def __init__(self, k: int = DEFAULT_K, rule: str = "lowest") -> None:
+    def __init__(
+        self, k: int = DEFAULT_K, rule: str = "lowest", overflow: OverflowRule = "score"
+    ) -> None:
+        """``overflow``: what it does where no shown box fits under the rim (as the students it
+        is the floor of: :mod:`packlab.policies.overflow`, default ``score``)."""
         self.config = ProposerConfig(k=k, rule=rule)  # type: ignore[arg-type]
+        require_choice(overflow, OverflowRule, "policy-arg proposer:overflow")
+        self.overflow = overflow
 
     def reset(self, case: Case, seed: int) -> None:
         self._fallback = make_sdf()
         self._fallback.reset(case, seed)
 
     def act(self, observation: Observation) -> Action:
-        listed = propose(observation, self.config)
+        cands = observation_candidates(observation)
+        overflowed = overflow_decision(observation, cands, self.overflow)
+        if overflowed is not None:
+            return overflowed
+        listed = propose_from(cands, self.config)
         return listed[0].action if listed else self._fallback.act(observation)
 
 

@@ -28,13 +28,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from packlab.core.choices import OverflowRule
 from packlab.core.feasibility import CandidateSet
 from packlab.core.types import Action, Observation
 
 
 def overflowing(cands: CandidateSet) -> bool:
-    """Whether the rule applies: no candidate at all, or none whose top stays within the rim."""
+    """Whether no candidate at all, or none whose top stays within the rim, exists."""
     return not bool(cands.fits_in_rim.any())
+
+
+def overflow_decision(
+    observation: Observation, cands: CandidateSet, rule: OverflowRule
+) -> Action | None:
+    """The action rule ``score`` takes where it applies (the buffer protocol, no candidate under
+    the rim), else None: the policy decides as it would without the rule. Every policy with
+    an ``overflow`` option asks this, with the candidate set it computes anyway."""
+    if rule != "score" or observation.must_place_first or not overflowing(cands):
+        return None
+    return overflow_action(observation, cands)
 
 
 def packed_inside_volume(observation: Observation) -> int:

@@ -5,7 +5,8 @@
 decision encodes the observation exactly as the training env did
 (:func:`packlab.rl.features.encode`), asks the network for its row logits and takes the greedy
 row (:func:`packlab.rl.decision.decide`); when no shown box fits anywhere, the box is set aside
-as the heuristics do.
+as the heuristics do. Option ``overflow`` (default ``score``): where no shown box fits under the
+rim, the shared overflow rule decides instead of the network (:mod:`packlab.policies.overflow`).
 
 Option ``runtime``: ``onnx`` (default) runs the directory's ONNX export on ONNX Runtime
 (:mod:`packlab.rl.onnx_agent`) and imports neither torch nor stable-baselines3, so the core
@@ -20,10 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from packlab.core.choices import RUNTIMES
+from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.model_cache import load_once
+from packlab.policies.overflow import overflow_decision
 from packlab.rl.card import CARD_FILE, AgentCard, read_card
 from packlab.rl.decision import RowLogits, decide
 from packlab.rl.extra import RLExtraMissing, import_rl
@@ -33,7 +36,7 @@ from packlab.rl.onnx_agent import load_onnx_agent
 #: Where the package ships its trained agents, one directory per policy name.
 SHIPPED_MODELS = Path(__file__).resolve().parents[1] / "data" / "models"
 AGENT_MODULE = "packlab.rl.agent"
-OPTIONS = ("model", "threads", "runtime")
+OPTIONS = ("model", "threads", "runtime", "overflow")
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,8 +51,18 @@ class RLAgentPolicy:
     """A trained agent over its action space (module docstring)."""
 
     def __init__(
-        self, name: str, model: str | None = None, threads: int = 1, runtime: str = "onnx"
+        self,
+        name: str,
+        model: str | None = None,
+        threads: int = 1,
+        runtime: str = "onnx",
+        overflow: OverflowRule = "score",
     ) -> None:
+        """``overflow``: where no shown box fits under the rim, ``score`` (the default) lets
+        :mod:`packlab.policies.overflow` decide, outside the network, as for the planner that
+        taught it; ``place``: the network picks among the boxes sticking out least."""
+        require_choice(overflow, OverflowRule, f"policy-arg {name}:overflow")
+        self.overflow = overflow
         self.name = name
         self.model_dir = Path(model) if model else SHIPPED_MODELS / name
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
@@ -116,7 +129,12 @@ class RLAgentPolicy:
     def act(self, observation: Observation) -> Action:
         if self._playing is None:
             self._playing = self._load()
-        return decide(encode(observation, self._playing.spec), self._playing.row_logits)
+        cands = observation_candidates(observation)
+        overflowed = overflow_decision(observation, cands, self.overflow)
+        if overflowed is not None:
+            return overflowed
+        encoded = encode(observation, self._playing.spec, cands)
+        return decide(encoded, self._playing.row_logits)
 
 
 def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:
@@ -127,7 +145,9 @@ def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:
         )
     threads = options.get("threads", 1)
     runtime = options.get("runtime", "onnx")
-    return RLAgentPolicy(name, options.get("model"), int(threads) if threads else 1, runtime)
+    threads = int(threads) if threads else 1
+    overflow = options.get("overflow", "score")
+    return RLAgentPolicy(name, options.get("model"), threads, runtime, overflow)
 
 
 def make_irbpp(**options: Any) -> RLAgentPolicy:

@@ -32,7 +32,7 @@ from packlab.policies.heuristics.select import (
     first_object,
     to_action,
 )
-from packlab.policies.overflow import overflow_action, overflowing
+from packlab.policies.overflow import overflow_decision
 
 #: Heuristic scorers by registered policy name.
 SCORERS: dict[str, Scorer] = {
@@ -62,8 +62,9 @@ def decide(
 ) -> Action:
     """The action a scorer chooses for an observation (pure)."""
     cands = observation_candidates(observation)
-    if overflow == "score" and not observation.must_place_first and overflowing(cands):
-        return overflow_action(observation, cands)
+    overflowed = overflow_decision(observation, cands, overflow)
+    if overflowed is not None:
+        return overflowed
     index = choose(cands, scorer(cands), tie_break)
     if index is None:
         return replace(NO_CANDIDATE_ACTION, object_id=first_object(cands, tie_break))

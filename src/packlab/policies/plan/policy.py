@@ -30,7 +30,7 @@ from packlab.core.choices import OverflowRule, StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.overflow import overflow_action, overflowing
+from packlab.policies.overflow import overflow_decision
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
@@ -113,11 +113,11 @@ class PlanPolicy:
                 action = Action(object_id=slot.key, rotation=slot.rotation, x=slot.x, y=slot.y)
                 return PlanDecision(action, found)
         cands = observation_candidates(observation)
-        # Online, the arriving box must be placed: the overflow rule is for the buffer.
-        if self.overflow == "score" and not observation.must_place_first and overflowing(cands):
+        overflow = overflow_decision(observation, cands, self.overflow)
+        if overflow is not None:
             self.decisions += 1
             self.overflowed += 1
-            return PlanDecision(overflow_action(observation, cands), None)
+            return PlanDecision(overflow, None)
         problem = observation_problem(observation, self.weights)
         outcome = search(
             observation.heightmap,

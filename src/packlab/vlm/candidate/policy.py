@@ -1,7 +1,9 @@
 """The candidate-mode VLM policy: list K placements, score them with the pointer model, take
 the best. Torch-free at import (the registry imports it); the model loads on first reset.
 
-Every answer is a listed placement, so it always parses and always fits. When nothing fits (the
+Every answer is a listed placement, so it always parses and always fits. Where no shown box fits
+under the rim, the shared overflow rule decides (option ``overflow``, default ``score``;
+:mod:`packlab.policies.overflow`). When nothing fits (the
 proposer lists nothing) the policy hands the step to SDF-Pack, which then makes the same
 set-aside decision any policy would; such steps are counted in ``fallbacks``.
 
@@ -25,11 +27,13 @@ from typing import Any
 
 import numpy as np
 
-from packlab.core.choices import RUNTIMES
+from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation, Unparsable
-from packlab.policies.candidates import ProposerConfig, propose
+from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.model_cache import load_once
+from packlab.policies.overflow import overflow_decision
 from packlab.policies.registry import make_policy
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
@@ -56,11 +60,14 @@ class CandidateVLMPolicy:
         name: str = "vlm",
         blank_image: bool = False,
         runtime: str = "onnx",
+        overflow: OverflowRule = "score",
     ) -> None:
         """``blank_image`` (ablation, ``--policy-arg vlm:blank_image=true``): the model is shown
         the map of an empty container at every step, in whatever form it reads the map (image
         or digits); the listed lines and their vectors are unchanged. ``runtime``: ``"onnx"`` or
-        ``"torch"`` (module docstring)."""
+        ``"torch"`` (module docstring). ``overflow``: where no shown box fits under the rim,
+        ``score`` (default) lets the shared rule decide (:mod:`packlab.policies.overflow`),
+        ``place`` the model."""
         if model != IN_MEMORY and not is_pointer_dir(model):
             raise ConfigError(f"model = {str(model)!r}: not a candidate-mode checkpoint directory")
         if threads is not None and threads < 1:
@@ -71,8 +78,11 @@ class CandidateVLMPolicy:
             raise ConfigError(f"runtime = {runtime!r}: expected one of {', '.join(RUNTIMES)}")
         self.model_spec, self.threads, self.name = str(model), threads, name
         self.runtime = runtime
+        require_choice(overflow, OverflowRule, f"policy-arg {name}:overflow")
+        self.overflow = overflow
         self.blank_image = blank_image
-        self.fallbacks = 0
+        self.fallbacks = 0  # steps handed to SDF-Pack (nothing listed)
+        self.overflowed = 0  # steps the overflow rule took
         self.decisions = 0
         self._model: Any = None
 
@@ -154,8 +164,13 @@ class CandidateVLMPolicy:
         self._fallback.reset(case, seed)
 
     def act(self, observation: Observation) -> Action | Unparsable:
-        listed = propose(observation, self._proposer)
         self.decisions += 1
+        cands = observation_candidates(observation)
+        overflowed = overflow_decision(observation, cands, self.overflow)
+        if overflowed is not None:
+            self.overflowed += 1
+            return overflowed
+        listed = propose_from(cands, self._proposer)
         if not listed:
             self.fallbacks += 1
             return self._fallback.act(observation)

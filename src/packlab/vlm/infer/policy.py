@@ -41,7 +41,7 @@ SHIPPED_MODEL_DIR = Path(__file__).resolve().parents[2] / "data" / "models" / "v
 
 RUNTIME_MODULE = "packlab.vlm.infer.runtime"
 #: The options of a candidate-mode checkpoint (:class:`CandidateVLMPolicy`).
-CANDIDATE_ARGS = ("model", "threads", "name", "blank_image", "runtime")
+CANDIDATE_ARGS = ("model", "threads", "name", "blank_image", "runtime", "overflow")
 
 
 def _check_settings(
