@@ -10,13 +10,21 @@ or moving to the plan.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import msgspec
 import numpy as np
 import pytest
 
 from packlab.core.types import Action, Box, Case, Container
 from packlab.sim.episode import Episode
-from packlab.sim.execution import ExecutionNoise, perturb_drop, seat_sides
+from packlab.sim.execution import (
+    ExecutionNoise,
+    execution_noise,
+    perturb_drop,
+    place_command,
+    seat_sides,
+)
 from packlab.sim.physics.mujoco_backend import MujocoBackend
 from packlab.sim.physics.place_skill import PlaceCommand
 from packlab.sim.replan import Perception, Scene
@@ -411,6 +419,36 @@ def test_a_placement_stopped_high_on_an_edge_is_retried_with_a_fresh_draw():
     _, report = backend.execute(2, 0, command, (1.0, 0.0), 12.0, redraw)
     assert report.retried == 2 and report.stopped_high and len(used) == 2
     assert backend.poses()[0][2, 2] == pytest.approx(150.0, abs=1.0)
+
+
+def test_a_box_still_stuck_high_after_its_retries_is_taken_out_and_set_aside():
+    # As above, every draw turned too far; with set_aside_stuck the robot takes the box back
+    # out instead of letting it go on the neighbours' edges: parked, not placed, no seating.
+    backend, command = _slot()
+    command = replace(command, set_aside_stuck=True)
+    redraw, _ = _draws(((1.0, 0.0), 12.0), ((1.0, 0.0), -12.0))
+    transition, report = backend.execute(2, 0, command, (1.0, 0.0), 12.0, redraw)
+    assert report.retried == 2 and report.set_aside and not report.stopped_high
+    assert np.isnan(backend.poses()[0][2]).all()  # no longer placed
+    assert transition.heightmap.max() == 100  # the neighbours only: nothing on their tops
+    # A try that lands is released as before, the setting notwithstanding.
+    backend, command = _slot()
+    redraw, _ = _draws(((0.5, 0.0), 1.0))
+    _, report = backend.execute(
+        2, 0, replace(command, set_aside_stuck=True), (1.0, 0.0), 12.0, redraw
+    )
+    assert report.retried == 1 and not report.set_aside
+    assert backend.poses()[0][2, 2] == pytest.approx(50.0, abs=0.5)
+
+
+def test_both_robot_presets_set_stuck_boxes_aside_and_the_command_carries_it():
+    for preset in ("structured-light", "stereo"):
+        noise = execution_noise(preset)
+        assert noise.set_aside_stuck
+        drop = perturb_drop(noise, np.random.default_rng(0))
+        command = place_command((100, 100, 100), 0, (0, 0, 0), np.zeros((4, 4)), drop)
+        assert command.set_aside_stuck
+    assert not execution_noise("none").set_aside_stuck
 
 
 def test_the_retry_decision_reads_the_gripper_height_against_the_command_only():

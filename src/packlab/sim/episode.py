@@ -345,6 +345,8 @@ class Episode:
         placement: Placement | None = None
         if not reason and isinstance(action, Action):  # no reason: an Action
             placement = self._place_chosen(action, index, seen_before, shown_before)
+            if placement.skill is not None and placement.skill.set_aside:
+                self._set_aside.add(index)  # the skill took it back out (place_skill)
             if self._perceiver is not None:
                 item = shown_before[int(action.object_id)]
                 chosen, x, y = int(action.rotation), int(action.x), int(action.y)

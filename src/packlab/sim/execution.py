@@ -44,6 +44,10 @@ class ExecutionNoise:
     #: this far past the command (``place_skill.seat``), so errors do not add up along a row.
     #: 0: the box stays where the noise put it.
     seat_mm: float = 0.0
+    #: The place skill takes a box back out and sets it aside when its descent still stops
+    #: well above its target after the last retry, instead of letting it go on a neighbour's
+    #: top (``place_skill.PlaceCommand.set_aside_stuck``).
+    set_aside_stuck: bool = False
 
     def __post_init__(self) -> None:
         for name in ("xy_sigma_mm", "yaw_sigma_deg", "release_mm", "comply_mm", "seat_mm"):
@@ -67,10 +71,20 @@ class ExecutionNoise:
 EXECUTION_PRESETS: dict[str, ExecutionNoise] = {
     "none": ExecutionNoise(),
     "structured-light": ExecutionNoise(
-        xy_sigma_mm=2.0, yaw_sigma_deg=1.0, release_mm=5.0, comply_mm=20.0, seat_mm=15.0
+        xy_sigma_mm=2.0,
+        yaw_sigma_deg=1.0,
+        release_mm=5.0,
+        comply_mm=20.0,
+        seat_mm=15.0,
+        set_aside_stuck=True,
     ),
     "stereo": ExecutionNoise(
-        xy_sigma_mm=5.0, yaw_sigma_deg=3.0, release_mm=10.0, comply_mm=30.0, seat_mm=25.0
+        xy_sigma_mm=5.0,
+        yaw_sigma_deg=3.0,
+        release_mm=10.0,
+        comply_mm=30.0,
+        seat_mm=25.0,
+        set_aside_stuck=True,
     ),
 }
 
@@ -92,6 +106,7 @@ class ExecutedDrop:
     seat_mm: float = 0.0  # how far past the command the box may be pushed flush (ExecutionNoise)
     #: Per axis (x, y), the side the skill pushes toward (-1, +1, or 0: none), ``seat_sides``.
     seat_sides: tuple[int, int] = (0, 0)
+    set_aside_stuck: bool = False  # (ExecutionNoise)
 
     @property
     def is_exact(self) -> bool:
@@ -130,6 +145,7 @@ def perturb_drop(
         float(noise.release_mm),
         float(noise.comply_mm),
         float(noise.seat_mm),
+        set_aside_stuck=noise.set_aside_stuck,
     )
 
 
@@ -159,6 +175,7 @@ def place_command(
         comply_mm=executed.comply_mm,
         seat_mm=executed.seat_mm,
         seat_sides=executed.seat_sides,
+        set_aside_stuck=executed.set_aside_stuck,
     )
 
 

@@ -166,6 +166,11 @@ def _pivoted(pose: np.ndarray, pivot: np.ndarray, angle: float) -> np.ndarray:
     return out
 
 
+def _park_position(index: int) -> tuple[float, float, float]:
+    """Where box ``index`` waits off stage (m): far from the container and from the others."""
+    return (-100.0 - 2.0 * index, -100.0, 10.0)
+
+
 def _fmt(values: Sequence[float]) -> str:
     return " ".join(f"{v:.9g}" for v in values)
 
@@ -191,7 +196,7 @@ def build_model_xml(container: Container, boxes: Sequence[Box], cfg: PhysicsConf
     for i, box in enumerate(boxes):
         l, w, h = box.size_mm
         half = ((l / 2 - inset) * _MM, (w / 2 - inset) * _MM, h / 2 * _MM)
-        park = (-100.0 - 2.0 * i, -100.0, 10.0)  # far from the container and from each other
+        park = _park_position(i)
         body_xml.append(
             f'    <body name="box{i}" pos="{_fmt(park)}" gravcomp="1">\n'
             f'      <freejoint name="j{i}"/>\n'
@@ -351,6 +356,9 @@ class MujocoBackend:
         model.body_gravcomp[body] = 1.0  # held: the gripper carries its weight
         hold(offset_mm, yaw_deg)
         report = run_place_skill(_HeldBox(self, index), command, None if redraw is None else retry)
+        if report.set_aside:  # the robot took it back out: nothing to release
+            self._park(index)
+            return self._settle(cfg.settle_window_steps, cfg.max_settle_steps), report
         model.body_gravcomp[body] = 0.0  # released
         yaw = math.degrees(2 * math.atan2(data.qpos[qpos.start + 6], data.qpos[qpos.start + 3]))
         z = float(data.qpos[qpos.start + 2])
@@ -358,6 +366,19 @@ class MujocoBackend:
         # Counted: the simulator's guard, not the robot's decision (see SkillReport.lifted).
         report.lifted = int(float(data.qpos[qpos.start + 2]) != z)
         return self._settle(cfg.settle_window_steps, cfg.max_settle_steps), report
+
+    def _park(self, index: int) -> None:
+        """Take box ``index`` back out (the place skill set it aside): parked as before it was
+        placed, collisions off, weight carried; it no longer counts as placed."""
+        model, data = self._model, self._data
+        body, geom = self._body_ids[index], self._geom_ids[index]
+        model.body_gravcomp[body] = 1.0
+        model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
+        model.body_contype[body] = model.body_conaffinity[body] = 0
+        data.qpos[self._qpos_slice(index)] = (*_park_position(index), 1.0, 0.0, 0.0, 0.0)
+        data.qvel[self._qvel_slice(index)] = 0.0
+        self._placed[index] = False
+        self._regions.pop(index, None)
 
     def _activate(self, index: int) -> None:
         """Un-park box ``index``: collisions and gravity on; it counts as placed."""

@@ -40,7 +40,8 @@ gripper, its weight carried (gravity compensated), as a slow guarded move would 
      command, all the robot knows of it), the box is lifted back above everything and the
      descent tried again from the command with a fresh draw of the arm's noise, drawn and
      applied by the simulator (``place``'s ``retry``), at most ``PLACE_RETRIES`` times; then
-     it is released where it is: physics decides what happens then.
+     it is released where it is (physics decides what happens then), or, where the robot's
+   settings say so (``set_aside_stuck``, both presets), taken back out and set aside.
 
    Nothing squares the yaw or moves the box to the planned pose: no code here knows either.
 2. **Seat** (``seat``). Pushes toward the sides the observed heightmap shows flush, guarded
@@ -141,6 +142,11 @@ class PlaceCommand:
     comply_mm: float = 0.0  # how far in all the compliant wrist may slide the box
     seat_mm: float = 0.0  # how far past the command a guarded push may go
     seat_sides: tuple[int, int] = (0, 0)  # per axis -1, +1 or 0 (``execution.seat_sides``)
+    #: After its last try the descent still stopped more than ``retry_margin_mm`` above the
+    #: release pose: take the box back out and set it aside (``SkillReport.set_aside``) rather
+    #: than let it go on what it stopped on, mostly a neighbour's top, where it would ruin the
+    #: layer for every box after it. False: let it go there.
+    set_aside_stuck: bool = False
 
 
 @dataclass(slots=True)
@@ -176,6 +182,9 @@ class SkillReport:
     #: back above everything and placed again from the command, the arm's repeatability error
     #: drawn afresh (``place``); how many times.
     retried: int = 0
+    #: Still stopped high after the last try (``PlaceCommand.set_aside_stuck``): the box was
+    #: taken back out and set aside, not let go; it counts as unpacked.
+    set_aside: int = 0
 
     def counts(self) -> dict[str, int]:
         """The nonzero counts by name (what records keep)."""
@@ -675,7 +684,9 @@ def place(
     and brings it over the command again with a fresh draw of the arm's noise (the grasp, and
     its estimate's error, stay). The skill does not know the draw: it starts over from the
     command, its earlier moves forgotten. After the last try the box is released where the
-    descent stopped, as without ``retry``."""
+    descent stopped, as without ``retry``, or, with ``command.set_aside_stuck`` and the
+    descent still that high, reported ``set_aside`` for the caller to take back out (no
+    seating then)."""
     report = SkillReport()
     margin = retry_margin_mm(command) * _MM
     for attempt in range(PLACE_RETRIES + 1):
@@ -685,6 +696,10 @@ def place(
         report.retried += 1
         report.stopped_high = 0  # counted for the attempt that is released
         retry()
+    if command.set_aside_stuck and above > margin:
+        report.stopped_high = 0  # not released: taken back out
+        report.set_aside = 1
+        return report
     if command.seat_mm > 0 and any(command.seat_sides):
         seat(held, command, moved, report)
     return report
