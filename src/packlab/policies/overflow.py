@@ -34,7 +34,7 @@ from packlab.core.types import Action, Observation
 
 
 def overflowing(cands: CandidateSet) -> bool:
-    """Whether no candidate at all, or none whose top stays within the rim, exists."""
+    """Whether no candidate's top stays within the rim (so also when there is no candidate)."""
     return not bool(cands.fits_in_rim.any())
 
 
