@@ -145,7 +145,9 @@ class _Checked:
 
 
 def test_pointer_picks_are_listed_valid_actions(pointer, cases):
-    policy = CandidateVLMPolicy(IN_MEMORY, threads=None)
+    # Every step the model's own pick: the overflow rule (which may set a box aside, tested in
+    # tests/policies/test_overflow.py) stays out.
+    policy = CandidateVLMPolicy(IN_MEMORY, threads=None, overflow="place")
     policy.use_model(pointer, CARD)
     checked = _Checked(policy)
     steps, picks = 0, []
