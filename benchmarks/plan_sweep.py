@@ -55,7 +55,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "guesses-1": ("plan-fast", {"guesses": 1}),
     "nodes-20k": ("plan-fast", {"nodes": 20_000}),
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
-    "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before issue 35's
+    "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before the overflow rule
     "plan": ("plan", {}),
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),
