@@ -147,9 +147,11 @@ class PolicyOptions:
     model: Callable[[str, str, Any, dict[str, Any]], None] | None = None
 
 
+#: Every ``overflow`` option (packlab.policies.overflow) takes the same values.
+_OVERFLOW = _one_of(choices(OverflowRule))
 _HEURISTIC = PolicyOptions(
     ("tie_break", "overflow"),
-    {"tie_break": _one_of(choices(TieBreak)), "overflow": _one_of(choices(OverflowRule))},
+    {"tie_break": _one_of(choices(TieBreak)), "overflow": _OVERFLOW},
 )
 #: ``plan``'s budget, weights, completion stage and switches (packlab.policies.plan.policy).
 _PLAN = PolicyOptions(
@@ -189,7 +191,7 @@ _PLAN = PolicyOptions(
         "time_s": _positive,
         "complete": _switch,
         "stability": _one_of(choices(StabilityCheck)),
-        "overflow": _one_of(choices(OverflowRule)),
+        "overflow": _OVERFLOW,
     },
 )
 _RL = PolicyOptions(
@@ -197,7 +199,7 @@ _RL = PolicyOptions(
     {
         "threads": _whole(1),
         "runtime": _one_of(RUNTIMES),
-        "overflow": _one_of(choices(OverflowRule)),
+        "overflow": _OVERFLOW,
     },
     model=_rl_model,
 )
@@ -221,7 +223,7 @@ _VLM_KEYS = (
     "overflow",
 )
 _VLM_CHECKS: dict[str, Check] = {
-    "overflow": _one_of(choices(OverflowRule)),
+    "overflow": _OVERFLOW,
     "history": _one_of(choices(HistoryMode)),
     "image": _one_of(choices(ImageMode)),
     "max_new_tokens": _whole(1),
@@ -271,7 +273,7 @@ POLICY_OPTIONS: dict[str, PolicyOptions] = {
         {
             "k": _whole(1),
             "rule": _one_of(choices(ProposerRule)),
-            "overflow": _one_of(choices(OverflowRule)),
+            "overflow": _OVERFLOW,
         },
     ),
     "vlm": PolicyOptions(_VLM_KEYS, _VLM_CHECKS, model=_vlm_model),

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.choices import OverflowRule
-from packlab.core.feasibility import CandidateSet
+from packlab.core.feasibility import CandidateSet, footprint_cells, placement_height
 from packlab.core.types import Action, Observation
 
 
@@ -59,13 +59,10 @@ def packed_inside_volume(observation: Observation) -> int:
         if not entry.valid or not isinstance(action, Action):
             continue
         item = entry.shown[action.object_id]
-        cells_x, cells_y = item.size_cells[0], item.size_cells[1]
-        fx, fy = (cells_x, cells_y) if action.rotation == 0 else (cells_y, cells_x)
-        under = np.asarray(entry.heightmap)[action.x : action.x + fx, action.y : action.y + fy]
-        if under.size == 0:
-            continue
+        fx, fy = footprint_cells(item, action.rotation)
+        z = placement_height(np.asarray(entry.heightmap), action.x, action.y, fx, fy)
         length, width, height = item.size_mm
-        if 2 * int(under.max()) + height <= 2 * rim:
+        if 2 * z + height <= 2 * rim:
             volume += length * width * height
     return volume
 
