@@ -57,6 +57,13 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=700)
     p.add_argument("--lr", type=float, default=5e-4)
     p.add_argument("--minutes", type=float, default=None)
+    p.add_argument(
+        "--stop-after",
+        type=int,
+        default=None,
+        help="stop after this many updates; --steps alone sets the schedule, so a run stopped "
+        "here is the same model a longer run had at that update",
+    )
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--note", default="", help="recorded in the model card")
     p.add_argument(
@@ -83,6 +90,7 @@ def main() -> None:
         shuffle=bool(meta.get("shuffle", False)), steps=a.steps, lr=a.lr,
         warmup=100 if a.model.startswith("tiny:") else 20,
         seed=a.seed, threads=a.threads, minutes=a.minutes, eval_every=a.eval_every,
+        stop_after=a.stop_after,
         device=a.device, batch=a.batch,
         # The card records the model continued from as "init" (name + sha256) and the cases
         # by name and content digest: no scratch path (packlab.policies.provenance).
