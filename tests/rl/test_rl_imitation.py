@@ -130,6 +130,7 @@ def test_short_imitation_lowers_the_loss_and_saves_a_playable_agent(hard_case, t
     assert result.losses[-1] < result.losses[0] - 0.2, result.losses
     loaded = load_agent(tmp_path / "m")
     assert loaded.card.agent == "irbpp" and loaded.card.n_items == spec.n_items
+    assert loaded.card.cores >= 1 and loaded.card.wall_time_s > 0  # the time and where
     # exported to ONNX, so the default runtime plays it (the same actions as torch)
     onnx = make_policy("irbpp", model=str(tmp_path / "m"))
     torch_ = make_policy("irbpp", model=str(tmp_path / "m"), runtime="torch")

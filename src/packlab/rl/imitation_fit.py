@@ -11,6 +11,7 @@ PPO from, with its ONNX export (the bench plays it without torch).
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -157,6 +158,7 @@ def imitate(
         placement=cfg.placement,
         reward="overall",
         wall_time_s=round(result.wall_time_s, 1),
+        cores=os.cpu_count() or 0,  # as a PPO run's card: the machine the time was taken on
         cases=card_source(cases[0], out) if cases[0] else "imitation",
         cases_sha256=cases[1],
         # No selection: the model after the last epoch is kept.
