@@ -56,7 +56,9 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "nodes-20k": ("plan-fast", {"nodes": 20_000}),
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
     "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before the overflow rule
+    "listed-4": ("plan-fast", {"listed": 4}),  # plan-fast with the students' listed placements
     "plan": ("plan", {}),
+    "plan-listed-0": ("plan", {"listed": 0}),  # plan before the students' listed placements
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),
 }

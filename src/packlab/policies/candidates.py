@@ -226,6 +226,20 @@ def propose_from(
     cands: CandidateSet, config: ProposerConfig = ProposerConfig()
 ) -> tuple[Candidate, ...]:
     """The listed placements of a candidate set (module docstring); empty when nothing fits."""
+    shapes = _shapes(cands, config)
+    owner = {int(i): (s.group, int(f)) for s in shapes for i, f in zip(s.ranked, s.flush)}
+    picks = _select(cands, shapes, config)
+    return tuple(_candidate(cands, *owner[i], i, n) for n, i in enumerate(picks))
+
+
+def proposed_indices(cands: CandidateSet, config: ProposerConfig = ProposerConfig()) -> list[int]:
+    """The listed placements as flat indices into ``cands``, in list order (what
+    :func:`propose_from` lists, without the geometry a prompt shows)."""
+    return _select(cands, _shapes(cands, config), config)
+
+
+def _shapes(cands: CandidateSet, config: ProposerConfig) -> list[_Shape]:
+    """Steps 1-3 of the module docstring: each distinct (object, rotation)'s ranked positions."""
     pool = rim_pool(cands)
     in_pool = np.zeros(len(cands), dtype=bool)
     in_pool[pool] = True
@@ -235,9 +249,7 @@ def propose_from(
         shape = _shape(cands, g, in_pool, walls, config.k)
         if shape is not None:
             shapes.append(shape)
-    owner = {int(i): (s.group, int(f)) for s in shapes for i, f in zip(s.ranked, s.flush)}
-    picks = _select(cands, shapes, config)
-    return tuple(_candidate(cands, *owner[i], i, n) for n, i in enumerate(picks))
+    return shapes
 
 
 def _group_at(

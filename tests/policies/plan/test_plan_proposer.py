@@ -6,12 +6,15 @@ import numpy as np
 import pytest
 
 from packlab.cases import load_cases
+from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates, search_candidates
 from packlab.core.types import ShownItem
 from packlab.datagen.generator import generate_cases
 from packlab.policies import make_policy
+from packlab.policies.candidates import ProposerConfig, propose_from, proposed_indices
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import TIE_BREAKS, choose, rim_pool
+from packlab.policies.listed import flat_index
 from packlab.policies.plan.proposer import by_sdf, first_placements
 from packlab.sim.env import demo_cases_path
 from packlab.sim.episode import Episode
@@ -70,3 +73,31 @@ def test_identical_boxes_tie_to_the_smaller_id_not_the_first_shown() -> None:
     assert int(cands.obj[best]) == 1
     assert int(by_sdf(cands, pool)[0]) == best
     assert int(cands.obj[by_sdf(cands, pool, "shown_order")[0]]) == 0
+
+
+def test_listed_proposals_follow_the_two_rankings_and_are_the_students_list(states) -> None:
+    # Item 3 of the proposer: the students' listed placements are appended after the two
+    # rankings (which stay first and unchanged), each once, and they are exactly what
+    # ``propose_from`` lists for a student (one implementation of the list).
+    grew = 0
+    for observation in states[::5]:
+        cands = observation_candidates(observation)
+        base = first_placements(cands, 2)
+        wide = first_placements(cands, 2, listed=4)
+        listed = proposed_indices(cands, ProposerConfig(k=4))
+        assert wide[: len(base)] == base
+        assert len(set(wide)) == len(wide)
+        assert set(wide) == set(base) | set(listed)
+        students = propose_from(cands, ProposerConfig(k=4))
+        assert [flat_index(cands, c) for c in students] == listed
+        grew += len(wide) > len(base)
+    assert grew > 20  # the list adds placements the two rankings did not propose
+
+
+def test_plan_refuses_a_negative_listed_count() -> None:
+    with pytest.raises(ConfigError, match="listed"):
+        make_policy("plan", listed=-1)
+    assert make_policy("plan", listed=0).budget.listed == 0
+    assert make_policy("plan").budget.listed == 4
+    assert make_policy("plan-fast").budget.listed == 0
+    assert make_policy("plan-fast", listed=4).budget.listed == 4

@@ -10,9 +10,15 @@ heuristics). The proposer keeps the union, in this order and without duplicates,
 2. the flush/contact ranking's best ``per_ranking``: less space trapped under the box first,
    then more contact area with floor, walls and boxes (MTA's measure), then lower top, then
    scan order. Both measures are the shared placement features (:mod:`packlab.policies.features`).
+3. the students' proposer's first ``listed`` placements (:mod:`packlab.policies.candidates`:
+   each distinct shape's lowest, most enclosed resting place, lowest first). SDF-Pack and the
+   flush ranking both favour the box that fills most, so without it every proposal may be the
+   same one or two boxes; on boxes of independent sizes, where no exact tiling exists and the
+   lookahead decides most steps, the proposer's own first pick did as well as the planner
+   (issue 35; docs/planner.md, "How the defaults were chosen").
 
-Neither ranking reads anything but the candidate set, so the proposer sees only what the
-policy observes.
+None of them reads anything but the candidate set, so the proposer sees only what the policy
+observes.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import numpy as np
 
 from packlab.core.choices import TieBreak
 from packlab.core.feasibility import CandidateSet
+from packlab.policies.candidates import ProposerConfig, proposed_indices
 from packlab.policies.features import contact_area_mm2, space_under
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import DEFAULT_TIE_BREAK, ranked, rim_pool
@@ -34,8 +41,9 @@ def by_sdf(
     return ranked(cands, sdf.score(cands), pool, tie_break)
 
 
-def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
-    """Candidate indices to roll out (see the module docstring); empty when nothing fits."""
+def first_placements(cands: CandidateSet, per_ranking: int, listed: int = 0) -> list[int]:
+    """Candidate indices to roll out (see the module docstring): ``per_ranking`` from each of
+    the two rankings, then ``listed`` from the students' proposer; empty when nothing fits."""
     pool = rim_pool(cands)
     if pool.size == 0:
         return []
@@ -43,9 +51,12 @@ def first_placements(cands: CandidateSet, per_ranking: int) -> list[int]:
     trapped = space_under(cands)[pool]
     contact = contact_area_mm2(cands)[pool]
     by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
+    rankings = [sdf_ranked[:per_ranking], by_flush[:per_ranking]]
+    if listed > 0:
+        rankings.append(np.asarray(proposed_indices(cands, ProposerConfig(k=listed))))
     out: list[int] = []
-    for ranking in (sdf_ranked, by_flush):
-        for i in ranking[:per_ranking]:
+    for ranking in rankings:
+        for i in ranking:
             if int(i) not in out:
                 out.append(int(i))
     return out

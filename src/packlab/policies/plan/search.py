@@ -3,8 +3,9 @@
 The model of the container is the geometric backend's: a box rests at Eq. 2's height and the
 heightmap under its footprint becomes its top. A decision:
 
-1. proposes first placements (:mod:`.proposer`): ``first`` from SDF-Pack's ranking and
-   ``first`` from a flush/contact ranking, over every shown object and both rotations;
+1. proposes first placements (:mod:`.proposer`): ``first`` from SDF-Pack's ranking,
+   ``first`` from a flush/contact ranking and ``listed`` from the students' proposer, over
+   every shown object and both rotations;
 2. rolls each out: SDF-Pack places the other shown objects one by one, ``depth`` placements at
    most (a rollout that finds no floor-fitting place for an object stops and pays for it);
 3. scores the end state (:func:`.evaluate.state_cost`): every complete rollout has placed the
@@ -46,6 +47,7 @@ class Budget:
     """How much search a decision may use."""
 
     first: int = 3  # first placements from each of the two rankings
+    listed: int = 4  # and from the students' proposer (:mod:`.proposer`, item 3)
     depth: int = 10  # placements per rollout after the first (all shown objects when larger)
     time_s: float | None = None  # anytime limit (not bit-reproducible when set)
     beam: int = 1  # partial rollouts kept per depth, and placements tried per kept rollout
@@ -204,7 +206,10 @@ def search(
     hm = np.asarray(heightmap)
     everything = tuple(range(len(problem.shown)))
     cands = _candidates(hm, problem, everything) if candidates is None else candidates
-    firsts = first_placements(cands, budget.first) if firsts is None else list(firsts)
+    if firsts is None:
+        firsts = first_placements(cands, budget.first, budget.listed)
+    else:
+        firsts = list(firsts)
     if not firsts:
         return Outcome(None, 0, float("inf"))
     scored: list[tuple[float, int]] = []
