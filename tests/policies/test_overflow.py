@@ -9,7 +9,13 @@ from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Box, Case, Container, HistoryEntry, Observation, ShownItem
 from packlab.policies import make_policy
-from packlab.policies.overflow import overflow_action, overflowing, packed_inside_volume
+from packlab.policies.overflow import (
+    last_box_raises_top,
+    overflow_action,
+    overflow_decision,
+    overflowing,
+    packed_inside_volume,
+)
 from packlab.sim.episode import run_episode
 
 CONTAINER = Container((100, 100, 100))  # 4 x 4 cells of 25 mm, rim at 100 mm
@@ -25,9 +31,14 @@ def _item(index: int, size_mm: tuple[int, int, int]) -> ShownItem:
     return ShownItem(index, index, size_mm, cells)
 
 
-def _observation(heightmap, shown, history=()) -> Observation:
+def _observation(heightmap, shown, history=(), remaining=1) -> Observation:
     return Observation(
-        0, CONTAINER, np.asarray(heightmap, dtype=np.int32), tuple(shown), tuple(history), 1
+        0,
+        CONTAINER,
+        np.asarray(heightmap, dtype=np.int32),
+        tuple(shown),
+        tuple(history),
+        remaining,
     )
 
 
@@ -146,3 +157,71 @@ def test_a_data_engine_teacher_places_rather_than_sets_aside():
         _case([(100, 100, 90), (100, 100, 50)]), backend="geometric", teacher="plan"
     )
     assert trajectory.reasons == ("", "")
+
+
+def _three_quarter_floor_history(height_mm: int) -> HistoryEntry:
+    """One past step that put a 100 x 75 mm box of ``height_mm`` on the empty floor."""
+    box = _item(0, (100, 75, height_mm))
+    return HistoryEntry(np.zeros((4, 4), np.int32), (box,), Action(0, 0, 0, 0), True)
+
+
+def _layer_with_a_gap(gap_cells: int) -> np.ndarray:
+    """A closed layer at 40 mm but the last ``gap_cells`` rows of y (a gap 25 mm deep each)."""
+    hm = np.full((4, 4), 40, np.int32)
+    hm[:, 4 - gap_cells :] = 0
+    return hm
+
+
+def test_the_last_box_is_set_aside_rather_than_stacked_on_its_layer():
+    # The layer is 3/4 closed at 40 mm; the last box (50 x 50 mm, a quarter of the floor)
+    # does not fit the 25 mm gap. Stacked, it doubles the highest cell for a third more
+    # volume: (4/3)^2 / 2 < 1. It is set aside.
+    hm = _layer_with_a_gap(1)
+    obs = _observation(hm, [_item(0, (50, 50, 40))], [_three_quarter_floor_history(40)])
+    cands = observation_candidates(obs)
+    assert not overflowing(cands)  # it fits under the rim, on top of the layer
+    assert last_box_raises_top(obs, cands)
+    assert overflow_decision(obs, cands, "score") == Action.set_aside(0)
+    assert overflow_decision(obs, cands, "place") is None
+
+
+def test_a_last_box_that_fits_the_gap_is_left_to_the_policy():
+    hm = _layer_with_a_gap(1)
+    obs = _observation(hm, [_item(0, (100, 25, 40))], [_three_quarter_floor_history(40)])
+    cands = observation_candidates(obs)
+    assert not last_box_raises_top(obs, cands)
+    assert overflow_decision(obs, cands, "score") is None
+
+
+def test_the_rule_is_exact_only_for_the_last_box_and_needs_the_count():
+    hm = _layer_with_a_gap(1)
+    history = [_three_quarter_floor_history(40)]
+    shown = [_item(0, (50, 50, 40))]
+    for remaining in (2, None):  # more boxes may fill under a raised top; or nothing is known
+        obs = _observation(hm, shown, history, remaining=remaining)
+        cands = observation_candidates(obs)
+        assert not last_box_raises_top(obs, cands)
+        assert overflow_decision(obs, cands, "score") is None
+
+
+def test_a_large_last_box_that_raises_the_top_a_little_is_placed():
+    # A closed layer at 40 mm and a last box of the whole floor, 20 mm: V x 1.5 for H x 1.5.
+    hm = np.full((4, 4), 40, np.int32)
+    floor = HistoryEntry(
+        np.zeros((4, 4), np.int32), (_item(0, (100, 100, 40)),), Action(0, 0, 0, 0), True
+    )
+    obs = _observation(hm, [_item(0, (100, 100, 20))], [floor])
+    cands = observation_candidates(obs)
+    assert last_box_raises_top(obs, cands)
+    assert overflow_decision(obs, cands, "score") == Action(0, 0, 0, 0)
+
+
+@pytest.mark.parametrize("policy", ["plan", "plan-fast", "irbpp", "tapnet", "proposer", "vlm"])
+def test_the_last_box_of_a_layer_that_does_not_fit_is_set_aside_in_play(policy):
+    # 100 x 75 x 40 fills 3/4 of the floor; the last box, 50 x 50 x 40, fits only on top.
+    case = _case([(100, 75, 40), (50, 50, 40)])
+    scored = run_episode(case, make_policy(policy), backend="geometric")
+    placed = run_episode(case, make_policy(policy, overflow="place"), backend="geometric")
+    assert placed.metrics.max_height_mm == 80 and scored.metrics.max_height_mm == 40
+    assert [s.reason for s in scored.steps] == ["", "set_aside"]
+    assert scored.metrics.overall > placed.metrics.overall
