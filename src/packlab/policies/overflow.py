@@ -50,8 +50,9 @@ def overflow_decision(
     observation: Observation, cands: CandidateSet, rule: OverflowRule
 ) -> Action | None:
     """The action rule ``score`` takes where it applies (the buffer protocol, no candidate under
-    the rim, or the last box raising the top), else None: the policy decides as it would without the rule. Every policy with
-    an ``overflow`` option asks this, with the candidate set it computes anyway."""
+    the rim, or the last box raising the top), else None: the policy decides as it would
+    without the rule. Every policy with an ``overflow`` option asks this, with the candidate
+    set it computes anyway."""
     if rule != "score" or observation.must_place_first:
         return None
     if overflowing(cands) or last_box_raises_top(observation, cands):
