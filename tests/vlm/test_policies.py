@@ -378,7 +378,9 @@ def _stub_candidate_policy(answer: str):
     generator (``answer`` = ``index`` or ``json``, as a checkpoint's card says)."""
     from packlab.vlm.candidate.policy import IN_MEMORY, CandidateVLMPolicy
 
-    policy = CandidateVLMPolicy(IN_MEMORY)
+    # overflow=place: every step is the model's answer under test (rule ``score`` may decide
+    # the episode's last box itself).
+    policy = CandidateVLMPolicy(IN_MEMORY, overflow="place")
     card = {"prompt_version": PROMPT_VERSION, "proposer": {"k": 8}, "instructions": "short"}
     policy.use_model(object(), meta={**card, "answer": answer})
     return policy

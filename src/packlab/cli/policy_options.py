@@ -157,6 +157,7 @@ _HEURISTIC = PolicyOptions(
 _PLAN = PolicyOptions(
     (
         "first",
+        "listed",
         "depth",
         "beam",
         "time_s",
@@ -186,6 +187,7 @@ _PLAN = PolicyOptions(
         "guillotine_nodes": _whole(0),
         "guillotine_boxes": _whole(0),
         "first": _whole(1),
+        "listed": _whole(0),
         "depth": _whole(1),
         "beam": _whole(1),
         "time_s": _positive,

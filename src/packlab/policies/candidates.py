@@ -303,7 +303,8 @@ class ProposerPolicy:
     def __init__(
         self, k: int = DEFAULT_K, rule: str = "lowest", overflow: OverflowRule = "score"
     ) -> None:
-        """``overflow``: what it does where no shown box fits under the rim (as the students it
+        """``overflow``: what it does where no shown box fits under the rim or the last box
+        would raise the top (as the students it
         is the floor of: :mod:`packlab.policies.overflow`, default ``score``)."""
         self.config = ProposerConfig(k=k, rule=rule)  # type: ignore[arg-type]
         require_choice(overflow, OverflowRule, "policy-arg proposer:overflow")

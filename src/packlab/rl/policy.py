@@ -58,7 +58,8 @@ class RLAgentPolicy:
         runtime: str = "onnx",
         overflow: OverflowRule = "score",
     ) -> None:
-        """``overflow``: where no shown box fits under the rim, ``score`` (the default) lets
+        """``overflow``: where no shown box fits under the rim (or the episode's last box would
+        raise the top), ``score`` (the default) lets
         :mod:`packlab.policies.overflow` decide, outside the network, as for the planner that
         taught it; ``place``: the network picks among the boxes sticking out least."""
         require_choice(overflow, OverflowRule, f"policy-arg {name}:overflow")

@@ -10,7 +10,8 @@ Options (factory keywords, so ``packlab bench --policy-arg dblf:tie_break=shown_
   :data:`~packlab.policies.heuristics.select.TIE_BREAKS`; default ``"larger_volume"``.
 - ``overflow``: when no shown box fits under the rim, ``place`` the one sticking out least
   (the literature's rule, the default) or ``score`` (:mod:`packlab.policies.overflow`: place
-  one only where that raises the episode's Overall, else set one aside).
+  one only where that raises the episode's Overall, else set one aside; it also decides the
+  episode's last box where every placement of it raises the top).
 """
 
 from __future__ import annotations

@@ -81,9 +81,10 @@ class PlanPolicy:
     completed: int = 0
     #: With every remaining box in view, an exact filling of the rest (``endgame_nodes=0``: off).
     endgame: Endgame = field(default_factory=Endgame)
-    #: When no shown box fits under the rim: ``score`` places one only where that raises the
-    #: episode's Overall and otherwise sets one aside; ``place`` takes the lookahead's choice
-    #: among the boxes sticking out least (:mod:`packlab.policies.overflow`).
+    #: When no shown box fits under the rim (or the episode's last box would raise the top):
+    #: ``score`` places one only where that raises the episode's Overall and otherwise sets
+    #: one aside; ``place`` takes the lookahead's choice among the boxes sticking out least
+    #: (:mod:`packlab.policies.overflow`).
     overflow: OverflowRule = "score"
     #: Decisions taken by the ``score`` overflow rule.
     overflowed: int = 0

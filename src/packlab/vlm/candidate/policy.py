@@ -65,9 +65,9 @@ class CandidateVLMPolicy:
         """``blank_image`` (ablation, ``--policy-arg vlm:blank_image=true``): the model is shown
         the map of an empty container at every step, in whatever form it reads the map (image
         or digits); the listed lines and their vectors are unchanged. ``runtime``: ``"onnx"`` or
-        ``"torch"`` (module docstring). ``overflow``: where no shown box fits under the rim,
-        ``score`` (default) lets the shared rule decide (:mod:`packlab.policies.overflow`),
-        ``place`` the model."""
+        ``"torch"`` (module docstring). ``overflow``: where no shown box fits under the rim
+        (or the last box would raise the top), ``score`` (default) lets the shared rule decide
+        (:mod:`packlab.policies.overflow`), ``place`` the model."""
         if model != IN_MEMORY and not is_pointer_dir(model):
             raise ConfigError(f"model = {str(model)!r}: not a candidate-mode checkpoint directory")
         if threads is not None and threads < 1:
