@@ -304,8 +304,8 @@ class ProposerPolicy:
         self, k: int = DEFAULT_K, rule: str = "lowest", overflow: OverflowRule = "score"
     ) -> None:
         """``overflow``: what it does where no shown box fits under the rim or the last box
-        would raise the top (as the students it
-        is the floor of: :mod:`packlab.policies.overflow`, default ``score``)."""
+        would raise the top (as the students it is the floor of:
+        :mod:`packlab.policies.overflow`, default ``score``)."""
         self.config = ProposerConfig(k=k, rule=rule)  # type: ignore[arg-type]
         require_choice(overflow, OverflowRule, "policy-arg proposer:overflow")
         self.overflow = overflow
