@@ -51,12 +51,10 @@ def first_placements(cands: CandidateSet, per_ranking: int, listed: int = 0) -> 
     trapped = space_under(cands)[pool]
     contact = contact_area_mm2(cands)[pool]
     by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
-    rankings = [sdf_ranked[:per_ranking], by_flush[:per_ranking]]
+    rankings = [sdf_ranked[:per_ranking].tolist(), by_flush[:per_ranking].tolist()]
     if listed > 0:
-        rankings.append(np.asarray(proposed_indices(cands, ProposerConfig(k=listed))))
+        rankings.append(proposed_indices(cands, ProposerConfig(k=listed)))
     out: list[int] = []
     for ranking in rankings:
-        for i in ranking:
-            if int(i) not in out:
-                out.append(int(i))
+        out += [i for i in ranking if i not in out]
     return out
