@@ -57,7 +57,9 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
     "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before the overflow rule
     "listed-4": ("plan-fast", {"listed": 4}),  # plan-fast with the students' listed placements
+    "final-0": ("plan-fast", {"w_final": 0.0}),  # without the final-height shortfall
     "plan": ("plan", {}),
+    "plan-final-0": ("plan", {"w_final": 0.0}),
     "plan-listed-0": ("plan", {"listed": 0}),  # plan before the students' listed placements
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),

@@ -3,10 +3,12 @@
 A leaf's cost is a weighted sum of documented terms, all in cell-millimetres (so the weights
 are plain ratios): the space trapped under boxes placed along the path, the pits no known box
 can reach (:func:`.surface.unreachable_volume`), the open space below the highest column, the
-area of the steps between columns, and the volume above the rim. Every bench case is a perfect
-layout, so a state that lost nothing can still be completed perfectly. Default weights come
-from the sweep of an earlier version on generated training cases (docs/planner.md, "The
-lookahead"), never on a suite; ``benchmarks/plan_sweep.py`` re-measures them.
+area of the steps between columns, the volume above the rim, and where the episode's volumes
+are known, how far from a perfect packing it would end if the boxes still to come settled level
+(:func:`.outlook.final_shortfall`). A perfect layout's state that lost nothing can still be
+completed perfectly; on boxes with no perfect packing the final height is what is left to
+lose. Default weights come from sweeps on generated training cases (docs/planner.md, "How the
+defaults were chosen"), never on a suite; ``benchmarks/plan_sweep.py`` re-measures them.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from packlab.policies.plan.outlook import Outlook, final_shortfall
 from packlab.policies.plan.surface import open_volume, step_area, unreachable_volume
 
 
@@ -27,6 +30,7 @@ class Weights:
     open: float = 0.1
     steps: float = 0.1
     over_rim: float = 10.0
+    final: float = 1.0  # the final-height shortfall (:func:`.outlook.final_shortfall`)
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,10 +49,14 @@ def state_cost(
     path: PathLoss,
     footprints: tuple[tuple[int, int], ...],
     weights: Weights,
+    outlook: Outlook | None = None,
 ) -> float:
-    """The cost of reaching ``heightmap`` along a path that lost ``path`` (pure)."""
+    """The cost of reaching ``heightmap`` along a path that lost ``path`` (pure); with an
+    ``outlook`` (the state's volumes, :mod:`.outlook`) also its final-height shortfall."""
+    shortfall = 0.0 if outlook is None or not weights.final else final_shortfall(heightmap, outlook)
     return (
-        weights.trapped * path.trapped
+        weights.final * shortfall
+        + weights.trapped * path.trapped
         + weights.over_rim * path.over_rim
         + weights.unreachable * unreachable_volume(heightmap, footprints)
         + weights.open * open_volume(heightmap)

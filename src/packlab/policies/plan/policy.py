@@ -11,7 +11,8 @@ the machine's speed (documented as not bit-reproducible).
 
 Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``listed``,
 ``depth``, ``beam``, ``time_s`` (see :class:`.search.Budget`), the cost weights ``w_trapped``,
-``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim`` (see :class:`.evaluate.Weights`) and
+``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim``, ``w_final`` (see
+:class:`.evaluate.Weights`) and
 ``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
 support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
 choice), ``overflow`` (``score``, the default, or ``place``: what to do when no shown box fits
@@ -35,6 +36,7 @@ from packlab.policies.plan.complete import Completion, CompletionConfig, find_co
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.search import Budget, Problem, search
 
 
@@ -49,6 +51,7 @@ def observation_problem(observation: Observation, weights: Weights) -> Problem:
         smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items]),
         weights,
         in_order=observation.must_place_first,
+        outlook=observation_outlook(observation),
     )
 
 

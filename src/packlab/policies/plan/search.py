@@ -8,8 +8,9 @@ heightmap under its footprint becomes its top. A decision:
    every shown object and both rotations;
 2. rolls each out: SDF-Pack places the other shown objects one by one, ``depth`` placements at
    most (a rollout that finds no floor-fitting place for an object stops and pays for it);
-3. scores the end state (:func:`.evaluate.state_cost`): every complete rollout has placed the
-   same boxes, so the costs compare like for like;
+3. scores the end state (:func:`.evaluate.state_cost`, with the episode's volumes where they
+   are known, :mod:`.outlook`): every complete rollout has placed the same boxes, so the costs
+   compare like for like;
 4. commits only the first placement of the cheapest rollout (receding horizon: the closed loop
    corrects what the model got wrong); with ``check_support`` the cheapest whose centre is
    over its support (:mod:`.stability`), falling back down the ranking.
@@ -37,6 +38,7 @@ from packlab.policies.features import space_under_at
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import choose, rim_pool
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
+from packlab.policies.plan.outlook import Outlook, cell_volume
 from packlab.policies.plan.proposer import by_sdf, first_placements
 from packlab.policies.plan.stability import centre_supported
 from packlab.sim.heightmap import place_box
@@ -64,6 +66,17 @@ class Problem:
     weights: Weights
     #: Online protocol: the boxes are placed in the order shown (``shown[0]`` first).
     in_order: bool = False
+    #: The episode's volumes before this decision (:mod:`.outlook`); None: not known.
+    outlook: Outlook | None = None
+
+    def state_outlook(self, left: tuple[int, ...], stuck: bool = False) -> Outlook | None:
+        """The outlook once the shown objects not in ``left`` are placed; ``left`` is still to
+        come, or with ``stuck`` lost (fits nowhere)."""
+        if self.outlook is None:
+            return None
+        placed = sum(cell_volume(s) for k, s in enumerate(self.shown) if k not in left)
+        to_come = 0 if stuck else sum(cell_volume(self.shown[k]) for k in left)
+        return self.outlook.after(placed, to_come)
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,7 +124,8 @@ def _stuck_cost(hm: np.ndarray, loss: PathLoss, left: tuple[int, ...], problem: 
     """Cost when none of the objects ``left`` fits: they count as lost over the rim."""
     lost = sum(int(np.prod(problem.shown[k].size_cells[:2])) for k in left)
     loss = loss.plus(0, lost * problem.container_height_mm)
-    return state_cost(hm, loss, problem.footprints, problem.weights)
+    outlook = problem.state_outlook(left, stuck=True)
+    return state_cost(hm, loss, problem.footprints, problem.weights, outlook)
 
 
 def rollout(
@@ -127,7 +141,7 @@ def rollout(
         loss = loss.plus(lost.trapped, lost.over_rim)
         placed = left[int(cands.obj[i])]
         left = tuple(k for k in left if k != placed)
-    return state_cost(hm, loss, problem.footprints, problem.weights)
+    return state_cost(hm, loss, problem.footprints, problem.weights, problem.state_outlook(left))
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +166,9 @@ def _children(path: _Path, problem: Problem, width: int) -> list[_Path]:
         loss = path.loss.plus(lost.trapped, lost.over_rim)
         placed = path.left[int(cands.obj[i])]
         left = tuple(k for k in path.left if k != placed)
-        out.append(_Path(hm, loss, left, state_cost(hm, loss, problem.footprints, problem.weights)))
+        outlook = problem.state_outlook(left)
+        cost = state_cost(hm, loss, problem.footprints, problem.weights, outlook)
+        out.append(_Path(hm, loss, left, cost))
     return out
 
 

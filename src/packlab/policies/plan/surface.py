@@ -50,6 +50,18 @@ def open_volume(heightmap: np.ndarray) -> int:
     return int(hm.size * hm.max() - hm.sum())
 
 
+def water_level(heightmap: np.ndarray, volume: float) -> float:
+    """The level (mm) that ``volume`` cell-mm reaches poured over the surface: the lowest cells
+    fill first, as boxes settling on the lowest free places would."""
+    order = np.sort(np.asarray(heightmap, dtype=np.int64).ravel())
+    if volume <= 0:
+        return float(order[0])
+    # Volume needed to raise the k lowest cells to the (k+1)-th lowest, k = 1 .. n-1.
+    to_next = np.arange(1, order.size) * order[1:] - np.cumsum(order)[:-1]
+    under = int(np.searchsorted(to_next, volume)) + 1  # cells under water
+    return (volume + float(order[:under].sum())) / under
+
+
 def step_area(heightmap: np.ndarray) -> int:
     """Area (cell-mm) of the vertical faces between neighbouring columns: a level surface has
     none, a ragged one offers few flush placements."""
