@@ -99,5 +99,5 @@ def test_plan_refuses_a_negative_listed_count() -> None:
         make_policy("plan", listed=-1)
     assert make_policy("plan", listed=0).budget.listed == 0
     assert make_policy("plan").budget.listed == 4
-    assert make_policy("plan-fast").budget.listed == 0
+    assert make_policy("plan-fast").budget.listed == 2
     assert make_policy("plan-fast", listed=4).budget.listed == 4
