@@ -11,8 +11,9 @@ and the episode's whole volume, from the observation alone (the sizes shown, the
 
 Where the whole volume exceeds what the container holds (the ``rs`` family, an overfull order)
 the container ends full whatever the decision, its final height is no choice, and there is no
-outlook: on generated ``rs`` training cases the term cost -0.019 [-0.037, -0.004] without this
-rule and -0.003 [-0.007, +0.001] with it. Nor is there one when the run hides ``remaining``.
+outlook: on 36 generated ``rs`` training cases (``plan``) the term's first form cost -0.019
+[-0.037, -0.004] without this rule and -0.003 [-0.007, +0.001] with it. Nor is there one
+when the run hides ``remaining``.
 """
 
 from __future__ import annotations
