@@ -161,6 +161,7 @@ _PLAN = PolicyOptions(
         "depth",
         "beam",
         "time_s",
+        "w_final",
         "w_open",
         "w_over_rim",
         "w_steps",
