@@ -51,7 +51,8 @@ def observation_problem(observation: Observation, weights: Weights) -> Problem:
         smallest_footprints([(s.size_cells[0], s.size_cells[1]) for s in items]),
         weights,
         in_order=observation.must_place_first,
-        outlook=observation_outlook(observation),
+        # The outlook walks the whole history; without its weight nothing reads it.
+        outlook=observation_outlook(observation) if weights.final else None,
     )
 
 
