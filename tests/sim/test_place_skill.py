@@ -21,6 +21,7 @@ from packlab.sim.episode import Episode
 from packlab.sim.execution import (
     ExecutionNoise,
     execution_noise,
+    full_faces,
     perturb_drop,
     place_command,
     seat_sides,
@@ -52,6 +53,18 @@ def test_seat_sides_are_walls_or_neighbours_rising_above_the_bottom():
     assert seat_sides(hm, 3, 2, (2, 2), 0) == (-1, 1)
     hm[3:5, 1] = 30  # and on -y: a tight slot, the minimum side wins
     assert seat_sides(hm, 3, 2, (2, 2), 0) == (-1, -1)
+
+
+def test_full_faces_are_walls_or_neighbours_along_the_whole_footprint():
+    hm = np.zeros((8, 6), dtype=np.int32)
+    assert full_faces(hm, 0, 0, (2, 2), 0, (-1, -1)) == (True, True)  # two walls
+    assert full_faces(hm, 3, 2, (2, 2), 0, (0, 0)) == (False, False)  # nothing to push on
+    hm[2, 2] = 30  # a neighbour beside one of the two cells of the -x strip: part of the face
+    assert seat_sides(hm, 3, 2, (2, 2), 0)[0] == -1
+    assert full_faces(hm, 3, 2, (2, 2), 0, (-1, 0)) == (False, False)
+    hm[2, 3] = 30  # now beside both
+    assert full_faces(hm, 3, 2, (2, 2), 0, (-1, 0)) == (True, False)
+    assert full_faces(hm, 3, 2, (2, 2), 21, (-1, 0)) == (False, False)  # 9 mm over the bottom
 
 
 # -- grasp errors -----------------------------------------------------------------------------
@@ -157,7 +170,15 @@ def test_the_release_height_follows_the_perceived_heightmap():
 
 
 def _command(
-    centre, size, sides=(0, 0), seen_top=0.0, bottom=0.0, release=0.0, comply=10.0, seat=5.0
+    centre,
+    size,
+    sides=(0, 0),
+    seen_top=0.0,
+    bottom=0.0,
+    release=0.0,
+    comply=10.0,
+    seat=5.0,
+    full=(True, True),
 ):
     """The command of a box of perceived ``size`` (rotation 0) centred at ``centre``."""
     return PlaceCommand(
@@ -170,6 +191,7 @@ def _command(
         comply_mm=comply,
         seat_mm=seat,
         seat_sides=sides,
+        full_faces=full,
     )
 
 
@@ -178,7 +200,13 @@ def _yaw(quat) -> float:
 
 
 def _pushed(
-    sides, yaw_deg=0.0, neighbour=(100, 100, 100), size=(100, 100, 100), seat=5.0, offset=(3, 0)
+    sides,
+    yaw_deg=0.0,
+    neighbour=(100, 100, 100),
+    size=(100, 100, 100),
+    seat=5.0,
+    offset=(3, 0),
+    full=(True, True),
 ):
     """Box 1 dropped ``offset`` mm (x, y) (and ``yaw_deg``) off its plan flush against box 0 on -x,
     seated toward ``sides``: gap (mm, ``_gap``) between their x faces, z centre (mm), yaw
@@ -187,7 +215,7 @@ def _pushed(
     backend.reset(Container((600, 400, 400)), [Box("n", neighbour), Box("b", size)])
     backend.place(0, 0, (0, 0, 0))
     centre = (neighbour[0] + size[0] / 2, size[1] / 2)
-    command = _command(centre, size, sides, neighbour[2], seat=seat)
+    command = _command(centre, size, sides, neighbour[2], seat=seat, full=full)
     backend.execute(1, 0, command, offset, yaw_deg)
     positions, quats = backend.poses()
     gap = _gap(positions[1, 0] - positions[0, 0], (neighbour[0] + size[0]) / 2)
@@ -225,6 +253,17 @@ def test_a_turned_box_pushed_against_a_face_is_turned_flush_by_the_contact():
         (0, 0), yaw_deg=2.0, neighbour=(100, 300, 100), size=(100, 300, 100), offset=(6, 10)
     )
     assert kept == pytest.approx(2.0, abs=0.01)
+
+
+def test_only_a_face_along_the_whole_footprint_turns_the_box_in_seating():
+    # Lowered clear of the neighbour (as above), then pushed onto its face: read as a whole
+    # face, the contact turns the box flush; read as partial (a neighbour under part of a face
+    # turns the box about the neighbour's end, not flush), it is seated without a turn.
+    shape = {"yaw_deg": 2.0, "neighbour": (100, 300, 100), "size": (100, 300, 100)}
+    _, _, full = _pushed((-1, 0), offset=(6, 10), seat=8.0, **shape)
+    _, _, partial = _pushed((-1, 0), offset=(6, 10), seat=8.0, full=(False, True), **shape)
+    assert abs(full) < 0.3
+    assert partial == pytest.approx(2.0, abs=0.01)
 
 
 # -- issue 34: no hidden truth, a physical descent, counted recoveries -------------------------

@@ -106,6 +106,9 @@ class ExecutedDrop:
     seat_mm: float = 0.0  # how far past the command the box may be pushed flush (ExecutionNoise)
     #: Per axis (x, y), the side the skill pushes toward (-1, +1, or 0: none), ``seat_sides``.
     seat_sides: tuple[int, int] = (0, 0)
+    #: Per axis, whether the seat side's face covers the whole footprint (``full_faces``): the
+    #: only faces a contact's torque may turn the box flush with.
+    full_faces: tuple[bool, bool] = (True, True)
     set_aside_stuck: bool = False  # (ExecutionNoise)
 
     @property
@@ -175,6 +178,7 @@ def place_command(
         comply_mm=executed.comply_mm,
         seat_mm=executed.seat_mm,
         seat_sides=executed.seat_sides,
+        full_faces=executed.full_faces,
         set_aside_stuck=executed.set_aside_stuck,
     )
 
@@ -215,6 +219,32 @@ def seat_sides(
     return sides[0], sides[1]
 
 
+def full_faces(
+    heightmap: np.ndarray,
+    x: int,
+    y: int,
+    footprint_cells: tuple[int, int],
+    bottom_mm: int,
+    sides: tuple[int, int],
+    face_mm: int = SEAT_FACE_MM,
+) -> tuple[bool, bool]:
+    """Per axis (x, y), whether the side ``sides`` names (``seat_sides``) is a face along the
+    whole footprint on ``heightmap`` (what the robot observed): a container wall, or a strip
+    of cells beside the footprint every one of which rises ``face_mm`` over the bottom. A
+    neighbour under part of the face only cannot square the box: pushed through its centre,
+    the box turns about the neighbour's end and the contact's torque never reverses."""
+    fx, fy = footprint_cells
+    axes = ((heightmap, x, fx, slice(y, y + fy)), (heightmap.T, y, fy, slice(x, x + fx)))
+    full = []
+    for (grid, start, length, across), side in zip(axes, sides, strict=True):
+        strip = start - 1 if side < 0 else start + length
+        wall = not 0 <= strip < grid.shape[0]
+        full.append(
+            side != 0 and (wall or bool((grid[strip, across] >= bottom_mm + face_mm).all()))
+        )
+    return full[0], full[1]
+
+
 __all__ = [
     "EXACT_DROP",
     "EXECUTION_PRESETS",
@@ -223,6 +253,7 @@ __all__ = [
     "ExecutedDrop",
     "ExecutionNoise",
     "execution_noise",
+    "full_faces",
     "perturb_drop",
     "place_command",
     "seat_sides",

@@ -16,7 +16,13 @@ from typing import Protocol, cast
 import numpy as np
 
 from packlab.core.types import ShownItem
-from packlab.sim.execution import ExecutedDrop, ExecutionNoise, perturb_drop, seat_sides
+from packlab.sim.execution import (
+    ExecutedDrop,
+    ExecutionNoise,
+    full_faces,
+    perturb_drop,
+    seat_sides,
+)
 from packlab.sim.physics import Transition, TransitionBackend
 from packlab.sim.physics.place_skill import PlaceCommand, SkillReport
 
@@ -74,7 +80,9 @@ def robot_drop(
     if executed.is_exact or executed.seat_mm == 0:
         return executed
     x, y = drop_mm[0] // cell_xy_mm, drop_mm[1] // cell_xy_mm
-    return replace(executed, seat_sides=seat_sides(observed, x, y, footprint_cells, drop_mm[2]))
+    sides = seat_sides(observed, x, y, footprint_cells, drop_mm[2])
+    full = full_faces(observed, x, y, footprint_cells, drop_mm[2], sides)
+    return replace(executed, seat_sides=sides, full_faces=full)
 
 
 def arm_redraw(

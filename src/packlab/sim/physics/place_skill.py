@@ -111,6 +111,13 @@ _SEAT_MAX_YIELD_DEG = 5.0
 _SEAT_TURN_BISECTIONS = 12
 _SEAT_TURNS = 4
 _SEAT_MIN_TURN = 5e-5
+#: Pushes toward the seat sides go round twice. A first-round push can end short of its face
+#: while the box still touches a face across the other axis (traced: a box that had slid off a
+#: neighbour's edge across y in its descent was left 2.9 mm off its -x face, and the last box
+#: of that row no longer fitted); once the other axis's push has seated it there, the second
+#: round's push reaches the face. The second round only translates: its turns would undo the
+#: first round's squaring.
+_SEAT_PASSES = 2
 #: A descent that stopped more than this far above its release pose (a fraction of the box's
 #: shown height, at least ``_RETRY_MIN_MM``: over the few mm the observed heightmap and a
 #: tilted edge between cell centres can put the true support above the target) stopped on
@@ -142,6 +149,9 @@ class PlaceCommand:
     comply_mm: float = 0.0  # how far in all the compliant wrist may slide the box
     seat_mm: float = 0.0  # how far past the command a guarded push may go
     seat_sides: tuple[int, int] = (0, 0)  # per axis -1, +1 or 0 (``execution.seat_sides``)
+    #: Per axis, whether that seat side is a face along the whole footprint
+    #: (``execution.full_faces``): only such a face turns the box flush in seating.
+    full_faces: tuple[bool, bool] = (True, True)
     #: After its last try the descent still stopped more than ``retry_margin_mm`` above the
     #: release pose: take the box back out and set it aside (``SkillReport.set_aside``) rather
     #: than let it go on what it stopped on, mostly a neighbour's top, where it would ruin the
@@ -540,14 +550,27 @@ def seat(held: HeldBox, command: PlaceCommand, moved_mm: np.ndarray, report: Ski
     ``_SEAT_FORCE_WEIGHTS`` of its weight (``guarded_push``), at most ``seat_mm`` past the
     commanded pose, measured from where the robot holds it (the command plus the descent's
     moves ``moved_mm``: its own joints, not the noise); a push that meets nothing returns the
-    box to where it started. The yaw keeps its error unless a contact's torque turns it.
+    box to where it started. The pushes go round twice (``_SEAT_PASSES``).
+
+    The yaw keeps its error unless a contact's torque turns it, and only a face along the
+    whole footprint may turn it (``command.full_faces``, read from the observed heightmap): a
+    neighbour under part of a face, off the box's centre, turns the box about the neighbour's
+    end and leaves it a few tenths of a degree off square, which narrows the next slot of a
+    layout with no slack by a millimetre or two.
     """
     threshold = _SEAT_FORCE_WEIGHTS * held.weight
-    for axis, side in enumerate(command.seat_sides):
-        if side:
-            past = side * float(moved_mm[axis])  # how far the descent already took it that way
+    start = held.snapshot()[:2].copy()
+    for seat_pass in range(_SEAT_PASSES):
+        # Where the robot holds the box now against the command (its own moves, in mm).
+        held_at = np.asarray(moved_mm, float) + (held.snapshot()[:2] - start) / _MM
+        for axis, side in enumerate(command.seat_sides):
+            if not side:
+                continue
+            past = side * float(held_at[axis])  # how far it was already taken that way
             reach = max(0.0, -past) + command.seat_mm
-            met = guarded_push(held, axis, side, reach, threshold, report)
+            # Turns on the first pass only, and only against a face along the whole footprint.
+            turns = _SEAT_TURNS if seat_pass == 0 and command.full_faces[axis] else 0
+            met = guarded_push(held, axis, side, reach, threshold, report, turns)
             if met:
                 report.seated += 1
             else:
@@ -557,7 +580,13 @@ def seat(held: HeldBox, command: PlaceCommand, moved_mm: np.ndarray, report: Ski
 
 
 def guarded_push(
-    held: HeldBox, axis: int, side: int, reach_mm: float, threshold: float, report: SkillReport
+    held: HeldBox,
+    axis: int,
+    side: int,
+    reach_mm: float,
+    threshold: float,
+    report: SkillReport,
+    turns: int = _SEAT_TURNS,
 ) -> bool:
     """Move the held box toward ``side`` of ``axis`` in ``_SEAT_STEP_MM`` steps, at most
     ``reach_mm``, until the step would make the contacts push back along the axis harder than
@@ -566,7 +595,7 @@ def guarded_push(
     that lets it go on), and returns True; with nothing met it goes back to its start and
     returns False."""
     start = held.snapshot()
-    moved, step, turns_left = 0.0, side * _SEAT_STEP_MM * _MM, _SEAT_TURNS
+    moved, step, turns_left = 0.0, side * _SEAT_STEP_MM * _MM, turns
     shift = np.zeros(3)
     shift[axis] = step
     while True:
