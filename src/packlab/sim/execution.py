@@ -191,6 +191,15 @@ def place_command(
 SEAT_FACE_MM = FACE_RISE_MM  # the shared constant (packlab.core.levels), not a same-level test
 
 
+def _axis_views(
+    heightmap: np.ndarray, x: int, y: int, footprint_cells: tuple[int, int]
+) -> tuple[tuple[np.ndarray, int, int, slice], ...]:
+    """Per axis (x, y): the grid with that axis first, the footprint's start and length along
+    it, and its cells across it (the strips beside a footprint are rows of that grid)."""
+    fx, fy = footprint_cells
+    return (heightmap, x, fx, slice(y, y + fy)), (heightmap.T, y, fy, slice(x, x + fx))
+
+
 def seat_sides(
     heightmap: np.ndarray,
     x: int,
@@ -203,12 +212,8 @@ def seat_sides(
     from ``heightmap`` (what the robot observed) only: a container wall, or a strip of cells
     beside the footprint with a cell at least ``bottom_mm + face_mm`` high. With both sides
     flush (a tight slot) the minimum side wins, as a minimum-corner rule plans."""
-    fx, fy = footprint_cells
-    # Per axis: the grid with that axis first, the footprint's start and length along it, and
-    # its cells across it.
-    axes = ((heightmap, x, fx, slice(y, y + fy)), (heightmap.T, y, fy, slice(x, x + fx)))
     sides = []
-    for grid, start, length, across in axes:
+    for grid, start, length, across in _axis_views(heightmap, x, y, footprint_cells):
         side = 0
         for direction, strip in ((-1, start - 1), (1, start + length)):
             wall = not 0 <= strip < grid.shape[0]
@@ -233,10 +238,9 @@ def full_faces(
     of cells beside the footprint every one of which rises ``face_mm`` over the bottom. A
     neighbour under part of the face only cannot square the box: pushed through its centre,
     the box turns about the neighbour's end and the contact's torque never reverses."""
-    fx, fy = footprint_cells
-    axes = ((heightmap, x, fx, slice(y, y + fy)), (heightmap.T, y, fy, slice(x, x + fx)))
     full = []
-    for (grid, start, length, across), side in zip(axes, sides, strict=True):
+    views = _axis_views(heightmap, x, y, footprint_cells)
+    for (grid, start, length, across), side in zip(views, sides, strict=True):
         strip = start - 1 if side < 0 else start + length
         wall = not 0 <= strip < grid.shape[0]
         full.append(
