@@ -682,6 +682,10 @@ class _HeldBox:
     def restore(self, token: np.ndarray) -> None:
         self._backend._data.qpos[self._pose] = token
 
+    def moved_since(self, token: np.ndarray) -> np.ndarray:
+        # The free joint's first three entries are the position; its move is the gripper's.
+        return np.array(self._backend._data.qpos[self._address : self._address + 2] - token[:2])
+
     def translate(self, dx: float, dy: float, dz: float) -> None:
         self._backend._data.qpos[self._address : self._address + 3] += (dx, dy, dz)
 

@@ -224,6 +224,11 @@ class HeldBox(Protocol):
 
     def restore(self, token: np.ndarray) -> None: ...
 
+    def moved_since(self, token: np.ndarray) -> np.ndarray:
+        """How far (m, x and y) the gripper has moved since the pose of ``token``: what the
+        arm's joints read of its own moves."""
+        ...
+
     def translate(self, dx: float, dy: float, dz: float) -> None:
         """Move the gripper (and the box) by (dx, dy, dz) metres."""
         ...
@@ -563,10 +568,10 @@ def seat(held: HeldBox, command: PlaceCommand, moved_mm: np.ndarray, report: Ski
     layout with no slack by a millimetre or two.
     """
     threshold = _SEAT_FORCE_WEIGHTS * held.weight
-    start = held.snapshot()[:2].copy()
+    start = held.snapshot()
     for seat_pass in range(_SEAT_PASSES):
         # Where the robot holds the box now against the command (its own moves, in mm).
-        held_at = np.asarray(moved_mm, float) + (held.snapshot()[:2] - start) / _MM
+        held_at = np.asarray(moved_mm, float) + held.moved_since(start) / _MM
         for axis, side in enumerate(command.seat_sides):
             if not side:
                 continue
