@@ -19,8 +19,9 @@ For each teacher (registered policies ``sdf``, ``mta``, ``plan``) and each propo
 - **restricted**: the closed-loop Overall of the teacher restricted to the listed set. At each
   step the teacher ranks only the listed placements by its own score and takes the best: SDF-Pack
   and MTA by their keys and the shared tie-break (rim rule first, as always: every listed
-  placement is already in the rim pool), the planner by rolling out each listed placement as a
-  first placement (its search with the proposer's set instead of its own proposals). This is the
+  placement is already in the rim pool), the planner by its own pick where that is listed and
+  otherwise by rolling out each listed placement as a first placement (its search with the
+  proposer's set instead of its own proposals). This is the
   best a policy that picks among the listed placements could do when it imitates that teacher
   perfectly.
 
@@ -50,7 +51,7 @@ from packlab.core.types import Action, Case, Observation
 from packlab.datagen import generate_cases
 from packlab.datagen.guard import require_training_cases
 from packlab.policies.candidates import ProposerConfig, propose_from
-from packlab.policies.listed import ListedTeacher
+from packlab.policies.listed import ListedTeacher, best_by_plan
 from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 
@@ -77,7 +78,13 @@ class Restricted:
         proposed = propose_from(cands, self.config)
         if not proposed:
             return self._fallback.act(observation)
-        return proposed[self._teacher.choose(observation, cands, proposed)].action
+        pick = self._teacher.choose(observation, cands, proposed)
+        if not 0 <= pick < len(proposed):
+            # The teacher's own action is not listed (``plan`` then returns the index of its
+            # pick appended to the list, the oracle -1): the planner rolls out the listed
+            # placements instead, any other teacher takes index 0.
+            pick = best_by_plan(observation, cands, proposed) if self.teacher == "plan" else 0
+        return proposed[pick].action
 
 
 @dataclass
