@@ -160,6 +160,24 @@ def test_init_loads_the_imitation_weights_and_refuses_another_agent(hard_case, t
             assert torch.equal(tensor, source[name]), name
 
 
+def test_imitation_from_init_starts_at_its_weights_and_records_it(hard_case, tmp_path):
+    """A DAgger round on a trained agent: the fit starts from ``init``'s weights (its first
+    epoch's loss is the trained agent's, lower than fresh weights'), and the card names it."""
+    samples = imitation_samples(_demos(hard_case), FeatureSpec.default("irbpp"))
+    base = dict(agent="irbpp", batch=16, lr=3e-3)
+    imitate(samples, ImitationConfig(out=str(tmp_path / "a"), epochs=20, **base), "t")
+    fresh = imitate(samples, ImitationConfig(out=str(tmp_path / "f"), epochs=1, **base), "t")
+    cfg = ImitationConfig(out=str(tmp_path / "b"), epochs=1, init=str(tmp_path / "a"), **base)
+    warm = imitate(samples, cfg, "t")
+    assert warm.losses[0] < fresh.losses[0] - 0.2, (warm.losses, fresh.losses)
+    card = load_agent(tmp_path / "b").card
+    assert card.init is not None and card.init["sha256"] == dir_sha256(tmp_path / "a")
+    assert load_agent(tmp_path / "f").card.init is None
+    with pytest.raises(ConfigError, match="irbpp"):  # a tapnet fit cannot start from irbpp
+        tap = ImitationConfig(agent="tapnet", out=str(tmp_path / "t"), init=str(tmp_path / "a"))
+        imitate(imitation_samples(_demos(hard_case), FeatureSpec.default("tapnet")), tap, "t")
+
+
 def test_cli_imitates_from_states_then_trains_from_init(hard_case, tmp_path):
     states = tmp_path / "states.jsonl"
     lines = []

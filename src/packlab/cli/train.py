@@ -219,6 +219,12 @@ def register_rl_imitate(sub: argparse._SubParsersAction) -> None:
         "seeds; without it, the states' case ids must be training-domain ids (train-...)",
     )
     field("out", "--out", help="model directory; default {default}")
+    field(
+        "init",
+        "--init",
+        help="a model directory to start from (a DAgger round on a trained agent: "
+        "src/packlab/data/models/irbpp, a PPO run's final); default: fresh weights",
+    )
     for name in ("k", "width", "epochs", "batch", "lr", "value_weight", "seed", "threads"):
         field(name, "--" + name.replace("_", "-"), help="default {default}")
     field(

@@ -92,6 +92,9 @@ class ImitationConfig:
     seed: int = 0
     threads: int = 1
     placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT  # tapnet: places the chosen object
+    #: A model directory whose weights the fit starts from (a DAgger round on a trained agent:
+    #: the shipped one, a PPO run's ``final``); empty: fresh weights.
+    init: str = ""
 
     def __post_init__(self) -> None:
         require_choice(self.agent, RLAgent, "agent")

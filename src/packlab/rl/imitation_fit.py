@@ -3,9 +3,10 @@
 :func:`imitate` builds a MaskablePPO agent exactly as ``packlab train rl`` does
 (:func:`packlab.rl.train.make_model`), fits its actor by cross-entropy between the masked row
 logits and the samples' targets (soft or one-hot, over a variable number of rows) and, where the
-samples carry one, its value head to the episode's final Overall (squared error), then saves a
-model directory :func:`packlab.rl.agent.load_agent` reads and ``packlab train rl --init`` starts
-PPO from, with its ONNX export (the bench plays it without torch).
+samples carry one, its value head to the episode's final Overall (squared error). It starts from
+fresh weights or from a trained agent's (``init``: a DAgger round on the states that agent
+reached), then saves a model directory :func:`packlab.rl.agent.load_agent` reads and ``packlab
+train rl --init`` starts PPO from, with its ONNX export (the bench plays it without torch).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.rl.envs import ListedActionEnv
 from packlab.rl.features import FeatureSpec
 from packlab.rl.imitation import Sample
-from packlab.rl.train import export_model_dirs, make_model, save_model_dir
+from packlab.rl.train import export_model_dirs, load_init, make_model, save_model_dir
 
 #: Logit given to padded rows (masked out of the softmax).
 MASKED = -1e9
@@ -141,7 +142,8 @@ def imitate(
     source: str = "",
     cases: tuple[str, str] = ("", ""),
 ) -> ImitationResult:
-    """Behaviour-clone a new agent on ``samples`` and save it under ``cfg.out`` (a model dir).
+    """Behaviour-clone an agent on ``samples`` (fresh, or from ``cfg.init``'s weights) and save
+    it under ``cfg.out`` (a model dir).
     ``source``: the states file; ``cases``: (source, cases_sha256) of the cases the states were
     checked against, if any."""
     torch.manual_seed(cfg.seed)
@@ -150,6 +152,8 @@ def imitate(
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     model = new_model(cfg, out)
+    if cfg.init:
+        load_init(model, cfg.init, FeatureSpec.default(cfg.agent, cfg.k, cfg.placement))
     result = fit(model.policy, samples, cfg)
     result.wall_time_s = time.perf_counter() - started
     card = AgentCard(
@@ -162,7 +166,7 @@ def imitate(
         cases=card_source(cases[0], out) if cases[0] else "imitation",
         cases_sha256=cases[1],
         # No selection: the model after the last epoch is kept.
-        **provenance(out, cfg.seed, states=[source] if source else []),
+        **provenance(out, cfg.seed, init=cfg.init or None, states=[source] if source else []),
     )
     save_model_dir(model, out, card)
     export_model_dirs(out)
