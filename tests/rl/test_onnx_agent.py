@@ -19,7 +19,7 @@ from packlab.core.errors import ConfigError
 from packlab.datagen.generator import generate_cases
 from packlab.policies import make_policy
 from packlab.policies.onnx_model import ONNX_FORMAT, file_sha256
-from packlab.rl.decision import SET_ASIDE, decide, pick_row
+from packlab.rl.decision import SET_ASIDE, decide, pick_row, ranked_rows
 from packlab.rl.features import FeatureSpec, encode
 from packlab.rl.onnx_agent import GRAPH_FILE, load_onnx_agent
 from packlab.rl.policy import SHIPPED_MODELS
@@ -76,6 +76,19 @@ def test_pick_row_takes_the_best_allowed_row_and_the_first_on_a_tie():
         pick_row(logits, np.zeros(4, dtype=bool))
     with pytest.raises(ValueError, match="differ"):
         pick_row(logits, np.ones(3, dtype=bool))
+
+
+def test_ranked_rows_put_the_decided_row_first_and_leave_masked_rows_out(states):
+    encoded = encode(states[0], FeatureSpec.default("irbpp"))
+    n = len(encoded.actions)
+    assert n >= 3 and len(encoded.rows) == n
+    logits = np.arange(encoded.mask.size, dtype=np.float32)[::-1].copy()
+    logits[1] = 99.0  # row 1 first, then rows 0, 2, 3, ... (descending), masked rows never
+    ranked = ranked_rows(encoded, lambda arrays: logits)
+    assert ranked[:3] == [1, 0, 2] and ranked == sorted(ranked, key=lambda r: -logits[r])
+    assert set(ranked) == {r for r in range(n) if encoded.mask[r]}
+    assert encoded.actions[ranked[0]] == decide(encoded, lambda arrays: logits)
+    assert ranked_rows(type(encoded)(encoded.arrays, ()), lambda arrays: logits) == []
 
 
 def test_decide_sets_the_box_aside_without_asking_the_network_when_nothing_is_listed(states):

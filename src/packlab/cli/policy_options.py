@@ -26,6 +26,7 @@ from packlab.core.choices import (
     ImageMode,
     OverflowRule,
     ProposerRule,
+    RLAgent,
     StabilityCheck,
     TieBreak,
     choices,
@@ -113,6 +114,11 @@ def _rl_model(policy: str, key: str, value: Any, options: dict[str, Any]) -> Non
         )
 
 
+def _agent_dir(policy: str, key: str, value: Any) -> None:
+    """An RL agent directory exported to ONNX (what a planner's ``guide_model`` plays)."""
+    _rl_model(policy, key, value, {"runtime": "onnx"})
+
+
 def _vlm_model(policy: str, key: str, value: Any, options: dict[str, Any]) -> None:
     if isinstance(value, str) and value.startswith("tiny:"):
         return  # a random-weight model built on the spot
@@ -180,9 +186,15 @@ _PLAN = PolicyOptions(
         "mixed",
         "stability",
         "overflow",
+        "guide",
+        "guide_model",
+        "guide_first",
     ),
     {
         "mixed": _switch,
+        "guide": _one_of(("none", *choices(RLAgent))),
+        "guide_model": _agent_dir,
+        "guide_first": _whole(0),
         "endgame_nodes": _whole(0),
         "endgame_boxes": _whole(0),
         "guillotine_nodes": _whole(0),

@@ -41,3 +41,16 @@ def decide(encoded: Encoded, row_logits: RowLogits) -> Action:
     if not encoded.actions:
         return SET_ASIDE
     return encoded.actions[pick_row(row_logits(encoded.arrays), encoded.mask)]
+
+
+def ranked_rows(encoded: Encoded, row_logits: RowLogits) -> list[int]:
+    """The rows ``encoded.mask`` allows, highest logit first (ties to the earlier row, as
+    :func:`pick_row` breaks them): the agent's own preference order, so its first is the row
+    :func:`decide` takes. Empty when nothing is listed (the network is not asked then)."""
+    if not encoded.actions:
+        return []
+    n = len(encoded.actions)
+    logits = np.asarray(row_logits(encoded.arrays), dtype=np.float64).reshape(-1)[:n]
+    allowed = np.asarray(encoded.mask, dtype=bool).reshape(-1)[:n]
+    order = np.argsort(-logits, kind="stable")
+    return [int(r) for r in order if allowed[r]]

@@ -110,6 +110,8 @@ class Encoded:
 
     arrays: dict[str, np.ndarray]  # heightmap (1, G, G), globals (N_GLOBALS,), items (N, F)
     actions: tuple[Action, ...]  # one per real row, rows 0 .. len - 1
+    #: The flat index into the observation's candidate set of each real row's placement.
+    rows: tuple[int, ...] = ()
 
     @property
     def mask(self) -> np.ndarray:
@@ -247,7 +249,7 @@ def object_placements(
     ]
 
 
-def _listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
+def listed_indices(cands: CandidateSet, spec: FeatureSpec) -> list[int]:
     """Flat candidate indices of the item rows, in row order."""
     if spec.agent == "tapnet":
         n = min(cands.buffer_size, spec.n_items)
@@ -270,7 +272,8 @@ def encode(
     actions = []
     walls = walled(cands.heightmap, cands.container_height_mm)
     levels = Levels(cands.heightmap)
-    for row, i in enumerate(_listed_indices(cands, spec)):
+    rows = listed_indices(cands, spec)
+    for row, i in enumerate(rows):
         rank = int(ranks[int(cands.obj[i])])
         items[row] = item_row(observation, cands, walls, i, rank, levels)
         actions.append(
@@ -281,4 +284,4 @@ def encode(
         "globals": global_row(observation),
         "items": items,
     }
-    return Encoded(arrays, tuple(actions))
+    return Encoded(arrays, tuple(actions), tuple(rows))

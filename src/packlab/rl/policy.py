@@ -23,12 +23,12 @@ from typing import Any
 
 from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
-from packlab.core.feasibility import observation_candidates
+from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.model_cache import load_once
 from packlab.policies.overflow import overflow_decision
 from packlab.rl.card import CARD_FILE, AgentCard, read_card
-from packlab.rl.decision import RowLogits, decide
+from packlab.rl.decision import RowLogits, decide, ranked_rows
 from packlab.rl.extra import RLExtraMissing, import_rl
 from packlab.rl.features import FeatureSpec, encode
 from packlab.rl.onnx_agent import load_onnx_agent
@@ -136,6 +136,15 @@ class RLAgentPolicy:
             return overflowed
         encoded = encode(observation, self._playing.spec, cands)
         return decide(encoded, self._playing.row_logits)
+
+    def ranked_placements(self, observation: Observation, cands: CandidateSet) -> list[int]:
+        """The agent's listed placements as flat indices into ``cands`` (the observation's
+        candidate set), the one it would take first: what a planner rolls out when an agent
+        proposes (:mod:`packlab.policies.plan.guide`). The overflow rule is not applied."""
+        if self._playing is None:
+            self._playing = self._load()
+        encoded = encode(observation, self._playing.spec, cands)
+        return [encoded.rows[r] for r in ranked_rows(encoded, self._playing.row_logits)]
 
 
 def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:

@@ -19,7 +19,10 @@ choice), ``overflow`` (``score``, the default, or ``place``: what to do when no 
 under the rim, :mod:`packlab.policies.overflow`; ``overflowed`` counts those decisions), and
 for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
 ``jokers``, ``joker_seen``, ``guesses`` (see :class:`.complete.CompletionConfig`;
-``completed`` counts the decisions it took).
+``completed`` counts the decisions it took), and ``guide`` (``none``, the default, ``irbpp`` or
+``tapnet``), ``guide_model`` (that agent's directory; default the shipped one) and
+``guide_first`` (default 2): a trained agent's preferred placements rolled out by the
+lookahead beside its own (:mod:`.guide`).
 """
 
 from __future__ import annotations
@@ -36,7 +39,9 @@ from packlab.policies.plan.complete import Completion, CompletionConfig, find_co
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
+from packlab.policies.plan.proposer import first_placements
 from packlab.policies.plan.search import Budget, Problem, search
 
 
@@ -92,6 +97,8 @@ class PlanPolicy:
     overflow: OverflowRule = "score"
     #: Decisions taken by the ``score`` overflow rule.
     overflowed: int = 0
+    #: A trained agent whose preferred placements the lookahead rolls out too (:mod:`.guide`).
+    guide: AgentGuide = field(default_factory=AgentGuide)
 
     def reset(self, case: Case, seed: int) -> None:
         """Forget the last episode's filling; the plan never reads the case (its future objects)."""
@@ -124,11 +131,16 @@ class PlanPolicy:
             self.overflowed += 1
             return PlanDecision(overflow, None)
         problem = observation_problem(observation, self.weights)
+        firsts = None
+        if self.guide.active:
+            firsts = first_placements(cands, self.budget.first, self.budget.listed)
+            firsts += [i for i in self.guide.placements(observation, cands) if i not in firsts]
         outcome = search(
             observation.heightmap,
             problem,
             self.budget,
             check_support=self.stability == "support",
+            firsts=firsts,
             candidates=cands,
         )
         self.decisions += 1
@@ -232,6 +244,11 @@ def _switch(name: str, value: Any) -> bool:
 
 def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
+    guide = AgentGuide(
+        options.pop("guide", "none"),
+        options.pop("guide_model", None),
+        options.pop("guide_first", 2),
+    )
     stability = options.pop("stability", "off")
     require_choice(stability, StabilityCheck, "plan: stability")
     overflow = options.pop("overflow", "score")
@@ -240,7 +257,8 @@ def make_plan(**options: Any) -> PlanPolicy:
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
-        known = ", ".join(sorted(known_keys | {"stability", "overflow"}))
+        extra = {"stability", "overflow", "guide", "guide_model", "guide_first"}
+        known = ", ".join(sorted(known_keys | extra))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
     weights = Weights(
@@ -271,6 +289,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         completion=completion,
         endgame=Endgame(endgame),
         overflow=overflow,
+        guide=guide,
     )
 
 
