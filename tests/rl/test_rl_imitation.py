@@ -164,7 +164,7 @@ def test_imitation_from_init_starts_at_its_weights_and_records_it(hard_case, tmp
     """A DAgger round on a trained agent: the fit starts from ``init``'s weights (its first
     epoch's loss is the trained agent's, lower than fresh weights'), and the card names it."""
     samples = imitation_samples(_demos(hard_case), FeatureSpec.default("irbpp"))
-    base = dict(agent="irbpp", batch=16, lr=3e-3)
+    base: dict = {"agent": "irbpp", "batch": 16, "lr": 3e-3}
     imitate(samples, ImitationConfig(out=str(tmp_path / "a"), epochs=20, **base), "t")
     fresh = imitate(samples, ImitationConfig(out=str(tmp_path / "f"), epochs=1, **base), "t")
     cfg = ImitationConfig(out=str(tmp_path / "b"), epochs=1, init=str(tmp_path / "a"), **base)
