@@ -222,6 +222,8 @@ _ENDGAME_KEYS = {
 #: heights, :attr:`.complete.CompletionConfig.mixed`).
 _SWITCHES = ("complete", "mixed")
 _WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
+#: The agent guiding the lookahead (:class:`.guide.AgentGuide`: agent, model, first).
+_GUIDE_KEYS = ("guide", "guide_model", "guide_first")
 
 
 def _whole(name: str, value: Any) -> int:
@@ -257,7 +259,7 @@ def make_plan(**options: Any) -> PlanPolicy:
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
-        extra = {"stability", "overflow", "guide", "guide_model", "guide_first"}
+        extra = {"stability", "overflow", *_GUIDE_KEYS}
         known = ", ".join(sorted(known_keys | extra))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
