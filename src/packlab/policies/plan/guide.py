@@ -16,12 +16,23 @@ per process.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 from packlab.core.choices import RLAgent, choices
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet
 from packlab.core.types import Observation
-from packlab.rl.policy import RLAgentPolicy
+from packlab.policies.registry import make_policy
+
+
+@runtime_checkable
+class RanksPlacements(Protocol):
+    """A policy that orders the placements of a candidate set by its own preference (the RL
+    agents: ``packlab.rl.policy.RLAgentPolicy.ranked_placements``). The guide makes it through
+    the policy registry, so the planner does not import the layer above it."""
+
+    def ranked_placements(self, observation: Observation, cands: CandidateSet) -> list[int]: ...
+
 
 #: Agents that can guide: none, or an RL agent kind (the shipped one, or ``guide_model``).
 GUIDE_AGENTS: tuple[str, ...] = ("none", *choices(RLAgent))
@@ -35,7 +46,7 @@ class AgentGuide:
     agent: str = "none"
     model: str | None = None
     first: int = 2
-    _policy: RLAgentPolicy | None = field(default=None, init=False, repr=False, compare=False)
+    _policy: RanksPlacements | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.agent not in GUIDE_AGENTS:
@@ -57,7 +68,10 @@ class AgentGuide:
         if not self.active:
             return []
         if self._policy is None:
-            self._policy = RLAgentPolicy(self.agent, self.model)  # type: ignore[arg-type]
+            agent = make_policy(self.agent, **({"model": self.model} if self.model else {}))
+            if not isinstance(agent, RanksPlacements):
+                raise ConfigError(f"plan: guide = {self.agent!r} cannot rank placements")
+            self._policy = agent
         return self._policy.ranked_placements(observation, cands)[: self.first]
 
     def __getstate__(self) -> dict[str, object]:
