@@ -80,7 +80,8 @@ def main() -> None:
     cases = require_training_cases(load_cases(a.cases), a.cases)
     # The states are checked too, row by row, by their cases' content: not a suite's, and each
     # the case of --cases with its id (states of other cases under the same ids are refused).
-    more = [c for f in a.states_cases for c in require_training_cases(load_cases(f), f)]
+    by_file = {f: require_training_cases(load_cases(f), f) for f in a.states_cases}
+    more = [c for cs in by_file.values() for c in cs]
     require_training_states(a.states, cases + more)
     _, evals = split_cases(cases, 3, 0, 5)
     meta = _start_settings(a.model, a.map)
@@ -95,7 +96,10 @@ def main() -> None:
         # The card records the model continued from as "init" (name + sha256) and the cases
         # by name and content digest: no scratch path (packlab.policies.provenance).
         meta={"teacher": meta.get("teacher", ""), "note": a.note,
-              "cases": cases_record(a.cases, cases_sha256(cases), a.out)},
+              "cases": cases_record(a.cases, cases_sha256(cases), a.out),
+              # The cases the other states were collected on, so the card names every input.
+              "states_cases": [cases_record(f, cases_sha256(cs), a.out)
+                               for f, cs in by_file.items()]},
     )  # fmt: skip
     print(train_pointer(cfg, evals))
 
