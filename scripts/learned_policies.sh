@@ -25,8 +25,10 @@ save_cases([c for lv in ("easy", "medium", "hard")
 PY
 }
 collect() { python scripts/collect_states.py "$@"; }
-mixed() {  # FILE SEED:PER_LEVEL:LAYOUT[:ORDER] ...: cases of several families, shuffled (seed 46)
+mixed() {  # FILE SEED:PER_LEVEL:LAYOUT[:ORDER] ...: cases of several families, shuffled
+  # (seed $SHUFFLE, default 46)
   [ -f "$1" ] || python - "$@" <<'PY'
+import os
 import random
 import sys
 from packlab.cases.write import save_cases
@@ -39,7 +41,7 @@ for spec in specs:
     cfg = CaseConfig(layout=layout, **({"order": order[0]} if order else {}))
     cases += [c for lv in ("easy", "medium", "hard")
               for c in generate_cases(lv, int(n), int(seed), False, config=cfg, domain="train")]
-random.Random(46).shuffle(cases)
+random.Random(int(os.environ.get("SHUFFLE", "46"))).shuffle(cases)
 save_cases(cases, path)
 PY
 }
@@ -82,6 +84,15 @@ r1_tapnet=$!
 wait "$r1_irbpp"; wait "$r1_tapnet"
 cat "$OUT/r0-states.jsonl" "$OUT/r1-irbpp.jsonl" "$OUT/r1-tapnet.jsonl" > "$OUT/s-r01.jsonl"
 
+# Round 2 (session 51, for the pointer model of step 5): the shipped irbpp (the package's agent)
+# acting on 360 cases of every family, and the planner's own trajectories on the same cases,
+# every state labelled by the planner (about 2.5 min on two processes).
+SHUFFLE=51 mixed "$OUT/r2-cases.jsonl" 5101:50:layered 5102:20:layered:layers \
+    5103:15:cut:support 5104:15:cut:base-height 5105:20:random
+collect "$OUT/r2-cases.jsonl" "$OUT/r2-irbpp.jsonl" r2-irbpp --actor irbpp
+collect "$OUT/r2-cases.jsonl" "$OUT/r2-plan.jsonl" r2-plan
+cat "$OUT/r2-irbpp.jsonl" "$OUT/r2-plan.jsonl" > "$OUT/r2-all.jsonl"
+
 ppo() {  # the PPO settings every run below shares
   packlab train rl --lr 0.0001 --ent-coef 0.001 --envs 4 --vec dummy --eval-every 10000 \
       --seed 0 "$@"
@@ -112,11 +123,12 @@ lane_tapnet_vlm() {
       --out "$OUT/tapnet-im1p" --epochs 30 --seed 0
   ppo --agent tapnet --placement proposer --init "$OUT/tapnet-im1p" \
       --cases "$OUT/train-all.jsonl" --steps 146432 --out "$OUT/tapnet-ppo0"
-  # 5. vlm-small: the pointer model with the heightmap as a digit map (no vision tower),
-  #    trained from random weights on rounds 0 + 1: 1,453 updates of a 1,500-update schedule.
+  # 5. vlm-small (session 51): the pointer model with the heightmap as a digit map (no vision
+  #    tower), from random weights on rounds 0 + 1 and round 2: all 1,500 updates.
   python scripts/vlm_continue.py --model tiny:qwen3_vl:mini --map text \
-      --states "$OUT/s-r01.jsonl" --cases "$OUT/train-all.jsonl" --out "$OUT/vlm-text" \
-      --steps 1500 --stop-after 1453 --lr 1e-3 --seed 0
+      --states "$OUT/s-r01.jsonl" "$OUT/r2-all.jsonl" --cases "$OUT/train-all.jsonl" \
+      --states-cases "$OUT/r2-cases.jsonl" --out "$OUT/vlm-text" \
+      --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
   # 7. PPO continued from step 4's final/ on every family: 510 updates (522,240 env steps;
   #    chosen at 45 min over 80 min and best/, 0.797 vs 0.792, 0.784).
   ppo --agent tapnet --placement proposer --init "$OUT/tapnet-ppo0/final" \

@@ -97,3 +97,15 @@ def test_the_shipped_cards_say_how_they_were_made(agent):
     assert card.seed is not None and card.commit and card.init and card.init["sha256"]
     assert len(card.cases_sha256) == 64 and card.selection and card.selection["sha256"]
     assert "runs/" not in text and "/work" not in text and "/tmp" not in text
+
+
+def test_the_shipped_pointer_model_s_card_says_how_it_was_made():
+    # Issue 36: a clean commit, every input by name and sha256 (the states and the cases each
+    # state file was collected on), no scratch path.
+    text = (ROOT / "src/packlab/data/models/vlm-small/packlab_model.json").read_text()
+    card = json.loads(text)
+    assert card["dirty"] is False and len(card["commit"]) == 40 and card["seed"] is not None
+    assert card["states"] and all(len(s["sha256"]) == 64 for s in card["states"])
+    cases = [card["cases"], *card.get("states_cases", [])]
+    assert len(cases) >= 2 and all(len(c["sha256"]) == 64 for c in cases)
+    assert "runs/" not in text and "/work" not in text and "/tmp" not in text
