@@ -124,11 +124,21 @@ lane_tapnet_vlm() {
   ppo --agent tapnet --placement proposer --init "$OUT/tapnet-im1p" \
       --cases "$OUT/train-all.jsonl" --steps 146432 --out "$OUT/tapnet-ppo0"
   # 5. vlm-small (session 51): the pointer model with the heightmap as a digit map (no vision
-  #    tower), from random weights on rounds 0 + 1 and round 2: all 1,500 updates.
+  #    tower), from random weights on rounds 0 + 1 and round 2: all 1,500 updates; then round 3,
+  #    that model acting on 360 more cases of every family (DAgger: the states its own mistakes
+  #    lead to), and the same training from random weights on rounds 0-3 (the shipped model).
   python scripts/vlm_continue.py --model tiny:qwen3_vl:mini --map text \
       --states "$OUT/s-r01.jsonl" "$OUT/r2-all.jsonl" --cases "$OUT/train-all.jsonl" \
-      --states-cases "$OUT/r2-cases.jsonl" --out "$OUT/vlm-text" \
+      --states-cases "$OUT/r2-cases.jsonl" --out "$OUT/vlm-text-r2" \
       --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
+  SHUFFLE=51 mixed "$OUT/r3-cases.jsonl" 5121:50:layered 5122:20:layered:layers \
+      5123:15:cut:support 5124:15:cut:base-height 5125:20:random
+  collect "$OUT/r3-cases.jsonl" "$OUT/r3-vlm.jsonl" r3-vlm --workers 1 \
+      --actor vlm --actor-opts "{\"model\": \"$OUT/vlm-text-r2/final\"}"
+  python scripts/vlm_continue.py --model tiny:qwen3_vl:mini --map text \
+      --states "$OUT/s-r01.jsonl" "$OUT/r2-all.jsonl" "$OUT/r3-vlm.jsonl" \
+      --cases "$OUT/train-all.jsonl" --states-cases "$OUT/r2-cases.jsonl" "$OUT/r3-cases.jsonl" \
+      --out "$OUT/vlm-text" --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
   # 7. PPO continued from step 4's final/ on every family: 510 updates (522,240 env steps;
   #    chosen at 45 min over 80 min and best/, 0.797 vs 0.792, 0.784).
   ppo --agent tapnet --placement proposer --init "$OUT/tapnet-ppo0/final" \
