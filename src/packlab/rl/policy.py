@@ -122,29 +122,32 @@ class RLAgentPolicy:
             self.model_dir != SHIPPED_MODELS / self.name or (self.model_dir / CARD_FILE).is_file()
         )
 
+    def _loaded(self) -> _Playing:
+        """The agent, loaded on first use (once per process, :func:`load_once`)."""
+        if self._playing is None:
+            self._playing = self._load()
+        return self._playing
+
     def reset(self, case: Case, seed: int) -> None:
         """Load the agent once; it keeps no state between steps."""
-        if self._playing is None:
-            self._playing = self._load()
+        self._loaded()
 
     def act(self, observation: Observation) -> Action:
-        if self._playing is None:
-            self._playing = self._load()
+        playing = self._loaded()
         cands = observation_candidates(observation)
         overflowed = overflow_decision(observation, cands, self.overflow)
         if overflowed is not None:
             return overflowed
-        encoded = encode(observation, self._playing.spec, cands)
-        return decide(encoded, self._playing.row_logits)
+        encoded = encode(observation, playing.spec, cands)
+        return decide(encoded, playing.row_logits)
 
     def ranked_placements(self, observation: Observation, cands: CandidateSet) -> list[int]:
         """The agent's listed placements as flat indices into ``cands`` (the observation's
         candidate set), the one it would take first: what a planner rolls out when an agent
         proposes (:mod:`packlab.policies.plan.guide`). The overflow rule is not applied."""
-        if self._playing is None:
-            self._playing = self._load()
-        encoded = encode(observation, self._playing.spec, cands)
-        return [encoded.rows[r] for r in ranked_rows(encoded, self._playing.row_logits)]
+        playing = self._loaded()
+        encoded = encode(observation, playing.spec, cands)
+        return [encoded.rows[r] for r in ranked_rows(encoded, playing.row_logits)]
 
 
 def _make(name: str, options: dict[str, Any]) -> RLAgentPolicy:

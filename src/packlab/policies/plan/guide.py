@@ -10,7 +10,8 @@ policy's proposals, as policy improvement by rollout does).
 
 The agent reads only the observation (its encoding is the one it was trained on) and runs on
 ONNX Runtime, so the core install plays it. It is loaded on the first lookahead decision, once
-per process.
+per process. Off by default: its gain on generated random-box training cases did not carry to
+the evaluation set (docs/planner.md, Knobs).
 """
 
 from __future__ import annotations
