@@ -81,9 +81,16 @@ _SLIDE_STEP_MM = 0.5  # a compliant slide's step
 #: box puts it well inside. The margin covers the grasp and arm errors between the believed and
 #: the true edge (a few mm).
 _EDGE_MARGIN_MM = 5.0
-#: Turns under contact torque during the descent: the turn per slide step is the rigid motion
-#: whose contact points move about one step, at most this much in all (beyond arm errors).
-_DESCENT_MAX_TURN_DEG = 10.0
+#: How far (deg) the wrist's yaw compliance lets a contact's torque turn the held box, in the
+#: descent (in all, beyond arm errors) and in each seating turn (``flush_turn``): one limit of
+#: one wrist. Seating used 5 deg until session 52: under the stereo preset (3 deg arm yaw
+#: error) a box that landed more than 5 deg off square could not be turned flush against a
+#: whole face, stayed turned and narrowed its neighbours' slots (traced: a 375 mm box left at
+#: -5.8 deg took 19 mm of the next slot, and the two boxes planned there were set aside). With
+#: 10 deg, on 72 generated layered training cases (3 seeds, plan-fast): stereo +0.012 [+0.001,
+#: +0.023]; structured light (1 deg) -0.001 [-0.003, +0.001]; 8 and 15 deg scored about the
+#: same as 10 on stereo (0.953 and 0.951 against 0.954, two seeds).
+WRIST_YAW_YIELD_DEG = 10.0
 _DESCENT_MAX_MOVES = 400  # a bound on the descent's loop
 #: The probe's turns (``_probe``): steps, and the lateral reach tried at each. A box that lands
 #: on two neighbours' edges at once, turned a degree or more, fits its slot only turned back
@@ -107,11 +114,10 @@ _SEAT_STEP_MM = 0.25  # step of the guarded push
 #: ones press in several times deeper.
 _SEAT_FORCE_WEIGHTS = 0.5
 #: A held box pushed into a face with a corner first is turned by the contact's torque (a
-#: wrist compliant in yaw) until its face is flush (``flush_turn``): by at most this much per
-#: contact (beyond the arm's and the estimate's yaw errors), found to 5 deg / 2**12 (0.001
-#: deg), at most _SEAT_TURNS times per push, turns under _SEAT_MIN_TURN rad (0.003 deg) not
-#: taken.
-_SEAT_MAX_YIELD_DEG = 5.0
+#: wrist compliant in yaw) until its face is flush (``flush_turn``): by at most
+#: ``WRIST_YAW_YIELD_DEG`` per contact (beyond the arm's and the estimate's yaw errors), found
+#: to 10 deg / 2**12 (0.002 deg), at most _SEAT_TURNS times per push, turns under
+#: _SEAT_MIN_TURN rad (0.003 deg) not taken.
 _SEAT_TURN_BISECTIONS = 12
 _SEAT_TURNS = 4
 _SEAT_MIN_TURN = 5e-5
@@ -392,7 +398,7 @@ class _Descent:
             report.slid_off_edge = 1
             return away
         # No edge to read: probe around for where the descent can go on.
-        room = math.radians(_DESCENT_MAX_TURN_DEG) - abs(self.turned)
+        room = math.radians(WRIST_YAW_YIELD_DEG) - abs(self.turned)
         found = _probe(held, budget - float(np.hypot(*self.moved)), gripper, room)
         if found is None:
             report.stopped_high = 1
@@ -427,7 +433,7 @@ class _Descent:
             step, angle = _compliant_step(force[:2], torque / _MM, self.radius, length)
         else:
             step, angle = _compliant_step(push, None, self.radius, None, lever)
-        if abs(self.turned + angle) > math.radians(_DESCENT_MAX_TURN_DEG):
+        if abs(self.turned + angle) > math.radians(WRIST_YAW_YIELD_DEG):
             angle = 0.0
         self.held.translate(step[0] * _MM, step[1] * _MM, 0.0)
         self.moved += step
@@ -656,7 +662,7 @@ def flush_turn(held: HeldBox, axis: int, torque: float, pivot: np.ndarray) -> np
     pressed into what it met: turned in the torque's sense, the arm holding its centre across
     ``axis`` and letting it follow the contact (``pivot``, the centre of pressure) along it, up
     to where the torque reverses (the face is flush, bearing at both ends), found by bisection
-    within ``_SEAT_MAX_YIELD_DEG``. None when it does not reverse there (a corner against a
+    within ``WRIST_YAW_YIELD_DEG``. None when it does not reverse there (a corner against a
     corner: nothing flat to turn flush with), when the turn runs into something other than
     what it met first (a neighbour bearing on part of the face only would turn the box until
     its far end met a wall), or the turn is under ``_SEAT_MIN_TURN``. Leaves the box's pose as
@@ -671,7 +677,7 @@ def flush_turn(held: HeldBox, axis: int, torque: float, pivot: np.ndarray) -> np
         reversed_ = held.side_load()[1] * sense < 0.0
         return reversed_ or not held.touching() <= met
 
-    low, high = 0.0, math.radians(_SEAT_MAX_YIELD_DEG)
+    low, high = 0.0, math.radians(WRIST_YAW_YIELD_DEG)
     if torque == 0.0 or not stopped_at(high):
         held.restore(pressed)
         return None
@@ -747,6 +753,7 @@ __all__ = [
     "APPROACH_MM",
     "LIFT_TOLERANCE_MM",
     "PLACE_RETRIES",
+    "WRIST_YAW_YIELD_DEG",
     "HeldBox",
     "PlaceCommand",
     "SkillReport",
