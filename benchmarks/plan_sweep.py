@@ -53,6 +53,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "joker-seen-2": ("plan-fast", {"joker_seen": 2}),
     "joker-seen-4": ("plan-fast", {"joker_seen": 4}),
     "guesses-1": ("plan-fast", {"guesses": 1}),
+    "guesses-128": ("plan-fast", {"guesses": 128}),
     "nodes-20k": ("plan-fast", {"nodes": 20_000}),
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
     "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before the overflow rule
