@@ -62,6 +62,10 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "plan": ("plan", {}),
     "plan-final-0": ("plan", {"w_final": 0.0}),
     "plan-listed-0": ("plan", {"listed": 0}),  # plan before the students' listed placements
+    # Rollout base policies (session 53): the proposer's first pick, or the cheapest of several.
+    "plan-rollout-lowest": ("plan", {"rollout": "lowest"}),
+    "plan-rollout-sdf+lowest": ("plan", {"rollout": "sdf+lowest"}),
+    "plan-rollout-sdf+lowest+flush": ("plan", {"rollout": "sdf+lowest+flush"}),
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),
 }

@@ -27,6 +27,7 @@ from packlab.core.choices import (
     OverflowRule,
     ProposerRule,
     RLAgent,
+    RolloutBase,
     StabilityCheck,
     TieBreak,
     choices,
@@ -164,6 +165,7 @@ _PLAN = PolicyOptions(
     (
         "first",
         "listed",
+        "rollout",
         "depth",
         "beam",
         "time_s",
@@ -201,6 +203,7 @@ _PLAN = PolicyOptions(
         "guillotine_boxes": _whole(0),
         "first": _whole(1),
         "listed": _whole(0),
+        "rollout": _one_of(choices(RolloutBase)),
         "depth": _whole(1),
         "beam": _whole(1),
         "time_s": _positive,

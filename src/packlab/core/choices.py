@@ -41,6 +41,11 @@ LayoutFamily = Literal["layered", "stepped", "random", "cut", "rs"]
 ArrivalOrder = Literal["removal", "layers", "base-height", "support"]
 #: The ``plan`` policy's check of its chosen placement before committing it.
 StabilityCheck = Literal["off", "support"]
+#: The base policies that roll out the planner's first placements (``policies/plan/search.py``):
+#: SDF-Pack's choice, the students' proposer's first listed placement (``lowest``), the
+#: flush/contact ranking's first (``flush``); with several, a first placement costs the
+#: cheapest of its rollouts.
+RolloutBase = Literal["sdf", "lowest", "sdf+lowest", "sdf+lowest+flush"]
 #: What a policy does when no shown box fits under the rim (``policies/overflow.py``): ``place``
 #: the box that sticks out least (the literature's rule, every heuristic's default) or
 #: ``score``: place one only where that raises the episode's Overall, else set one aside.

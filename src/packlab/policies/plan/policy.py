@@ -10,8 +10,8 @@ With ``time_s`` set the search stops after the depth that passes it, so results 
 the machine's speed (documented as not bit-reproducible).
 
 Factory keywords (``packlab bench --policy-arg plan:first=4``): ``first``, ``listed``,
-``depth``, ``beam``, ``time_s`` (see :class:`.search.Budget`), the cost weights ``w_trapped``,
-``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim``, ``w_final`` (see
+``depth``, ``beam``, ``time_s``, ``rollout`` (see :class:`.search.Budget`), the cost weights
+``w_trapped``, ``w_unreachable``, ``w_open``, ``w_steps``, ``w_over_rim``, ``w_final`` (see
 :class:`.evaluate.Weights`) and
 ``stability`` (``off`` or ``support``: take the cheapest placement whose centre is over its
 support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that changed the
@@ -30,7 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from packlab.core.choices import OverflowRule, StabilityCheck, require_choice
+from packlab.core.choices import OverflowRule, RolloutBase, StabilityCheck, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
@@ -269,6 +269,7 @@ def make_plan(**options: Any) -> PlanPolicy:
     for name in ("first", "depth", "beam"):
         _whole(name, getattr(budget, name))
     _count("listed", budget.listed)
+    require_choice(budget.rollout, RolloutBase, "plan: rollout")
     if budget.time_s is not None and not budget.time_s > 0:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
     completion = CompletionConfig(

@@ -41,6 +41,14 @@ def by_sdf(
     return ranked(cands, sdf.score(cands), pool, tie_break)
 
 
+def by_flush(cands: CandidateSet, pool: np.ndarray) -> np.ndarray:
+    """``pool`` (candidate indices) in the flush/contact ranking's order, best first (item 2 of
+    the module docstring)."""
+    trapped = space_under(cands)[pool]
+    contact = contact_area_mm2(cands)[pool]
+    return pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
+
+
 def first_placements(cands: CandidateSet, per_ranking: int, listed: int = 0) -> list[int]:
     """Candidate indices to roll out (see the module docstring): ``per_ranking`` from each of
     the two rankings, then ``listed`` from the students' proposer; empty when nothing fits."""
@@ -48,10 +56,8 @@ def first_placements(cands: CandidateSet, per_ranking: int, listed: int = 0) -> 
     if pool.size == 0:
         return []
     sdf_ranked = by_sdf(cands, pool)
-    trapped = space_under(cands)[pool]
-    contact = contact_area_mm2(cands)[pool]
-    by_flush = pool[np.lexsort((pool, cands.top[pool], -contact, trapped))]
-    rankings = [sdf_ranked[:per_ranking].tolist(), by_flush[:per_ranking].tolist()]
+    flush_ranked = by_flush(cands, pool)
+    rankings = [sdf_ranked[:per_ranking].tolist(), flush_ranked[:per_ranking].tolist()]
     if listed > 0:
         rankings.append(proposed_indices(cands, ProposerConfig(k=listed)))
     out: list[int] = []

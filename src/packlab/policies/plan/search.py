@@ -6,8 +6,13 @@ heightmap under its footprint becomes its top. A decision:
 1. proposes first placements (:mod:`.proposer`): ``first`` from SDF-Pack's ranking,
    ``first`` from a flush/contact ranking and ``listed`` from the students' proposer, over
    every shown object and both rotations;
-2. rolls each out: SDF-Pack places the other shown objects one by one, ``depth`` placements at
-   most (a rollout that finds no floor-fitting place for an object stops and pays for it);
+2. rolls each out: a base policy places the other shown objects one by one, ``depth``
+   placements at most (a rollout that finds no floor-fitting place for an object stops and pays
+   for it). ``rollout`` names the base policies: SDF-Pack's choice, the students' proposer's
+   first listed placement (``lowest``), the flush/contact ranking's first (``flush``); with more
+   than one, each first placement is rolled out by each and costs its cheapest end state (a
+   rollout over several base policies does at least as well, under the model, as the best of
+   them alone);
 3. scores the end state (:func:`.evaluate.state_cost`, with the episode's volumes where they
    are known, :mod:`.outlook`): every complete rollout has placed the same boxes, so the costs
    compare like for like;
@@ -27,19 +32,21 @@ decide where the first one goes.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from packlab.core.choices import RolloutBase
 from packlab.core.feasibility import CandidateSet, search_candidates
 from packlab.core.types import ShownItem
+from packlab.policies.candidates import ProposerConfig, proposed_indices
 from packlab.policies.features import space_under_at
 from packlab.policies.heuristics import sdf
 from packlab.policies.heuristics.select import choose, rim_pool
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
 from packlab.policies.plan.outlook import Outlook, cell_volume
-from packlab.policies.plan.proposer import by_sdf, first_placements
+from packlab.policies.plan.proposer import by_flush, by_sdf, first_placements
 from packlab.policies.plan.stability import centre_supported
 from packlab.sim.heightmap import place_box
 
@@ -53,6 +60,9 @@ class Budget:
     depth: int = 10  # placements per rollout after the first (all shown objects when larger)
     time_s: float | None = None  # anytime limit (not bit-reproducible when set)
     beam: int = 1  # partial rollouts kept per depth, and placements tried per kept rollout
+    #: The base policies that roll each first placement out (:data:`ROLLOUT_BASES`); a first
+    #: placement costs the cheapest of its rollouts.
+    rollout: RolloutBase = "sdf"
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,13 +138,44 @@ def _stuck_cost(hm: np.ndarray, loss: PathLoss, left: tuple[int, ...], problem: 
     return state_cost(hm, loss, problem.footprints, problem.weights, outlook)
 
 
+def _sdf_pick(cands: CandidateSet) -> int | None:
+    return choose(cands, sdf.score(cands))
+
+
+def _lowest_pick(cands: CandidateSet) -> int | None:
+    listed = proposed_indices(cands, ProposerConfig(k=1))
+    return listed[0] if listed else None
+
+
+def _flush_pick(cands: CandidateSet) -> int | None:
+    pool = rim_pool(cands)
+    return int(by_flush(cands, pool)[0]) if pool.size else None
+
+
+#: Rollout base policies by name: SDF-Pack's choice, the students' proposer's first listed
+#: placement (each shape's lowest, most enclosed resting place, lowest first), the flush/contact
+#: ranking's first. Measured in docs/planner.md ("Rollout base policies"); the default is ``sdf``.
+_BASES: dict[RolloutBase, tuple[Callable[[CandidateSet], int | None], ...]] = {
+    "sdf": (_sdf_pick,),
+    "lowest": (_lowest_pick,),
+    "sdf+lowest": (_sdf_pick, _lowest_pick),
+    "sdf+lowest+flush": (_sdf_pick, _lowest_pick, _flush_pick),
+}
+
+
 def rollout(
-    hm: np.ndarray, left: tuple[int, ...], problem: Problem, depth: int, loss: PathLoss
+    hm: np.ndarray,
+    left: tuple[int, ...],
+    problem: Problem,
+    depth: int,
+    loss: PathLoss,
+    base: Callable[[CandidateSet], int | None] = _sdf_pick,
 ) -> float:
-    """End-state cost after SDF-Pack places up to ``depth`` of the objects ``left``."""
+    """End-state cost after the ``base`` policy (default SDF-Pack's choice) places up to
+    ``depth`` of the objects ``left``."""
     for _ in range(min(depth, len(left))):
         cands = _candidates(hm, problem, left)
-        i = choose(cands, sdf.score(cands))
+        i = base(cands)
         if i is None:  # nothing fits: the objects left count as lost over the rim
             return _stuck_cost(hm, loss, left, problem)
         hm, lost = _apply(hm, cands, i, problem)
@@ -236,7 +277,11 @@ def search(
         if budget.beam > 1:
             scored.append((beam_rollout(after, left, problem, budget, loss), i))
         else:
-            scored.append((rollout(after, left, problem, budget.depth, loss), i))
+            cost = min(
+                rollout(after, left, problem, budget.depth, loss, base)
+                for base in _BASES[budget.rollout]
+            )
+            scored.append((cost, i))
         if budget.time_s is not None and time.perf_counter() - start > budget.time_s:
             break
     cost, i, fell_back = _pick(hm, cands, scored, check_support)
