@@ -138,6 +138,24 @@ lane_tapnet_vlm() {
   python scripts/vlm_continue.py --model tiny:qwen3_vl:mini --map text \
       --states "$OUT/s-r01.jsonl" "$OUT/r2-all.jsonl" "$OUT/r3-vlm.jsonl" \
       --cases "$OUT/train-all.jsonl" --states-cases "$OUT/r2-cases.jsonl" "$OUT/r3-cases.jsonl" \
+      --out "$OUT/vlm-text-r3" --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
+  # Session 53: round 4, that model acting on 240 random-family cases (DAgger), then the same
+  # training on rounds 0-4 without the states whose teacher pick was added to the list as an
+  # extra line (`teacher_added`): the label points at a line that never exists at play time.
+  SHUFFLE=53 mixed "$OUT/r4-cases.jsonl" 5131:20:random 5132:20:random 5133:20:random \
+      5134:20:random
+  collect "$OUT/r4-cases.jsonl" "$OUT/r4-vlm.jsonl" r4-vlm --workers 2 \
+      --actor vlm --actor-opts "{\"model\": \"$OUT/vlm-text-r3/final\"}"
+  for f in s-r01 r2-all r3-vlm r4-vlm; do
+    python -c 'import json, sys
+for line in sys.stdin:
+    if not json.loads(line).get("teacher_added", False):
+        sys.stdout.write(line)' < "$OUT/$f.jsonl" > "$OUT/na-$f.jsonl"
+  done
+  python scripts/vlm_continue.py --model tiny:qwen3_vl:mini --map text \
+      --states "$OUT/na-s-r01.jsonl" "$OUT/na-r2-all.jsonl" "$OUT/na-r3-vlm.jsonl" \
+      "$OUT/na-r4-vlm.jsonl" --cases "$OUT/train-all.jsonl" \
+      --states-cases "$OUT/r2-cases.jsonl" "$OUT/r3-cases.jsonl" "$OUT/r4-cases.jsonl" \
       --out "$OUT/vlm-text" --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
   # 7. PPO continued from step 4's final/ on every family: 510 updates (522,240 env steps;
   #    chosen at 45 min over 80 min and best/, 0.797 vs 0.792, 0.784).
