@@ -60,8 +60,9 @@ class Budget:
     depth: int = 10  # placements per rollout after the first (all shown objects when larger)
     time_s: float | None = None  # anytime limit (not bit-reproducible when set)
     beam: int = 1  # partial rollouts kept per depth, and placements tried per kept rollout
-    #: The base policies that roll each first placement out (:data:`ROLLOUT_BASES`); a first
-    #: placement costs the cheapest of its rollouts.
+    #: The base policies that roll each first placement out (``_BASES``); a first placement
+    #: costs the cheapest of its rollouts. The beam (``beam`` > 1) extends by SDF-Pack's
+    #: ranking only and does not read it.
     rollout: RolloutBase = "sdf"
 
 
