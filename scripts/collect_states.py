@@ -3,7 +3,7 @@
 Usage:
     python scripts/collect_states.py CASES OUT.jsonl SOURCE
         [--actor irbpp --actor-opts '{"model": DIR}'] [--robot structured-light|stereo]
-        [--skip N] [--first N] [--workers 2]
+        [--skip N] [--first N] [--workers 2] [--teacher plan|mc [--mc-base proposer]]
 
 Without ``--actor`` the planner plays its own trajectories (round 0); with one, the named policy
 acts and the planner labels every state it reaches (a DAgger round: the states a student's own
@@ -11,6 +11,11 @@ mistakes lead to). ``--robot`` plays on the honest robot path (MuJoCo, perceived
 that preset), so the rows hold what a robot cell is shown. The cases are checked by content
 against every bundled suite and the reference's benchmark before anything is played; a rerun
 skips the cases already in OUT (resumable).
+
+``--teacher mc`` labels with the Monte-Carlo rollout teacher instead
+(:mod:`packlab.vlm.candidate.rollout_teacher`: each listed line played to the episode's end on
+the case's true future, a privileged training-time label; exact episodes only). Tried for the
+pointer LM's random-box states in session 54 and not shipped (docs/vlm.md).
 """
 
 from __future__ import annotations
@@ -25,6 +30,11 @@ from packlab.cases.load import load_cases
 from packlab.core.errors import ConfigError
 from packlab.datagen.guard import require_training_cases
 from packlab.vlm.candidate.collect import RobotPath, collect
+from packlab.vlm.candidate.rollout_teacher import (
+    DEFAULT_BASE,
+    DEFAULT_TEMPERATURE,
+    collect_rollout_labels,
+)
 
 
 def main() -> None:
@@ -38,13 +48,32 @@ def main() -> None:
     p.add_argument("--skip", type=int, default=0, help="leave out the first N cases")
     p.add_argument("--first", type=int, default=None, help="then play at most N cases")
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument(
+        "--teacher",
+        choices=["plan", "mc"],
+        default="plan",
+        help="plan: the planner labels (default); mc: each listed line played to the end on the "
+        "case's true future (privileged, training-time only; exact geometric episodes)",
+    )
+    p.add_argument(
+        "--mc-base", default=DEFAULT_BASE, help="mc: the policy that plays each line out"
+    )
+    p.add_argument("--temperature", type=float, default=DEFAULT_TEMPERATURE,
+                   help="mc: the soft target's temperature (Overall units)")  # fmt: skip
     a = p.parse_args()
     cases = require_training_cases(load_cases(a.cases), a.cases)[a.skip :]
     cases = cases[: a.first] if a.first is not None else cases
     actor = (a.actor, json.loads(a.actor_opts)) if a.actor else None
     robot = RobotPath(a.robot) if a.robot else None
     start = time.monotonic()
-    n = collect(cases, Path(a.out), "plan", a.source, actor=actor, workers=a.workers, robot=robot)
+    if a.teacher == "mc":
+        if robot is not None:
+            raise ConfigError("--teacher mc plays exact geometric episodes: drop --robot")
+        n = collect_rollout_labels(cases, Path(a.out), a.source, actor=actor, base=a.mc_base,
+                                   temperature=a.temperature, workers=a.workers)  # fmt: skip
+    else:
+        n = collect(cases, Path(a.out), "plan", a.source, actor=actor, workers=a.workers,
+                    robot=robot)  # fmt: skip
     print(f"{n} states appended to {a.out} in {time.monotonic() - start:.0f} s", flush=True)
 
 

@@ -140,11 +140,26 @@ def collect(
     jobs = [
         _Job(c, teacher, proposer, source, actor, robot) for c in cases if c.episode_id not in done
     ]
+    return play_and_append(_play, jobs, out, f"collect {source}", workers, progress, on_case)
+
+
+def play_and_append(
+    play: Callable[[Any], tuple[str, list[LabelledState], float]],
+    jobs: Sequence[Any],
+    out: Path,
+    desc: str,
+    workers: int,
+    progress: bool,
+    on_case: Callable[[str, float], None] | None = None,
+) -> int:
+    """Run ``play`` on every job in worker processes and append each finished case's states to
+    ``out`` at once (a crash loses only the cases in flight); the number of states appended.
+    ``play`` returns (case id, states, the actor's Overall) and must be picklable."""
     out.parent.mkdir(parents=True, exist_ok=True)
     written = 0
-    bar = tqdm(total=len(jobs), desc=f"collect {source}", unit="case", disable=not progress)
+    bar = tqdm(total=len(jobs), desc=desc, unit="case", disable=not progress)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for case_id, states, overall in pool.map(_play, jobs, chunksize=1):
+        for case_id, states, overall in pool.map(play, jobs, chunksize=1):
             written += append_states(out, states)
             if on_case is not None:
                 on_case(case_id, overall)
