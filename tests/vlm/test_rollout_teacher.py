@@ -55,7 +55,7 @@ def test_line_values_are_the_played_out_overall_and_leave_the_episode_alone(case
     listed = propose_from(observation_candidates(obs), DEFAULT_PROPOSER)
     assert len(listed) > 1
     heightmap, steps = env.heightmap.copy(), len(env.steps)
-    values = line_values(env, listed, base.act)
+    values = line_values(env, listed, lambda: base.act)
     # The copies played to the end; the episode itself did not move.
     assert np.array_equal(env.heightmap, heightmap) and len(env.steps) == steps and not env.done
     assert all(0.0 <= v <= 1.0 for v in values)

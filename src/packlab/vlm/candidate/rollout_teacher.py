@@ -64,13 +64,17 @@ def play_out(env: Episode, base: Callable) -> float:
     return env.metrics().overall
 
 
-def line_values(env: Episode, listed: Sequence[Candidate], base: Callable) -> list[float]:
-    """Each listed line's value: a copy of ``env`` plays it, then ``base`` plays to the end."""
+def line_values(
+    env: Episode, listed: Sequence[Candidate], new_base: Callable[[], Callable]
+) -> list[float]:
+    """Each listed line's value: a copy of ``env`` plays it, then a fresh base policy
+    (``new_base()``, its ``act``) plays to the end. Fresh per line: a policy that keeps episode
+    state (the planner's filling) must not carry one branch's into the next."""
     values = []
     for line in listed:
         branch = copy.deepcopy(env)
         branch.step(line.action)
-        values.append(play_out(branch, base))
+        values.append(play_out(branch, new_base()))
     return values
 
 
@@ -94,11 +98,15 @@ class _Job:
 def _play(job: _Job) -> tuple[str, list[LabelledState], float]:
     """Play one case with the actor (or the base policy) and label every state it reaches."""
     case = job.case
-    base = make_policy(job.base)
-    base.reset(case, 0)
-    actor = make_policy(job.actor[0], **job.actor[1]) if job.actor is not None else None
-    if actor is not None:
-        actor.reset(case, 0)
+
+    def new_base() -> Callable:
+        policy = make_policy(job.base)
+        policy.reset(case, 0)
+        return policy.act
+
+    spec = job.actor if job.actor is not None else (job.base, {})
+    actor = make_policy(spec[0], **spec[1])
+    actor.reset(case, 0)
     fingerprint = case_fingerprint(case)
     env = Episode("geometric")
     observation = env.reset(case, 0)
@@ -106,14 +114,14 @@ def _play(job: _Job) -> tuple[str, list[LabelledState], float]:
     while not env.done:
         listed = propose_from(observation_candidates(observation), job.proposer)
         if listed:
-            values = line_values(env, listed, base.act)
+            values = line_values(env, listed, new_base)
             label, soft = int(np.argmax(values)), soft_target(values, job.temperature)
             row = make_state(
                 case.episode_id, case.difficulty, observation, listed, teacher_name(job.base),
                 label, job.source, soft, False, fingerprint,
             )  # fmt: skip
             rows.append(row)
-        env.step((actor or base).act(observation))
+        env.step(actor.act(observation))
         if not env.done:
             observation = env.observe()
     return case.episode_id, rows, env.metrics().overall
