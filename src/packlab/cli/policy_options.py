@@ -186,6 +186,7 @@ _PLAN = PolicyOptions(
         "guillotine_boxes",
         "complete",
         "mixed",
+        "finale",
         "stability",
         "overflow",
         "guide",
@@ -194,6 +195,7 @@ _PLAN = PolicyOptions(
     ),
     {
         "mixed": _switch,
+        "finale": _switch,
         "guide": _one_of(("none", *choices(RLAgent))),
         "guide_model": _agent_dir,
         "guide_first": _whole(0),

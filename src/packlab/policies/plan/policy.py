@@ -39,6 +39,7 @@ from packlab.policies.plan.complete import Completion, CompletionConfig, find_co
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.finale import finale_decision
 from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.proposer import first_placements
@@ -99,6 +100,12 @@ class PlanPolicy:
     overflowed: int = 0
     #: A trained agent whose preferred placements the lookahead rolls out too (:mod:`.guide`).
     guide: AgentGuide = field(default_factory=AgentGuide)
+    #: With every remaining box in view, set one aside where that ends the episode higher than
+    #: the lookahead's placement, which raises the top (:mod:`.finale`; with ``overflow=score``
+    #: only).
+    finale: bool = True
+    #: Decisions the finale turned into a set-aside.
+    finales: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Forget the last episode's filling; the plan never reads the case (its future objects)."""
@@ -149,6 +156,13 @@ class PlanPolicy:
         if first is None:  # nothing fits the floor: an out-of-bounds step sets object 0 aside
             return PlanDecision(Action(object_id=0, rotation=0, x=0, y=0), None)
         action = Action(first.object_index, first.rotation, first.x, first.y)
+        # The finale is the ``score`` overflow rule's comparison carried to the last boxes in
+        # view; ``overflow=place`` (never set a box aside) turns it off with the rest of it.
+        finale = self.finale and self.overflow == "score"
+        aside = finale_decision(observation, action) if finale else None
+        if aside is not None:
+            self.finales += 1
+            return PlanDecision(aside, None)
         return PlanDecision(action, None)
 
     def _completion(self, observation: Observation) -> Completion | None:
@@ -218,9 +232,9 @@ _ENDGAME_KEYS = {
     "guillotine_nodes": "guillotine_nodes",
     "guillotine_boxes": "guillotine_boxes",
 }
-#: ``complete`` (the completion stage at all) and ``mixed`` (its last stage: a tiling of mixed
-#: heights, :attr:`.complete.CompletionConfig.mixed`).
-_SWITCHES = ("complete", "mixed")
+#: ``complete`` (the completion stage at all), ``mixed`` (its last stage: a tiling of mixed
+#: heights, :attr:`.complete.CompletionConfig.mixed`) and ``finale`` (:mod:`.finale`).
+_SWITCHES = ("complete", "mixed", "finale")
 _WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
 #: The agent guiding the lookahead (:class:`.guide.AgentGuide`: agent, model, first).
 _GUIDE_KEYS = ("guide", "guide_model", "guide_first")
@@ -293,6 +307,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         endgame=Endgame(endgame),
         overflow=overflow,
         guide=guide,
+        finale=switches.get("finale", True),
     )
 
 
