@@ -22,6 +22,7 @@ from typing import Any
 from packlab.core.choices import (
     HEURISTICS,
     RUNTIMES,
+    CommitRule,
     HistoryMode,
     ImageMode,
     OverflowRule,
@@ -187,6 +188,7 @@ _PLAN = PolicyOptions(
         "complete",
         "mixed",
         "finale",
+        "commit",
         "stability",
         "overflow",
         "guide",
@@ -196,6 +198,7 @@ _PLAN = PolicyOptions(
     {
         "mixed": _switch,
         "finale": _switch,
+        "commit": _one_of(choices(CommitRule)),
         "guide": _one_of(("none", *choices(RLAgent))),
         "guide_model": _agent_dir,
         "guide_first": _whole(0),

@@ -50,6 +50,8 @@ RolloutBase = Literal["sdf", "lowest", "sdf+lowest", "sdf+lowest+flush"]
 #: the box that sticks out least (the literature's rule, every heuristic's default) or
 #: ``score``: place one only where that raises the episode's Overall, else set one aside.
 OverflowRule = Literal["place", "score"]
+#: Which box of a guess the planner commits (``policies/plan/complete.commit_of``).
+CommitRule = Literal["enclosed", "first"]
 #: SFT export of a dataset: one chat example per step (its history as context), per episode, none.
 SFTExport = Literal["per_step", "per_episode", "none"]
 #: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).

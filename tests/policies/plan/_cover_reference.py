@@ -194,7 +194,9 @@ def exact_cover(
             return CoverResult(None, search.nodes, True)
     if not search.found:
         return CoverResult(None, search.nodes, False)
-    return CoverResult(max(search.found, key=_narrowest_joker), search.nodes, False)
+    best = max(search.found, key=_narrowest_joker)
+    # Every tiling found, as the fast search reports them for a guess (its commit rule).
+    return CoverResult(best, search.nodes, False, tuple(search.found) if rules.jokers else ())
 
 
 def _narrowest_joker(slots: tuple[Slot, ...]) -> int:

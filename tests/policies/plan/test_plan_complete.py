@@ -162,3 +162,35 @@ def test_the_mixed_stage_leaves_out_boxes_that_would_pass_the_lid():
     shown = _shown([(2, 2, 100), (2, 2, 460)])
     hm = np.zeros((4, 2), dtype=np.int32)
     assert find_completion(hm, shown, 400, unseen=0, smallest_side=2) is None
+
+
+def test_a_guess_commits_its_most_enclosed_box():
+    from packlab.policies.plan.complete import commit_of, enclosed_sides
+    from packlab.policies.plan.cover import JOKER, CoverResult, Slot
+
+    region = np.ones((6, 4), dtype=bool)
+    region[:, 3] = False  # the row y = 3 is taken: a box at y = 2 is closed in on that side
+    # The chosen tiling's first real box (scan order) stands between a joker and the open
+    # region; another tiling the guess enumerated puts a box in the corner (x = 0, y = 2: a wall
+    # and the taken row), closed in on two sides.
+    floating = Slot(0, 0, 2, 0, 2, 2)  # walls: y = 0 only
+    corner = Slot(1, 0, 0, 2, 2, 1)  # walls: x = 0, y + fy = 3 (taken row)
+    joker = Slot(JOKER, 0, 0, 0, 2, 2)
+    chosen = (joker, floating, Slot(JOKER, 0, 4, 0, 2, 3))
+    other = (joker, corner, Slot(JOKER, 0, 2, 0, 4, 3))
+    assert enclosed_sides(region, floating) == 1 and enclosed_sides(region, corner) == 2
+    guess = CoverResult(chosen, 10, False, (chosen, other))
+    assert commit_of(guess, region) == corner
+    assert commit_of(guess, region, "first") == floating  # the rule before
+    exact = CoverResult((floating, corner), 10, False, ())
+    assert commit_of(exact, region) == floating  # an exact tiling: every box is certain
+
+
+def test_the_commit_rule_is_an_option_and_refuses_an_unknown_name():
+    from packlab.core.errors import ConfigError
+    from packlab.policies import make_policy
+
+    assert make_policy("plan", commit="first").completion.commit == "first"
+    assert make_policy("plan-fast").completion.commit == "enclosed"
+    with pytest.raises(ConfigError, match="commit"):
+        make_policy("plan", commit="middle")

@@ -62,6 +62,9 @@ class CoverResult:
     slots: tuple[Slot, ...] | None
     nodes: int
     exhausted: bool  # the budget ran out before the search could answer
+    #: Every tiling the search found (``CoverRules.tilings`` > 1: a guess), in search order;
+    #: ``slots`` is one of them. Empty when only one was looked for.
+    tilings: tuple[tuple[Slot, ...], ...] = ()
 
 
 class _OutOfBudget(Exception):
@@ -401,7 +404,8 @@ def exact_cover(
             return CoverResult(None, search.nodes, True)
     if not search.found:
         return CoverResult(None, search.nodes, False)
-    return CoverResult(max(search.found, key=_narrowest_joker), search.nodes, False)
+    best = max(search.found, key=_narrowest_joker)
+    return CoverResult(best, search.nodes, False, tuple(search.found) if rules.jokers else ())
 
 
 def _narrowest_joker(slots: tuple[Slot, ...]) -> int:

@@ -30,16 +30,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from packlab.core.choices import OverflowRule, RolloutBase, StabilityCheck, require_choice
+from packlab.core.choices import (
+    CommitRule,
+    OverflowRule,
+    RolloutBase,
+    StabilityCheck,
+    require_choice,
+)
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
+from packlab.policies.finale import with_finale
 from packlab.policies.overflow import overflow_decision
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
-from packlab.policies.plan.finale import finale_decision
 from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.proposer import first_placements
@@ -158,12 +164,9 @@ class PlanPolicy:
         action = Action(first.object_index, first.rotation, first.x, first.y)
         # The finale is the ``score`` overflow rule's comparison carried to the last boxes in
         # view; ``overflow=place`` (never set a box aside) turns it off with the rest of it.
-        finale = self.finale and self.overflow == "score"
-        aside = finale_decision(observation, action) if finale else None
-        if aside is not None:
-            self.finales += 1
-            return PlanDecision(aside, None)
-        return PlanDecision(action, None)
+        final = with_finale(observation, action, self.overflow) if self.finale else action
+        self.finales += int(final != action)
+        return PlanDecision(final, None)
 
     def _completion(self, observation: Observation) -> Completion | None:
         seen = [s for h in observation.history for s in h.shown] + list(observation.shown)
@@ -188,9 +191,9 @@ class PlanPolicy:
 
 
 def committed_slot(found: Completion, observation: Observation) -> Slot | None:
-    """The box of a tiling to place now: its first real box, or (online protocol) the first
-    shown box's slot; None when the tiling leaves that box out, so the search decides. Every
-    box of a tiling rests on the same level, so any of them may go first."""
+    """The box of a tiling to place now: its commit (:func:`.complete.commit_of`), or (online
+    protocol) the first shown box's slot; None when the tiling leaves that box out, so the
+    search decides. Every box of a tiling rests on the same level, so any may go first."""
     if not observation.must_place_first:
         return found.commit
     return next((s for s in found.slots if observation.placeable(s.key)), None)
@@ -269,11 +272,13 @@ def make_plan(**options: Any) -> PlanPolicy:
     require_choice(stability, StabilityCheck, "plan: stability")
     overflow = options.pop("overflow", "score")
     require_choice(overflow, OverflowRule, "plan: overflow")
+    commit = options.pop("commit", "enclosed")
+    require_choice(commit, CommitRule, "plan: commit")
     option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES)
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
-        extra = {"stability", "overflow", *_GUIDE_KEYS}
+        extra = {"stability", "overflow", "commit", *_GUIDE_KEYS}
         known = ", ".join(sorted(known_keys | extra))
         raise ConfigError(f"plan: unknown option {unknown[0]!r}; options: {known}")
     budget = Budget(**{k: v for k, v in options.items() if k in _BUDGET_KEYS})
@@ -293,6 +298,7 @@ def make_plan(**options: Any) -> PlanPolicy:
             if k in _COMPLETION_KEYS
         },
         mixed=_switch("mixed", options.get("mixed", True)),
+        commit=commit,
     )
     endgame = EndgameConfig(
         **{_ENDGAME_KEYS[k]: _count(k, v) for k, v in options.items() if k in _ENDGAME_KEYS}

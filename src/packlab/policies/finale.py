@@ -21,6 +21,12 @@ other boxes can then fill under the raised top, which the one-box rule cannot se
 
 Nothing is known of the order's length when a run hides ``remaining``, and under the online
 protocol the arriving box must be placed: the rule stays out of both.
+
+It is part of the ``score`` overflow rule (:data:`packlab.core.choices.OverflowRule`): every
+policy that takes that rule (the planner, the learned policies, the students' proposer, a
+heuristic given ``overflow=score``) passes its chosen action through :func:`with_finale`, so a
+student's lead over the rule it chooses from is never the rule's. Like the rest of the overflow
+rule it is not learning: the same function outside every network.
 """
 
 from __future__ import annotations
@@ -29,10 +35,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from packlab.core.choices import OverflowRule
 from packlab.core.feasibility import CandidateSet, search_candidates
 from packlab.core.types import Action, Observation, ShownItem
 from packlab.policies.features import LEVEL_TOLERANCE_MM
-from packlab.policies.heuristics import sdf
 from packlab.policies.overflow import packed_inside_volume
 from packlab.sim.heightmap import place_box
 
@@ -60,6 +66,10 @@ GREEDY_ORDERS = ("sdf", "lowest", "largest")
 def _keeping_order(cands: CandidateSet, keeps: np.ndarray, order: str) -> int:
     """The candidate (an index into ``cands``) the greedy ``order`` takes among ``keeps``."""
     if order == "sdf":
+        # Imported here: the heuristics' own policy module takes this rule (``with_finale``),
+        # so a module-level import would be circular.
+        from packlab.policies.heuristics import sdf
+
         keys = tuple(np.asarray(k)[keeps] for k in sdf.score(cands))
     elif order == "lowest":
         keys = (cands.z[keeps], cands.x[keeps], cands.y[keeps])
@@ -153,3 +163,11 @@ def finale_decision(observation: Observation, action: Action) -> Action | None:
         if end > best * (1 + 1e-9):  # strictly better: ties keep the placement
             best, aside = end, k
     return None if aside is None else Action.set_aside(aside)
+
+
+def with_finale(observation: Observation, action: Action, rule: OverflowRule) -> Action:
+    """``action``, or the set-aside :func:`finale_decision` prefers to it under rule ``score``."""
+    if rule != "score":
+        return action
+    aside = finale_decision(observation, action)
+    return action if aside is None else aside
