@@ -54,7 +54,6 @@ from packlab.policies.features import (
     support_cells_at,
     walled,
 )
-from packlab.policies.finale import with_finale
 from packlab.policies.heuristics.policy import make_sdf
 from packlab.policies.heuristics.select import rim_pool
 from packlab.policies.overflow import overflow_decision
@@ -321,8 +320,7 @@ class ProposerPolicy:
         if overflowed is not None:
             return overflowed
         listed = propose_from(cands, self.config)
-        action = listed[0].action if listed else self._fallback.act(observation)
-        return with_finale(observation, action, self.overflow)
+        return listed[0].action if listed else self._fallback.act(observation)
 
 
 def make_proposer(**kwargs: object) -> ProposerPolicy:

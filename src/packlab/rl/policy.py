@@ -25,7 +25,6 @@ from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet, observation_candidates
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.finale import with_finale
 from packlab.policies.model_cache import load_once
 from packlab.policies.overflow import overflow_decision
 from packlab.rl.card import CARD_FILE, AgentCard, read_card
@@ -140,7 +139,7 @@ class RLAgentPolicy:
         if overflowed is not None:
             return overflowed
         encoded = encode(observation, playing.spec, cands)
-        return with_finale(observation, decide(encoded, playing.row_logits), self.overflow)
+        return decide(encoded, playing.row_logits)
 
     def ranked_placements(self, observation: Observation, cands: CandidateSet) -> list[int]:
         """The agent's listed placements as flat indices into ``cands`` (the observation's

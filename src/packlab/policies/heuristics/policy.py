@@ -23,7 +23,6 @@ from packlab.core.choices import OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.finale import with_finale
 from packlab.policies.heuristics import dblf, ffp, hm, mta, sdf
 from packlab.policies.heuristics.select import (
     DEFAULT_TIE_BREAK,
@@ -70,7 +69,7 @@ def decide(
     index = choose(cands, scorer(cands), tie_break)
     if index is None:
         return replace(NO_CANDIDATE_ACTION, object_id=first_object(cands, tie_break))
-    return with_finale(observation, to_action(cands, index), overflow)
+    return to_action(cands, index)
 
 
 @dataclass(frozen=True, slots=True)

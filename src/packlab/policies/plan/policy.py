@@ -40,12 +40,12 @@ from packlab.core.choices import (
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation
-from packlab.policies.finale import with_finale
 from packlab.policies.overflow import overflow_decision
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
+from packlab.policies.plan.finale import with_finale
 from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.proposer import first_placements

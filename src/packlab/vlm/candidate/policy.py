@@ -32,7 +32,6 @@ from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
-from packlab.policies.finale import with_finale
 from packlab.policies.model_cache import load_once
 from packlab.policies.overflow import overflow_decision
 from packlab.policies.registry import make_policy
@@ -180,12 +179,7 @@ class CandidateVLMPolicy:
                 self._generate(self._model, observation, listed, self._settings)
             )
         scores = self._score(self._model, observation, listed, self._settings)
-        picked = pick_listed(listed, scores)
-        return (
-            with_finale(observation, picked, self.overflow)
-            if isinstance(picked, Action)
-            else picked
-        )
+        return pick_listed(listed, scores)
 
 
 def pick_listed(listed: Any, scores: Any) -> Action | Unparsable:
