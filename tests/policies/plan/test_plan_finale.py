@@ -8,7 +8,7 @@ import pytest
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Container, HistoryEntry, Observation, ShownItem
 from packlab.policies import make_policy
-from packlab.policies.plan.finale import everything_in_view, finale_decision, greedy_end
+from packlab.policies.plan.finale import Pile, everything_in_view, finale_decision, greedy_end
 
 CONTAINER = Container((100, 100, 100))  # 4 x 4 cells of 25 mm, rim at 100 mm
 
@@ -54,7 +54,7 @@ def test_boxes_that_fill_a_raised_top_together_are_placed():
     obs = _observation(hm, shown, [past], remaining=2)
     assert finale_decision(obs, Action(0, 0, 0, 0)) is None
     volume = 100 * 100 * 40
-    v, h = greedy_end(hm, shown[1:], 100, 25, volume, 40)  # the other box set aside
+    v, h = greedy_end(Pile(hm, volume, 40, 100, 25), shown[1:])  # the other box set aside
     assert (v, h) == (volume, 40)  # the last box alone is not worth raising the top for
 
 
@@ -78,7 +78,7 @@ def test_only_when_every_remaining_box_is_in_view(remaining):
 def test_the_greedy_end_places_under_the_top_before_raising_it():
     hm, _ = _layer(40, 1)
     shown = [_item(0, (50, 50, 40)), _item(1, (100, 25, 40))]
-    v, h = greedy_end(hm, shown, 100, 25, 100 * 75 * 40, 40)
+    v, h = greedy_end(Pile(hm, 100 * 75 * 40, 40, 100, 25), shown)
     # The strip box goes into the gap; the square one is then not worth a doubled top.
     assert (v, h) == (100 * 100 * 40, 40)
 

@@ -31,6 +31,7 @@ doubled its mean decision time on the hard level (docs/planner.md, session 55).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -75,18 +76,22 @@ def _keeping_order(cands: CandidateSet, keeps: np.ndarray, order: str) -> int:
     return int(keeps[np.lexsort(tuple(reversed(keys)))[0]])
 
 
-def greedy_end(
-    heightmap: np.ndarray,
-    items: Sequence[ShownItem],
-    rim_mm: int,
-    cell_mm: int,
-    volume: float,
-    height: int,
-    order: str = "sdf",
-) -> tuple[float, int]:
-    """(V, H) after the greedy play of ``items`` in ``order`` (module docstring) from
-    ``heightmap``, where V and H are ``volume`` and ``height`` before it."""
-    hm = heightmap
+@dataclass(frozen=True, slots=True)
+class Pile:
+    """What the rule scores a state by: the heightmap (mm), V (mm^3 packed inside the rim) and
+    H (mm, the highest cell), in a container of ``rim_mm`` and ``cell_mm`` cells."""
+
+    heightmap: np.ndarray
+    volume: float
+    height: int
+    rim_mm: int
+    cell_mm: int
+
+
+def greedy_end(pile: Pile, items: Sequence[ShownItem], order: str = "sdf") -> tuple[float, int]:
+    """(V, H) after the greedy play of ``items`` in ``order`` (module docstring) from ``pile``."""
+    hm, volume, height = pile.heightmap, pile.volume, pile.height
+    rim_mm, cell_mm = pile.rim_mm, pile.cell_mm
     left = list(items)
     while left:
         cands = search_candidates(hm, left, rim_mm, cell_mm)
@@ -110,19 +115,9 @@ def greedy_end(
     return volume, height
 
 
-def best_end(
-    heightmap: np.ndarray,
-    items: Sequence[ShownItem],
-    rim_mm: int,
-    cell_mm: int,
-    volume: float,
-    height: int,
-) -> float:
+def best_end(pile: Pile, items: Sequence[ShownItem]) -> float:
     """The best V**2 / H over the :data:`GREEDY_ORDERS` of :func:`greedy_end`."""
-    ends = (
-        greedy_end(heightmap, items, rim_mm, cell_mm, volume, height, order)
-        for order in GREEDY_ORDERS
-    )
+    ends = (greedy_end(pile, items, order) for order in GREEDY_ORDERS)
     return max(_ratio(v, h) for v, h in ends)
 
 
@@ -152,10 +147,11 @@ def finale_decision(observation: Observation, action: Action) -> Action | None:
     placed = place_box(hm, *(int(a[i]) for a in (chosen.x, chosen.y, chosen.fx, chosen.fy)), top)
     others = shown[: action.object_id] + shown[action.object_id + 1 :]
     box = float(np.prod(shown[action.object_id].size_mm)) * inside
-    best = best_end(placed, others, rim, cell, volume + box, max(height, top))
+    best = best_end(Pile(placed, volume + box, max(height, top), rim, cell), others)
+    now = Pile(hm, volume, height, rim, cell)
     aside = None
     for k in range(len(shown)):
-        end = best_end(hm, shown[:k] + shown[k + 1 :], rim, cell, volume, height)
+        end = best_end(now, shown[:k] + shown[k + 1 :])
         if end > best * (1 + 1e-9):  # strictly better: ties keep the placement
             best, aside = end, k
     return None if aside is None else Action.set_aside(aside)
