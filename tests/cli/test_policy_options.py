@@ -39,7 +39,7 @@ def test_option_names_match_the_factories():
         *plan._ENDGAME_KEYS,
         *plan._SWITCHES,
     }
-    assert keys("plan") == plan_keys | {"stability", "overflow", *plan._GUIDE_KEYS}
+    assert keys("plan") == plan_keys | {"stability", "overflow", "commit", *plan._GUIDE_KEYS}
     assert keys("irbpp") == keys("tapnet") == set(RL_OPTIONS)
     assert keys("vlm") == set(inspect.signature(VLMPolicy).parameters) | set(CANDIDATE_ARGS)
     assert keys("endpoint") == set(inspect.signature(EndpointPolicy).parameters)

@@ -144,7 +144,8 @@ def finale_decision(observation: Observation, action: Action) -> Action | None:
         return None  # keeps the top: nothing to weigh
     volume = float(packed_inside_volume(observation))
     inside = 2 * int(chosen.z[i]) + int(chosen.h[i]) <= 2 * rim
-    placed = place_box(hm, *(int(a[i]) for a in (chosen.x, chosen.y, chosen.fx, chosen.fy)), top)
+    x, y, fx, fy = (int(a[i]) for a in (chosen.x, chosen.y, chosen.fx, chosen.fy))
+    placed = place_box(hm, x, y, fx, fy, top)
     others = shown[: action.object_id] + shown[action.object_id + 1 :]
     box = float(np.prod(shown[action.object_id].size_mm)) * inside
     best = best_end(Pile(placed, volume + box, max(height, top), rim, cell), others)
