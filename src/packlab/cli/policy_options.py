@@ -188,6 +188,7 @@ _PLAN = PolicyOptions(
         "complete",
         "mixed",
         "finale",
+        "finale_boxes",
         "commit",
         "stability",
         "overflow",
@@ -198,6 +199,7 @@ _PLAN = PolicyOptions(
     {
         "mixed": _switch,
         "finale": _switch,
+        "finale_boxes": _whole(1),
         "commit": _one_of(choices(CommitRule)),
         "guide": _one_of(("none", *choices(RLAgent))),
         "guide_model": _agent_dir,

@@ -75,6 +75,27 @@ def test_only_when_every_remaining_box_is_in_view(remaining):
     assert finale_decision(obs, Action(0, 0, 0, 0)) is None
 
 
+def test_only_with_few_boxes_in_view():
+    # The same last two boxes as the first test: the rule decides with up to ``max_boxes`` in
+    # view (the planner's default 8), and stands aside above it, where a greedy play would be
+    # a poor model of a long future.
+    from packlab.policies.plan.finale import FINALE_BOXES
+
+    hm, past = _layer(40, 1)
+    shown = [_item(0, (50, 50, 40)), _item(1, (100, 25, 40))]
+    obs = _observation(hm, shown, [past], remaining=2)
+    assert finale_decision(obs, Action(0, 0, 0, 0), max_boxes=2) == Action.set_aside(0)
+    assert finale_decision(obs, Action(0, 0, 0, 0), max_boxes=1) is None
+    assert make_policy("plan").finale_boxes == make_policy("plan-fast").finale_boxes == 8
+    assert FINALE_BOXES == 8
+
+
+def test_the_limit_is_an_option_of_plan_and_refuses_zero():
+    assert make_policy("plan-fast", finale_boxes=3).finale_boxes == 3
+    with pytest.raises(ConfigError, match="finale_boxes"):
+        make_policy("plan", finale_boxes=0)
+
+
 def test_the_greedy_end_places_under_the_top_before_raising_it():
     hm, _ = _layer(40, 1)
     shown = [_item(0, (50, 50, 40)), _item(1, (100, 25, 40))]

@@ -22,7 +22,9 @@ for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
 ``completed`` counts the decisions it took), and ``guide`` (``none``, the default, ``irbpp`` or
 ``tapnet``), ``guide_model`` (that agent's directory; default the shipped one) and
 ``guide_first`` (default 2): a trained agent's preferred placements rolled out by the
-lookahead beside its own (:mod:`.guide`).
+lookahead beside its own (:mod:`.guide`), and ``finale`` (true/false) with ``finale_boxes``
+(default 8): the last boxes' set-aside rule and the most boxes in view it decides for
+(:mod:`.finale`).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from packlab.policies.plan.complete import Completion, CompletionConfig, find_co
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
-from packlab.policies.plan.finale import with_finale
+from packlab.policies.plan.finale import FINALE_BOXES, with_finale
 from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.proposer import first_placements
@@ -110,6 +112,8 @@ class PlanPolicy:
     #: the lookahead's placement, which raises the top (:mod:`.finale`; with ``overflow=score``
     #: only).
     finale: bool = True
+    #: The most boxes in view for which the finale decides (:data:`.finale.FINALE_BOXES`).
+    finale_boxes: int = FINALE_BOXES
     #: Decisions the finale turned into a set-aside.
     finales: int = 0
 
@@ -164,7 +168,11 @@ class PlanPolicy:
         action = Action(first.object_index, first.rotation, first.x, first.y)
         # The finale is the ``score`` overflow rule's comparison carried to the last boxes in
         # view; ``overflow=place`` (never set a box aside) turns it off with the rest of it.
-        final = with_finale(observation, action, self.overflow) if self.finale else action
+        final = (
+            with_finale(observation, action, self.overflow, self.finale_boxes)
+            if self.finale
+            else action
+        )
         self.finales += int(final != action)
         return PlanDecision(final, None)
 
@@ -225,6 +233,8 @@ _COMPLETION_KEYS = {
     "joker_seen": "joker_min_seen",
     "guesses": "guesses",
 }
+#: The finale's limit (:data:`.finale.FINALE_BOXES`): at most this many boxes in view.
+_FINALE_KEYS = ("finale_boxes",)
 #: Options of the endgame (:class:`.endgame.EndgameConfig`): ``endgame_nodes`` (node budget
 #: of one skyline search; 0 turns it off), ``endgame_boxes`` (most boxes in view for it),
 #: ``guillotine_nodes`` (node budget of one guillotine assembly on a flat surface; 0 turns it
@@ -274,7 +284,7 @@ def make_plan(**options: Any) -> PlanPolicy:
     require_choice(overflow, OverflowRule, "plan: overflow")
     commit = options.pop("commit", "enclosed")
     require_choice(commit, CommitRule, "plan: commit")
-    option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES)
+    option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES, _FINALE_KEYS)
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
@@ -314,6 +324,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         overflow=overflow,
         guide=guide,
         finale=switches.get("finale", True),
+        finale_boxes=_whole("finale_boxes", options.get("finale_boxes", FINALE_BOXES)),
     )
 
 
