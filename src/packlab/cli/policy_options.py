@@ -181,6 +181,7 @@ _PLAN = PolicyOptions(
         "jokers",
         "joker_seen",
         "guesses",
+        "mixed_jokers",
         "endgame_nodes",
         "endgame_boxes",
         "guillotine_nodes",

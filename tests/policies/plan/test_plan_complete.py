@@ -158,6 +158,26 @@ def test_a_floor_of_mixed_heights_is_tiled_only_by_the_mixed_stage():
     assert find_completion(hm, shown, 500, unseen=0, smallest_side=2, config=off) is None
 
 
+def test_mixed_jokers_bounds_the_mixed_stage_guesses():
+    # One 2 x 2 box on a 4 x 2 floor with boxes still to come: the box and one rectangle for
+    # an unseen box tile the floor. Its height was seen once, so no one-height guess is made;
+    # the mixed stage guesses unless its rectangles are turned off.
+    shown = _shown([(2, 2, 100)])
+    hm = np.zeros((4, 2), dtype=np.int32)
+    found = find_completion(hm, shown, 500, unseen=3, smallest_side=2)
+    assert found is not None and found.height_mm == 0 and found.jokers == 1
+    assert found.commit.key == 0
+    exact_only = dataclasses.replace(CompletionConfig(), mixed_jokers=0)
+    assert find_completion(hm, shown, 500, unseen=3, smallest_side=2, config=exact_only) is None
+
+
+def test_mixed_jokers_is_an_option_of_plan():
+    assert make_policy("plan").completion.mixed_jokers == 3
+    assert make_policy("plan-fast", mixed_jokers=0).completion.mixed_jokers == 0
+    with pytest.raises(ConfigError, match="mixed_jokers"):
+        make_policy("plan", mixed_jokers=-1)
+
+
 def test_the_mixed_stage_leaves_out_boxes_that_would_pass_the_lid():
     shown = _shown([(2, 2, 100), (2, 2, 460)])
     hm = np.zeros((4, 2), dtype=np.int32)

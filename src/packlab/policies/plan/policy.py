@@ -232,6 +232,7 @@ _COMPLETION_KEYS = {
     "jokers": "max_jokers",
     "joker_seen": "joker_min_seen",
     "guesses": "guesses",
+    "mixed_jokers": "mixed_jokers",
 }
 #: The finale's limit (:data:`.finale.FINALE_BOXES`): at most this many boxes in view.
 _FINALE_KEYS = ("finale_boxes",)
