@@ -182,6 +182,7 @@ _PLAN = PolicyOptions(
         "joker_seen",
         "guesses",
         "mixed_jokers",
+        "mixed_evidence",
         "endgame_nodes",
         "endgame_boxes",
         "guillotine_nodes",

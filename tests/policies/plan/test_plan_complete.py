@@ -18,6 +18,7 @@ from packlab.policies.plan.complete import (
     find_completion,
     height_order,
     lowest_components,
+    repeated_height_share,
 )
 from packlab.policies.plan.cover import JOKER
 from packlab.sim.episode import run_episode
@@ -214,3 +215,35 @@ def test_the_commit_rule_is_an_option_and_refuses_an_unknown_name():
     assert make_policy("plan-fast").completion.commit == "enclosed"
     with pytest.raises(ConfigError, match="commit"):
         make_policy("plan", commit="middle")
+
+
+def test_repeated_height_share_counts_boxes_whose_height_another_box_has():
+    assert repeated_height_share([]) == 0.0
+    assert repeated_height_share([100, 60, 80]) == 0.0
+    assert repeated_height_share([100, 60, 100, 80]) == 0.5
+    assert repeated_height_share([90, 90, 90]) == 1.0
+
+
+def test_mixed_evidence_gates_the_mixed_stage_guesses_on_repeated_heights():
+    # The floor and box of test_mixed_jokers_bounds_the_mixed_stage_guesses: the mixed stage's
+    # guess (the box and one rectangle) is made only when enough seen boxes repeat a height.
+    shown = _shown([(2, 2, 100)])
+    hm = np.zeros((4, 2), dtype=np.int32)
+    gated = dataclasses.replace(CompletionConfig(), mixed_evidence=0.5)
+    independent = [100, 60, 80, 70]  # no height repeats: share 0
+    cut = [100, 100, 60, 60]  # every height repeats: share 1
+    assert find_completion(hm, shown, 500, 3, 2, independent, gated) is None
+    found = find_completion(hm, shown, 500, 3, 2, cut, gated)
+    assert found is not None and found.height_mm == 0 and found.jokers == 1
+    # 0 asks for no evidence: the guess is made whatever was seen.
+    assert find_completion(hm, shown, 500, 3, 2, independent, CompletionConfig()) is not None
+    # The gate bounds guesses only: an exact mixed tiling needs no evidence.
+    exact = _shown([(2, 2, 100), (2, 2, 60)])
+    assert find_completion(hm, exact, 500, 0, 2, independent, gated) is not None
+
+
+def test_mixed_evidence_is_an_option_of_plan():
+    assert make_policy("plan-fast", mixed_evidence=0.5).completion.mixed_evidence == 0.5
+    for bad in (-0.1, 1.5, True, "half"):
+        with pytest.raises(ConfigError, match="mixed_evidence"):
+            make_policy("plan", mixed_evidence=bad)

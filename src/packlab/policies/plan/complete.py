@@ -80,6 +80,13 @@ class CompletionConfig:
     #: the guesses win and lose by turns (docs/planner.md, "The mixed stage's guesses",
     #: session 57), so the default keeps them.
     mixed_jokers: int = 3
+    #: A mixed-height tiling may leave rectangles for unseen boxes only when at least this
+    #: share of the boxes seen so far (each once) repeats the exact height of another seen box
+    #: (:func:`repeated_height_share`); exact mixed tilings are always tried. Boxes cut from
+    #: one perfect layout repeat heights (a cut leaves two pieces of one height); boxes drawn
+    #: independently rarely do, and there a guess that unseen boxes will fill the rest of the
+    #: floor is usually wrong. 0: no evidence asked (the behaviour before session 58).
+    mixed_evidence: float = 0.0
 
     @property
     def stages(self) -> tuple[tuple[int, bool], ...]:
@@ -237,8 +244,20 @@ def find_completion(
             smallest_side,
             config,
             config.decision_nodes - spent,
+            repeated_height_share(seen_heights),
         )
     return None
+
+
+def repeated_height_share(seen_heights: Sequence[int]) -> float:
+    """The share of ``seen_heights`` (one entry per box seen) equal to another entry; 0.0 for
+    none seen."""
+    if not seen_heights:
+        return 0.0
+    _, inverse, counts = np.unique(
+        np.asarray(seen_heights), return_inverse=True, return_counts=True
+    )
+    return float(np.count_nonzero(counts[inverse] >= 2)) / len(seen_heights)
 
 
 def _mixed_completion(
@@ -250,9 +269,11 @@ def _mixed_completion(
     smallest_side: int,
     config: CompletionConfig,
     budget_left: int,
+    height_repeats: float,
 ) -> Completion | None:
     """A tiling of one lowest component by shown boxes of any heights that fit under the lid,
-    exact first, then with up to ``config.mixed_jokers`` rectangles for boxes still to come."""
+    exact first, then with up to ``config.mixed_jokers`` rectangles for boxes still to come when
+    ``height_repeats`` (:func:`repeated_height_share`) reaches ``config.mixed_evidence``."""
     pieces = [
         Piece(s.shown_index, s.size_cells[0], s.size_cells[1])
         for s in shown
@@ -260,7 +281,8 @@ def _mixed_completion(
     ]
     if not pieces:
         return None
-    for jokers in range(min(config.mixed_jokers, config.max_jokers, unseen) + 1):
+    guesses = config.mixed_jokers if height_repeats >= config.mixed_evidence else 0
+    for jokers in range(min(guesses, config.max_jokers, unseen) + 1):
         for mask in masks:
             budget = min(config.max_nodes, budget_left)
             if budget <= 0:

@@ -18,7 +18,8 @@ support, :mod:`.stability`; ``decisions`` and ``fallbacks`` count how often that
 choice), ``overflow`` (``score``, the default, or ``place``: what to do when no shown box fits
 under the rim, :mod:`packlab.policies.overflow`; ``overflowed`` counts those decisions), and
 for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
-``jokers``, ``joker_seen``, ``guesses`` (see :class:`.complete.CompletionConfig`;
+``jokers``, ``joker_seen``, ``guesses``, ``mixed_jokers``, ``mixed_evidence`` (see
+:class:`.complete.CompletionConfig`;
 ``completed`` counts the decisions it took), and ``guide`` (``none``, the default, ``irbpp`` or
 ``tapnet``), ``guide_model`` (that agent's directory; default the shipped one) and
 ``guide_first`` (default 2): a trained agent's preferred placements rolled out by the
@@ -225,7 +226,9 @@ _WEIGHT_KEYS = {f"w_{f.name}": f.name for f in fields(Weights)}
 #: Options of the completion stage: ``nodes`` (node budget of one exact-cover search),
 #: ``decision_nodes`` (of all of one decision's searches together), ``jokers`` (most
 #: rectangles a guess leaves for unseen boxes), ``joker_seen`` (how often a height must have
-#: been seen before a guess is made for it), ``guesses`` (tilings a guess compares).
+#: been seen before a guess is made for it), ``guesses`` (tilings a guess compares),
+#: ``mixed_jokers`` and ``mixed_evidence`` (a mixed-height tiling's guesses: how many rectangles,
+#: and the share of seen boxes repeating a height they need).
 _COMPLETION_KEYS = {
     "nodes": "max_nodes",
     "decision_nodes": "decision_nodes",
@@ -233,7 +236,10 @@ _COMPLETION_KEYS = {
     "joker_seen": "joker_min_seen",
     "guesses": "guesses",
     "mixed_jokers": "mixed_jokers",
+    "mixed_evidence": "mixed_evidence",
 }
+#: Completion options that are a share in [0, 1] (the rest are whole numbers).
+_SHARE_KEYS = ("mixed_evidence",)
 #: The finale's limit (:data:`.finale.FINALE_BOXES`): at most this many boxes in view.
 _FINALE_KEYS = ("finale_boxes",)
 #: Options of the endgame (:class:`.endgame.EndgameConfig`): ``endgame_nodes`` (node budget
@@ -264,6 +270,18 @@ def _count(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ConfigError(f"plan: {name} = {value!r}: must be a whole number >= 0")
     return value
+
+
+def _share(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+        raise ConfigError(f"plan: {name} = {value!r}: must be a number from 0 to 1")
+    return float(value)
+
+
+def _completion_option(name: str, value: Any) -> int | float:
+    if name in _SHARE_KEYS:
+        return _share(name, value)
+    return _whole(name, value) if name in _WHOLE_KEYS else _count(name, value)
 
 
 def _switch(name: str, value: Any) -> bool:
@@ -304,7 +322,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
     completion = CompletionConfig(
         **{
-            _COMPLETION_KEYS[k]: _whole(k, v) if k in _WHOLE_KEYS else _count(k, v)
+            _COMPLETION_KEYS[k]: _completion_option(k, v)
             for k, v in options.items()
             if k in _COMPLETION_KEYS
         },
