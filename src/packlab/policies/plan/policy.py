@@ -320,12 +320,14 @@ def make_plan(**options: Any) -> PlanPolicy:
     require_choice(budget.rollout, RolloutBase, "plan: rollout")
     if budget.time_s is not None and not budget.time_s > 0:
         raise ConfigError(f"plan: time_s = {budget.time_s!r}: must be > 0")
+    # Whole numbers and shares by key (_completion_option checked each); Any for mypy.
+    completion_values: dict[str, Any] = {
+        _COMPLETION_KEYS[k]: _completion_option(k, v)
+        for k, v in options.items()
+        if k in _COMPLETION_KEYS
+    }
     completion = CompletionConfig(
-        **{
-            _COMPLETION_KEYS[k]: _completion_option(k, v)
-            for k, v in options.items()
-            if k in _COMPLETION_KEYS
-        },
+        **completion_values,
         mixed=_switch("mixed", options.get("mixed", True)),
         commit=commit,
     )
