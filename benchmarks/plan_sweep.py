@@ -3,12 +3,16 @@
 Usage:
     python benchmarks/plan_sweep.py          # every variant; results in runs/plan-sweep
     python benchmarks/plan_sweep.py --variants default,no-completion,jokers-1
-    python benchmarks/plan_sweep.py --list   # the variants and their options
+    python benchmarks/plan_sweep.py --list   # the variants, families and their options
+    python benchmarks/plan_sweep.py --families random,cut-support,cut-base-height \
+        --variants mixed-evidence-0.5,plan,plan-mixed-evidence-0.5 --out runs/plan-sweep-cut
 
 The cases are generated here, in the ``train`` seed domain (``packlab.datagen.seeds``) with the
 fixed seeds below, never read from a bench suite: 40 cases per level of the layered family in
 each arrival order (``removal``, ``layers``) and 20 per level of the ``stepped`` and ``random``
-families; they pass ``packlab.datagen.guard.require_training_cases`` (bench seeds refused).
+families (``--families`` picks among these and the two cut families, 20 per level in support
+and in base-height order); they pass ``packlab.datagen.guard.require_training_cases`` (bench
+seeds refused).
 Every variant plays every case once on the geometric backend (run seed 0). Results
 are appended per variant to ``OUT/results.jsonl`` as they finish, so an interrupted sweep
 resumes; the table gives each family's mean Overall and the paired difference to ``default``
@@ -40,7 +44,12 @@ FAMILIES = (
     ("layers", CaseConfig(order="layers"), 7302, 40),
     ("stepped", CaseConfig(layout="stepped"), 7303, 20),
     ("random", CaseConfig(layout="random"), 7303, 20),
+    ("cut-support", CaseConfig(layout="cut", order="support"), 7304, 20),
+    ("cut-base-height", CaseConfig(layout="cut", order="base-height"), 7304, 20),
 )
+#: The families a sweep plays unless ``--families`` says otherwise (the defaults' tables in
+#: docs/planner.md were made on these four).
+DEFAULT_FAMILIES = ("removal", "layers", "stepped", "random")
 LEVELS = ("easy", "medium", "hard")
 
 #: label -> (policy, factory options). ``default`` is ``plan-fast`` as shipped.
@@ -66,15 +75,23 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "plan-rollout-lowest": ("plan", {"rollout": "lowest"}),
     "plan-rollout-sdf+lowest": ("plan", {"rollout": "sdf+lowest"}),
     "plan-rollout-sdf+lowest+flush": ("plan", {"rollout": "sdf+lowest+flush"}),
+    # The mixed-height stage's guesses (sessions 57-58, docs/planner.md).
+    "mixed-jokers-0": ("plan-fast", {"mixed_jokers": 0}),
+    "mixed-evidence-0.5": ("plan-fast", {"mixed_evidence": 0.5}),
+    "plan-mixed-jokers-0": ("plan", {"mixed_jokers": 0}),
+    "plan-mixed-evidence-0.5": ("plan", {"mixed_evidence": 0.5}),
+    "depth-10": ("plan-fast", {"depth": 10}),  # plan-fast at plan's depth (session 57)
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),
 }
 
 
-def training_cases() -> list[tuple[str, Case]]:
-    """(family, case) for every generated training case (see the module docstring)."""
+def training_cases(families: tuple[str, ...] = DEFAULT_FAMILIES) -> list[tuple[str, Case]]:
+    """(family, case) for every generated training case of ``families`` (module docstring)."""
     out = []
     for family, config, seed, n in FAMILIES:
+        if family not in families:
+            continue
         for level in LEVELS:
             cases = generate_cases(level, n, seed, validate=False, config=config, domain="train")
             label = f"plan sweep family {family} (seed {seed})"
@@ -108,9 +125,8 @@ def _interval(d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
-def table(results: dict[str, list[dict]]) -> str:
+def table(results: dict[str, list[dict]], families: tuple[str, ...]) -> str:
     rng = np.random.default_rng(0)
-    families = [f for f, *_ in FAMILIES]
     head = "| variant | " + " | ".join(families) + " | all - default [95 % CI] | hard ms |"
     lines = [head, "| --- |" + " ---: |" * (len(families) + 2)]
     base = {r["key"]: r["overall"] for r in results.get("default", [])}
@@ -129,13 +145,21 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default="runs/plan-sweep")
     p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--families", default=",".join(DEFAULT_FAMILIES))
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--list", action="store_true")
     args = p.parse_args(argv)
     if args.list:
         for label, (policy, options) in VARIANTS.items():
             print(f"{label}: {policy} {options}")
+        for family, config, seed, n in FAMILIES:
+            order = "draw" if config.layout in ("random", "rs") else config.order
+            print(f"family {family}: {config.layout}, {order} order, seed {seed}, {n}/level")
         return 0
+    families = tuple(f for f in args.families.split(",") if f)
+    unknown_families = sorted(set(families) - {f for f, *_ in FAMILIES})
+    if unknown_families or not families:
+        p.error(f"--families: unknown {unknown_families}; see --list")
     labels = [v for v in args.variants.split(",") if v]
     unknown = sorted(set(labels) - set(VARIANTS))
     if unknown:
@@ -149,16 +173,19 @@ def main(argv: list[str] | None = None) -> int:
     if path.is_file():
         for line in path.read_text(encoding="utf-8").splitlines():
             entry = json.loads(line)
-            done[entry["variant"]] = entry["rows"]
-    cases = training_cases()
+            # A variant played on other families is played again (results of one sweep only).
+            if tuple(entry.get("families", DEFAULT_FAMILIES)) == families:
+                done[entry["variant"]] = entry["rows"]
+    cases = training_cases(families)
     for label in labels:
         if label in done:
             continue
         print(f"{label} ...", flush=True)
         done[label] = run_variant(label, cases, args.workers)
         with open(path, "a", encoding="utf-8") as fh:  # one line per finished variant
-            fh.write(json.dumps({"variant": label, "rows": done[label]}) + "\n")
-    print(table({label: done[label] for label in labels}))
+            entry = {"variant": label, "families": list(families), "rows": done[label]}
+            fh.write(json.dumps(entry) + "\n")
+    print(table({label: done[label] for label in labels}, families))
     return 0
 
 
