@@ -125,16 +125,18 @@ def _interval(d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
-def table(results: dict[str, list[dict]], families: tuple[str, ...]) -> str:
+def table(
+    results: dict[str, list[dict]], families: tuple[str, ...], reference: str = "default"
+) -> str:
     rng = np.random.default_rng(0)
-    head = "| variant | " + " | ".join(families) + " | all - default [95 % CI] | hard ms |"
+    head = f"| variant | {' | '.join(families)} | all - {reference} [95 % CI] | hard ms |"
     lines = [head, "| --- |" + " ---: |" * (len(families) + 2)]
-    base = {r["key"]: r["overall"] for r in results.get("default", [])}
+    base = {r["key"]: r["overall"] for r in results.get(reference, [])}
     for label, rows in results.items():
         means = [np.mean([r["overall"] for r in rows if r["family"] == f]) for f in families]
         d = np.array([r["overall"] - base[r["key"]] for r in rows if r["key"] in base])
         lo, hi = _interval(d, rng) if d.size else (float("nan"),) * 2
-        diff = "-" if label == "default" else f"{d.mean():+.4f} [{lo:+.4f}, {hi:+.4f}]"
+        diff = "-" if label == reference else f"{d.mean():+.4f} [{lo:+.4f}, {hi:+.4f}]"
         hard = np.mean([r["ms"] for r in rows if r["level"] == "hard"])
         cells = " | ".join(f"{m:.3f}" for m in means)
         lines.append(f"| {label} | {cells} | {diff} | {hard:.0f} |")
@@ -146,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="runs/plan-sweep")
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--families", default=",".join(DEFAULT_FAMILIES))
+    p.add_argument(
+        "--reference", default="default", help="the variant the others are paired against"
+    )
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--list", action="store_true")
     args = p.parse_args(argv)
@@ -166,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--variants: unknown {unknown}; see --list")
     if "default" not in labels:
         labels.insert(0, "default")
+    if args.reference not in labels:
+        p.error(f"--reference {args.reference!r}: not among --variants")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "results.jsonl"
@@ -185,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         with open(path, "a", encoding="utf-8") as fh:  # one line per finished variant
             entry = {"variant": label, "families": list(families), "rows": done[label]}
             fh.write(json.dumps(entry) + "\n")
-    print(table({label: done[label] for label in labels}, families))
+    print(table({label: done[label] for label in labels}, families, args.reference))
     return 0
 
 
