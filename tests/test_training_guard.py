@@ -183,3 +183,19 @@ def test_the_proposer_choice_rule_prefers_the_smaller_k_on_a_tie():
 
     assert ceiling.choose(results(0.82), configs) == configs[1]  # clearly better: K=16
     assert ceiling.choose(results(0.803), configs) == configs[0]  # within the tie: smaller K
+
+
+def test_plan_sweep_plays_training_cases_of_the_families_asked_with_valid_variants(monkeypatch):
+    from packlab.policies import make_policy
+
+    sweep = _benchmark("plan_sweep")
+    for label, (policy, options) in sweep.VARIANTS.items():
+        assert make_policy(policy, **options) is not None, label  # a renamed option fails here
+    # Two cases per level keep the test fast; the families and seeds are the sweep's own.
+    small = tuple((f, config, seed, 2) for f, config, seed, _ in sweep.FAMILIES)
+    monkeypatch.setattr(sweep, "FAMILIES", small)
+    cases = sweep.training_cases(("random", "cut-base-height"))
+    assert {family for family, _ in cases} == {"random", "cut-base-height"}
+    assert len(cases) == 2 * 3 * 2
+    assert {seed_domain(c.seed) for _, c in cases} == {"train"}
+    assert {c.generator["layout"] for _, c in cases} == {"random", "cut"}
