@@ -33,7 +33,7 @@ import numpy as np
 
 from packlab.core.types import Case
 from packlab.datagen import generate_cases
-from packlab.datagen.config import CaseConfig
+from packlab.datagen.config import NO_LAYOUT_FAMILIES, CaseConfig
 from packlab.datagen.guard import require_training_cases
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         for label, (policy, options) in VARIANTS.items():
             print(f"{label}: {policy} {options}")
         for family, config, seed, n in FAMILIES:
-            order = "draw" if config.layout in ("random", "rs") else config.order
+            order = "draw" if config.layout in NO_LAYOUT_FAMILIES else config.order
             print(f"family {family}: {config.layout}, {order} order, seed {seed}, {n}/level")
         return 0
     families = tuple(f for f in args.families.split(",") if f)

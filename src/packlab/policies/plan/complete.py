@@ -244,7 +244,7 @@ def find_completion(
             smallest_side,
             config,
             config.decision_nodes - spent,
-            repeated_height_share(seen_heights),
+            seen_heights,
         )
     return None
 
@@ -269,11 +269,12 @@ def _mixed_completion(
     smallest_side: int,
     config: CompletionConfig,
     budget_left: int,
-    height_repeats: float,
+    seen_heights: Sequence[int],
 ) -> Completion | None:
     """A tiling of one lowest component by shown boxes of any heights that fit under the lid,
     exact first, then with up to ``config.mixed_jokers`` rectangles for boxes still to come when
-    ``height_repeats`` (:func:`repeated_height_share`) reaches ``config.mixed_evidence``."""
+    the share of ``seen_heights`` repeating another (:func:`repeated_height_share`) reaches
+    ``config.mixed_evidence``."""
     pieces = [
         Piece(s.shown_index, s.size_cells[0], s.size_cells[1])
         for s in shown
@@ -281,7 +282,11 @@ def _mixed_completion(
     ]
     if not pieces:
         return None
-    guesses = config.mixed_jokers if height_repeats >= config.mixed_evidence else 0
+    # The share is only read when the gate is on (mixed_evidence 0 asks for no evidence).
+    evident = not config.mixed_evidence or (
+        repeated_height_share(seen_heights) >= config.mixed_evidence
+    )
+    guesses = config.mixed_jokers if evident else 0
     for jokers in range(min(guesses, config.max_jokers, unseen) + 1):
         for mask in masks:
             budget = min(config.max_nodes, budget_left)
