@@ -15,6 +15,7 @@ bundled bytes are what the spec produces.
 from __future__ import annotations
 
 import os
+import sys
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.fileio import file_sha256
 from packlab.core.types import Case
 from packlab.datagen import CaseConfig, generate_cases
+from packlab.datagen.config import ValidationConfig
 from packlab.datagen.stats import dataset_cases
 
 #: Where the bundled suites live inside the installed package.
@@ -185,16 +187,49 @@ def suite_digest(name: str, directory: str | os.PathLike[str] | None = None) -> 
     return read_checksum(checksum_path, cases_path.name)
 
 
-def build_suite(spec: SuiteSpec, progress: bool = False) -> list[Case]:
-    """Regenerate a suite's cases from its spec (deterministic; slow: replays every plan)."""
+def build_suite(
+    spec: SuiteSpec, progress: bool = False, validation: ValidationConfig | None = None
+) -> list[Case]:
+    """Regenerate a suite's cases from its spec (deterministic; slow: replays every plan, under
+    MuJoCo unless ``validation`` names another backend)."""
     cases: list[Case] = []
     for difficulty, n in spec.counts:
         if progress:
-            print(f"{spec.name}: generating {n} {difficulty} cases ...", flush=True)
+            print(
+                f"{spec.name}: generating {n} {difficulty} cases ...", file=sys.stderr, flush=True
+            )
         cases += generate_cases(
-            difficulty, n, spec.seed, validate=True, config=spec.case_config, domain=spec.domain
+            difficulty,
+            n,
+            spec.seed,
+            validate=True,
+            config=spec.case_config,
+            validation=validation,
+            domain=spec.domain,
         )
     return cases
+
+
+def fresh_spec(name: str, seed: int, per_level: int | None = None) -> SuiteSpec:
+    """A set made like suite ``name`` (its layout family, arrival order and cases per level, or
+    ``per_level`` of each) from user ``seed`` of the training seed domain: cases the suite has
+    never held, to see whether a figure measured on the suite holds on the distribution it was
+    drawn from. Its ids carry the seed (``train-s4721-easy-00000``)."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed = {seed!r}: must be a whole number >= 0")
+    if per_level is not None and (isinstance(per_level, bool) or per_level < 1):
+        raise ConfigError(f"per_level = {per_level!r}: must be a whole number >= 1")
+    like = suite_spec(name)
+    counts = like.counts if per_level is None else tuple((d, per_level) for d, _ in like.counts)
+    return SuiteSpec(
+        f"fresh-{name}-s{seed}",
+        counts=counts,
+        seed=seed,
+        domain="train",
+        description=f"made like {name} from training-domain user seed {seed}",
+        order=like.order,
+        layout=like.layout,
+    )
 
 
 def write_suite(
@@ -258,6 +293,7 @@ __all__ = [
     "SuiteSpec",
     "build_suite",
     "file_sha256",
+    "fresh_spec",
     "load_suite",
     "resolve_cases",
     "suite_digest",

@@ -1,5 +1,5 @@
-"""``packlab cases``: check a case source, or convert it between packlab's JSONL and the
-reference layout."""
+"""``packlab cases``: check a case source, convert it between packlab's JSONL and the
+reference layout, or generate a fresh set made like a bundled suite."""
 
 from __future__ import annotations
 
@@ -19,8 +19,10 @@ _SOURCE_HELP = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.description = "Check a case source, or write its cases in another layout."
-    sub = p.add_subparsers(dest="cases_command", required=True, metavar="{validate,export}")
+    p.description = (
+        "Check a case source, write its cases in another layout, or make a fresh set like a suite."
+    )
+    sub = p.add_subparsers(dest="cases_command", required=True, metavar="{validate,export,fresh}")
     v = sub.add_parser(
         "validate",
         help="load every case (all checks and limits) and print counts",
@@ -42,6 +44,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--format", choices=EXPORT_FORMATS, required=True, help="layout to write")
     e.add_argument("--out", required=True, help="file or directory to create")
     e.set_defaults(func=run_export)
+    f = sub.add_parser(
+        "fresh",
+        help="generate a fresh case set made like a bundled suite, from a training-domain seed",
+        description="Generate cases made like SUITE (its layout family, arrival order and cases "
+        "per level) from user seed --seed of the training seed domain, replay-validated like the "
+        "suite, and write them to OUT as packlab JSONL: a set the suite never held, to check "
+        "that a figure measured on the suite holds beyond its 60 cases. The same seed gives the "
+        "same file. OUT must not exist.",
+    )
+    f.add_argument("suite", help="a bundled suite name, e.g. packlab-bench-v1")
+    f.add_argument("--seed", type=int, required=True, help="user seed (training seed space)")
+    f.add_argument("--out", required=True, help="JSONL file to create")
+    f.add_argument(
+        "--per-level",
+        type=int,
+        default=None,
+        help="cases per difficulty; default: as many as the suite has",
+    )
+    f.add_argument(
+        "--validation",
+        choices=("mujoco", "geometric"),
+        default="mujoco",
+        help="replay backend that validates each case (the suites used mujoco); default mujoco",
+    )
+    f.set_defaults(func=run_fresh)
 
 
 def run_validate(args: argparse.Namespace) -> int:
@@ -52,3 +79,8 @@ def run_validate(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     """``packlab cases export SRC --format F --out OUT``."""
     return int(importlib.import_module(RUN_MODULE).run_export(args))
+
+
+def run_fresh(args: argparse.Namespace) -> int:
+    """``packlab cases fresh SUITE --seed N --out OUT``."""
+    return int(importlib.import_module(RUN_MODULE).run_fresh(args))

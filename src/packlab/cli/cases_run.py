@@ -1,5 +1,5 @@
-"""What ``packlab cases validate`` and ``cases export`` do (:mod:`packlab.cli.cases` defines
-their flags and imports this module when one runs)."""
+"""What ``packlab cases validate``, ``cases export`` and ``cases fresh`` do
+(:mod:`packlab.cli.cases` defines their flags and imports this module when one runs)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from packlab.bench.suites import resolve_cases
-from packlab.cases import save_cases, write_reference
+from packlab.bench.suites import build_suite, fresh_spec, resolve_cases
+from packlab.cases import cases_sha256, save_cases, write_reference
 from packlab.core.errors import ConfigError
+from packlab.datagen.config import ValidationConfig
 
 
 def run_validate(args: argparse.Namespace) -> int:
@@ -46,5 +47,22 @@ def run_export(args: argparse.Namespace) -> int:
     print(
         f"{len(source.cases)} cases from {source.origin} -> {out} ({args.format}); "
         f"sha256 {source.sha256}"
+    )
+    return 0
+
+
+def run_fresh(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.exists() or out.is_symlink():  # before generating: no work wasted on a refused target
+        raise ConfigError(f"--out {out}: already exists; remove it or choose another path")
+    spec = fresh_spec(args.suite, args.seed, args.per_level)
+    # Progress per level on stderr; the file is written once every level is made, so a crash
+    # leaves no partial file to mistake for a set (a rerun regenerates the same cases).
+    cases = build_suite(spec, progress=True, validation=ValidationConfig(backend=args.validation))
+    save_cases(cases, out)
+    levels = ", ".join(f"{d} {n}" for d, n in spec.counts)
+    print(
+        f"{len(cases)} cases made like {args.suite} (user seed {args.seed}, training domain; "
+        f"{levels}; validated on {args.validation}) -> {out}; sha256 {cases_sha256(cases)}"
     )
     return 0
