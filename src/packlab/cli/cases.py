@@ -6,6 +6,9 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from packlab.cli.options import add_field
+from packlab.datagen.config import ValidationConfig
+
 #: What the commands do (loading, checking and writing cases), imported when one runs.
 RUN_MODULE = "packlab.cli.cases_run"
 
@@ -62,11 +65,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="cases per difficulty; default: as many as the suite has",
     )
-    f.add_argument(
+    add_field(
+        f,
+        ValidationConfig,
+        "backend",
         "--validation",
-        choices=("mujoco", "geometric"),
-        default="mujoco",
-        help="replay backend that validates each case (the suites used mujoco); default mujoco",
+        help="replay backend that validates each case (the suites used mujoco); default {default}",
     )
     f.set_defaults(func=run_fresh)
 

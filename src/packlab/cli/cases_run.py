@@ -10,6 +10,7 @@ from pathlib import Path
 
 from packlab.bench.suites import build_suite, fresh_spec, resolve_cases
 from packlab.cases import cases_sha256, save_cases, write_reference
+from packlab.cli.options import config_kwargs
 from packlab.core.errors import ConfigError
 from packlab.datagen.config import ValidationConfig
 
@@ -58,11 +59,12 @@ def run_fresh(args: argparse.Namespace) -> int:
     spec = fresh_spec(args.suite, args.seed, args.per_level)
     # Progress per level on stderr; the file is written once every level is made, so a crash
     # leaves no partial file to mistake for a set (a rerun regenerates the same cases).
-    cases = build_suite(spec, progress=True, validation=ValidationConfig(backend=args.validation))
+    validation = ValidationConfig(**config_kwargs(args, "cases fresh", ValidationConfig))
+    cases = build_suite(spec, progress=True, validation=validation)
     save_cases(cases, out)
     levels = ", ".join(f"{d} {n}" for d, n in spec.counts)
     print(
         f"{len(cases)} cases made like {args.suite} (user seed {args.seed}, training domain; "
-        f"{levels}; validated on {args.validation}) -> {out}; sha256 {cases_sha256(cases)}"
+        f"{levels}; validated on {validation.backend}) -> {out}; sha256 {cases_sha256(cases)}"
     )
     return 0
