@@ -32,12 +32,17 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_export(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    if (
-        out.exists() or out.is_symlink()
-    ):  # checked before loading: no work wasted on a refused target
+def _new_out(path: str) -> Path:
+    """``--out`` as a path that does not exist yet; checked before any loading or generating,
+    so no work is wasted on a refused target and nothing already there is overwritten."""
+    out = Path(path)
+    if out.exists() or out.is_symlink():
         raise ConfigError(f"--out {out}: already exists; remove it or choose another path")
+    return out
+
+
+def run_export(args: argparse.Namespace) -> int:
+    out = _new_out(args.out)
     source = resolve_cases(args.src)
     if args.format == "reference":
         written = write_reference(source.cases, out)
@@ -53,9 +58,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_fresh(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    if out.exists() or out.is_symlink():  # before generating: no work wasted on a refused target
-        raise ConfigError(f"--out {out}: already exists; remove it or choose another path")
+    out = _new_out(args.out)
     spec = fresh_spec(args.suite, args.seed, args.per_level)
     # Progress per level on stderr; the file is written once every level is made, so a crash
     # leaves no partial file to mistake for a set (a rerun regenerates the same cases).
