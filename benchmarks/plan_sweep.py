@@ -81,6 +81,9 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "plan-mixed-jokers-0": ("plan", {"mixed_jokers": 0}),
     "plan-mixed-evidence-0.5": ("plan", {"mixed_evidence": 0.5}),
     "depth-10": ("plan-fast", {"depth": 10}),  # plan-fast at plan's depth (session 57)
+    # The last boxes played out by the planner itself (session 61, docs/planner.md).
+    "plan-endplay-0": ("plan", {"endplay": 0}),
+    "endplay-3": ("plan-fast", {"endplay": 3}),
     "sdf": ("sdf", {}),
     "proposer": ("proposer", {}),
 }

@@ -23,13 +23,16 @@ for the completion ``complete`` (true/false), ``nodes``, ``decision_nodes``,
 ``completed`` counts the decisions it took), and ``guide`` (``none``, the default, ``irbpp`` or
 ``tapnet``), ``guide_model`` (that agent's directory; default the shipped one) and
 ``guide_first`` (default 2): a trained agent's preferred placements rolled out by the
-lookahead beside its own (:mod:`.guide`), and ``finale`` (true/false) with ``finale_boxes``
+lookahead beside its own (:mod:`.guide`), ``finale`` (true/false) with ``finale_boxes``
 (default 8): the last boxes' set-aside rule and the most boxes in view it decides for
-(:mod:`.finale`).
+(:mod:`.finale`), and ``endplay`` (first actions tried besides the planner's once every box
+still to come is in view, each followed by the planner's own play to the end; 0 turns it off)
+with ``endplay_boxes`` (the most boxes in view for it) (:mod:`.endplay`).
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -47,6 +50,7 @@ from packlab.policies.overflow import overflow_decision
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
 from packlab.policies.plan.endgame import Endgame, EndgameConfig
+from packlab.policies.plan.endplay import BasePlayer, Endplay, EndplayConfig
 from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.finale import FINALE_BOXES, with_finale
 from packlab.policies.plan.guide import AgentGuide
@@ -117,16 +121,43 @@ class PlanPolicy:
     finale_boxes: int = FINALE_BOXES
     #: Decisions the finale turned into a set-aside.
     finales: int = 0
+    #: With every remaining box in view, other first actions played out by the planner itself
+    #: (:mod:`.endplay`; with ``overflow=score`` only).
+    endplay: Endplay = field(default_factory=Endplay)
+    #: Decisions the endplay changed.
+    endplays: int = 0
 
     def reset(self, case: Case, seed: int) -> None:
         """Forget the last episode's filling; the plan never reads the case (its future objects)."""
         self.endgame.reset()
+        self.endplay.reset()
 
     def act(self, observation: Observation) -> Action:
         return self.decide(observation).action
 
     def decide(self, observation: Observation) -> PlanDecision:
         """The action and, when a completion decided it, the tiling (see :class:`PlanDecision`)."""
+        decision = self._decide_stages(observation)
+        if self.overflow != "score" or not self.endplay.applies(observation):
+            return decision
+        action = self.endplay.decide(observation, decision.action, self._base_player)
+        if action == decision.action:
+            return decision
+        self.endplays += 1
+        return PlanDecision(action, None)
+
+    def _base_player(self) -> BasePlayer:
+        """A copy of this planner, the endplay off, playing on from a simulated observation (a
+        copy: its endgame filling and counters must not touch this one's)."""
+        kept, self.endplay = self.endplay, Endplay(EndplayConfig(alternatives=0))
+        try:
+            twin = copy.deepcopy(self)
+        finally:
+            self.endplay = kept
+        return lambda observation: twin._decide_stages(observation).action
+
+    def _decide_stages(self, observation: Observation) -> PlanDecision:
+        """Endgame, completion, overflow, lookahead and finale, in that order."""
         if self.complete:
             # The endgame builds its filling in its own order; the online protocol fixes the
             # order, so there the endgame stays out (the completion and the search adapt).
@@ -258,6 +289,9 @@ _SWITCHES = ("complete", "mixed", "finale")
 _WHOLE_KEYS = ("nodes", "decision_nodes", "guesses")  # the rest may be 0
 #: The agent guiding the lookahead (:class:`.guide.AgentGuide`: agent, model, first).
 _GUIDE_KEYS = ("guide", "guide_model", "guide_first")
+#: Options of the endplay (:class:`.endplay.EndplayConfig`): ``endplay`` (first actions tried
+#: besides the planner's; 0 turns it off) and ``endplay_boxes`` (most boxes in view for it).
+_ENDPLAY_KEYS = {"endplay": "alternatives", "endplay_boxes": "max_boxes"}
 
 
 def _whole(name: str, value: Any) -> int:
@@ -303,7 +337,14 @@ def make_plan(**options: Any) -> PlanPolicy:
     require_choice(overflow, OverflowRule, "plan: overflow")
     commit = options.pop("commit", "enclosed")
     require_choice(commit, CommitRule, "plan: commit")
-    option_keys = (_WEIGHT_KEYS, _COMPLETION_KEYS, _ENDGAME_KEYS, _SWITCHES, _FINALE_KEYS)
+    option_keys = (
+        _WEIGHT_KEYS,
+        _COMPLETION_KEYS,
+        _ENDGAME_KEYS,
+        _SWITCHES,
+        _FINALE_KEYS,
+        _ENDPLAY_KEYS,
+    )
     known_keys = _BUDGET_KEYS.union(*option_keys)
     unknown = sorted(set(options) - known_keys)
     if unknown:
@@ -335,6 +376,9 @@ def make_plan(**options: Any) -> PlanPolicy:
         **{_ENDGAME_KEYS[k]: _count(k, v) for k, v in options.items() if k in _ENDGAME_KEYS}
     )
     switches = {k: _switch(k, options[k]) for k in _SWITCHES if k in options}
+    endplay = EndplayConfig(
+        **{_ENDPLAY_KEYS[k]: v for k, v in options.items() if k in _ENDPLAY_KEYS}
+    )
     return PlanPolicy(
         budget,
         weights,
@@ -346,6 +390,7 @@ def make_plan(**options: Any) -> PlanPolicy:
         guide=guide,
         finale=switches.get("finale", True),
         finale_boxes=_whole("finale_boxes", options.get("finale_boxes", FINALE_BOXES)),
+        endplay=Endplay(endplay),
     )
 
 
@@ -353,8 +398,9 @@ def make_plan(**options: Any) -> PlanPolicy:
 #: it) under five minutes on two cores (docs/planner.md). Two of the students' listed placements
 #: (session 49): with the final-height shortfall scoring the rollouts they gained +0.006
 #: [+0.003, +0.009] over none on 588 generated training cases (four gained +0.004 [-0.000, +0.008]
-#: and cost more time); before that term they changed no family's score.
-FAST_BUDGET = {"first": 2, "depth": 4, "listed": 2}
+#: and cost more time); before that term they changed no family's score. No endplay (session
+#: 61): it was measured for ``plan`` only, and it multiplies the last steps' time.
+FAST_BUDGET = {"first": 2, "depth": 4, "listed": 2, "endplay": 0}
 
 
 def make_plan_fast(**options: Any) -> PlanPolicy:
