@@ -39,6 +39,7 @@ def test_option_names_match_the_factories():
         *plan._ENDGAME_KEYS,
         *plan._SWITCHES,
         *plan._FINALE_KEYS,
+        *plan._ENDPLAY_KEYS,
     }
     assert keys("plan") == plan_keys | {"stability", "overflow", "commit", *plan._GUIDE_KEYS}
     assert keys("irbpp") == keys("tapnet") == set(RL_OPTIONS)
