@@ -37,12 +37,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from packlab.core.errors import ConfigError
-from packlab.core.feasibility import search_candidates
+from packlab.core.feasibility import (
+    ROTATIONS,
+    footprint_cells,
+    footprint_fits,
+    placement_height,
+    search_candidates,
+)
 from packlab.core.types import Action, HistoryEntry, Observation, ShownItem
 from packlab.policies.heuristics import sdf
 from packlab.policies.overflow import packed_inside_volume
 from packlab.policies.plan.evaluate import PathLoss, Weights, state_cost
-from packlab.policies.plan.finale import everything_in_view
+from packlab.policies.plan.finale import end_ratio, everything_in_view
 from packlab.policies.plan.outlook import Outlook, cell_volume
 from packlab.policies.plan.surface import water_level
 from packlab.sim.heightmap import place_box
@@ -72,10 +78,6 @@ class EndplayConfig:
                 )
 
 
-def _ratio(volume: float, height: int) -> float:
-    return volume * volume / max(height, 1)
-
-
 @dataclass(frozen=True, slots=True)
 class Step:
     """One action under the geometric model: the next observation, the volume it packed inside
@@ -95,20 +97,18 @@ def step(observation: Observation, action: Action) -> Step:
     heightmap = np.asarray(observation.heightmap)
     after, packed, top = heightmap, 0.0, 0
     index = action.object_id if 0 <= action.object_id < len(shown) else 0
-    if not action.sets_aside and 0 <= action.object_id < len(shown):
-        cands = search_candidates(heightmap, [shown[index]], rim, observation.container.cell_xy_mm)
-        match = np.flatnonzero(
-            (cands.rotation == action.rotation) & (cands.x == action.x) & (cands.y == action.y)
-        )
-        if match.size:
-            i = int(match[0])
-            top = int(cands.top[i])
-            after = place_box(
-                heightmap, int(cands.x[i]), int(cands.y[i]), int(cands.fx[i]), int(cands.fy[i]), top
-            )
+    placed = not action.sets_aside and 0 <= action.object_id < len(shown)
+    if placed and action.rotation in ROTATIONS:
+        item = shown[index]
+        x, y = action.x, action.y
+        fx, fy = footprint_cells(item, action.rotation)
+        if fx >= 1 and fy >= 1 and footprint_fits(heightmap.shape, x, y, fx, fy):
+            z = placement_height(heightmap, x, y, fx, fy)  # Eq. 2
+            top = z + int(item.size_mm[2])
+            after = place_box(heightmap, x, y, fx, fy, top)
             # Packed when the box's centre stays under the rim (the metric's rule).
-            if 2 * int(cands.z[i]) + int(cands.h[i]) <= 2 * rim:
-                packed = float(np.prod(shown[index].size_mm))
+            if 2 * z + int(item.size_mm[2]) <= 2 * rim:
+                packed = float(np.prod(item.size_mm))
     rest = shown[:index] + shown[index + 1 :]
     entry = HistoryEntry(observation.heightmap, observation.shown, action, top > 0)
     remaining = None if observation.remaining is None else observation.remaining - 1
@@ -156,7 +156,7 @@ def played_value(
         path.append(key)
         action = player(current)
     if value is None:
-        value = _ratio(volume, height)
+        value = end_ratio(volume, height)
     for key in path:
         memo[key] = value
     return value
@@ -258,8 +258,8 @@ def beam_firsts(observation: Observation, config: EndplayConfig) -> list[Action]
                 if child.left:
                     children.append(child)
                 else:
-                    finish(child, _ratio(child.volume, child.height))
-            finish(node, _ratio(node.volume, node.height))  # or the rest set aside here
+                    finish(child, end_ratio(child.volume, child.height))
+            finish(node, end_ratio(node.volume, node.height))  # or the rest set aside here
         for child in children:
             footprints: set[tuple[int, int]] = set()
             for i in child.left:
@@ -312,12 +312,24 @@ class Endplay:
         ``player()`` gives a fresh base player for each play (the planner keeps state)."""
         if not self.applies(observation):
             return planned
-        best, best_value = planned, played_value(observation, planned, player(), self._memo)
+
+        def lazily() -> BasePlayer:
+            # A copy of the planner costs a deep copy; a play answered from the memo needs none.
+            made: list[BasePlayer] = []
+
+            def play(state: Observation) -> Action:
+                if not made:
+                    made.append(player())
+                return made[0](state)
+
+            return play
+
+        best, best_value = planned, played_value(observation, planned, lazily(), self._memo)
         if best_value * (1 + 1e-9) >= best_end_bound(observation):
             return planned  # nothing can end strictly higher: the search would change nothing
         others = [a for a in beam_firsts(observation, self.config) if a != planned]
         for action in others[: self.config.alternatives]:
-            value = played_value(observation, action, player(), self._memo)
+            value = played_value(observation, action, lazily(), self._memo)
             if value > best_value * (1 + 1e-9):
                 best, best_value = action, value
         return best

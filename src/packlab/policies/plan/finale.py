@@ -59,7 +59,8 @@ def everything_in_view(observation: Observation) -> bool:
     )
 
 
-def _ratio(volume: float, height: int) -> float:
+def end_ratio(volume: float, height: int) -> float:
+    """V**2 / H, to which Overall is proportional once every volume is fixed (module docstring)."""
     return volume * volume / max(height, 1)
 
 
@@ -111,7 +112,7 @@ def greedy_end(pile: Pile, items: Sequence[ShownItem], order: str = "sdf") -> tu
         else:
             after = (volume + box_volume * inside) ** 2 / np.maximum(height, cands.top)
             i = int(np.argmax(after))
-            if after[i] <= _ratio(volume, height):
+            if after[i] <= end_ratio(volume, height):
                 break  # no box is worth raising the top for: the rest is set aside
         x, y, fx, fy, top = (int(a[i]) for a in (cands.x, cands.y, cands.fx, cands.fy, cands.top))
         hm = place_box(hm, x, y, fx, fy, top)
@@ -124,7 +125,7 @@ def greedy_end(pile: Pile, items: Sequence[ShownItem], order: str = "sdf") -> tu
 def best_end(pile: Pile, items: Sequence[ShownItem]) -> float:
     """The best V**2 / H over the :data:`GREEDY_ORDERS` of :func:`greedy_end`."""
     ends = (greedy_end(pile, items, order) for order in GREEDY_ORDERS)
-    return max(_ratio(v, h) for v, h in ends)
+    return max(end_ratio(v, h) for v, h in ends)
 
 
 #: The most boxes in view for which the rule decides (module docstring). Chosen on generated
