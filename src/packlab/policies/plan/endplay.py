@@ -96,8 +96,9 @@ def step(observation: Observation, action: Action) -> Step:
     rim = observation.container.height_mm
     heightmap = np.asarray(observation.heightmap)
     after, packed, top = heightmap, 0.0, 0
-    index = action.object_id if 0 <= action.object_id < len(shown) else 0
-    placed = not action.sets_aside and 0 <= action.object_id < len(shown)
+    in_buffer = 0 <= action.object_id < len(shown)
+    index = action.object_id if in_buffer else 0
+    placed = in_buffer and not action.sets_aside
     if placed and action.rotation in ROTATIONS:
         item = shown[index]
         x, y = action.x, action.y
