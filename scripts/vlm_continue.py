@@ -22,7 +22,7 @@ import argparse
 from typing import Any
 
 from packlab.cases import cases_sha256, load_cases
-from packlab.core.choices import PointerMap, choices
+from packlab.core.choices import AutocastDType, PointerMap, choices
 from packlab.datagen.guard import require_training_cases
 from packlab.policies.candidates import STUDENT_K
 from packlab.policies.provenance import cases_record
@@ -73,7 +73,17 @@ def main() -> None:
         help="how a model from random weights (--model tiny:...) sees the heightmap",
     )
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--device", default="cpu", help="where the updates run: cpu or cuda")
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="where the updates and evaluations run: auto, cpu, cuda or cuda:<index>",
+    )
+    p.add_argument(
+        "--dtype",
+        choices=choices(AutocastDType),
+        default="fp32",
+        help="bf16: forward passes under bf16 autocast on a GPU (weights stay fp32)",
+    )
     p.add_argument("--batch", type=int, default=16, help="states per update")
     p.add_argument("--eval-every", type=int, default=350, help="updates between evaluations")
     a = p.parse_args()
@@ -92,7 +102,7 @@ def main() -> None:
         warmup=100 if a.model.startswith("tiny:") else 20,
         seed=a.seed, threads=a.threads, minutes=a.minutes, eval_every=a.eval_every,
         stop_after=a.stop_after,
-        device=a.device, batch=a.batch,
+        device=a.device, dtype=a.dtype, batch=a.batch,
         # The card records the model continued from as "init" (name + sha256) and the cases
         # by name and content digest: no scratch path (packlab.policies.provenance).
         meta={"teacher": meta.get("teacher", ""), "note": a.note,

@@ -91,8 +91,8 @@ def test_info_json_is_a_typed_versioned_record(tiny_dataset):
     ("change", "message"),
     [
         (
-            {"format_version": "packdata-2"},
-            "field 'format_version' = 'packdata-2': unknown format version",
+            {"format_version": "packdata-9"},
+            "field 'format_version' = 'packdata-9': unknown format version",
         ),
         (
             {"counts": {"episodes": "ten"}},

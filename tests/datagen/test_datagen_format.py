@@ -11,7 +11,7 @@ from PIL import Image
 
 from packlab.cases import case_from_dict
 from packlab.core.types import Action
-from packlab.datagen.format import EPISODE_SCHEMA, STEP_SCHEMA, export_sft
+from packlab.datagen.format import EPISODE_SCHEMA, STEP_SCHEMA
 from packlab.sim.raster import heightmap_to_rgb
 from packlab.vlm.prompt.render import action_text
 
@@ -72,34 +72,6 @@ def test_images_are_the_rasterised_heightmaps(tiny_dataset):
         assert not (r["image"].startswith("/") or ".." in r["image"])
         img = np.asarray(Image.open(tiny_dataset / r["image"]).convert("RGB"))
         assert (img == heightmap_to_rgb(hm, c, size=64)).all()
-
-
-def test_sft_export_is_what_the_vlm_reader_expects(tiny_dataset):
-    from packlab.vlm.data.sft_examples import load_sft_examples
-
-    examples, root = load_sft_examples(tiny_dataset)
-    rows = _steps(tiny_dataset)
-    assert root == tiny_dataset and len(examples) == len(rows)
-    answers = {(r["episode_id"], r["step_index"]): r["action_text"] for r in rows}
-    for ex in examples:
-        assert ex.answer == answers[(ex.episode_id, ex.step_index)]
-        images = [c["image"] for m in ex.context for c in m["content"] if c.get("type") == "image"]
-        assert len(images) == ex.step_index + 1  # full history: one image per past and current turn
-        assert all((root / im).is_file() for im in images)
-
-
-def test_sft_per_episode_mode(tiny_dataset, tmp_path):
-    import shutil
-
-    out = tmp_path / "copy"
-    shutil.copytree(tiny_dataset, out)
-    files = export_sft(out, mode="per_episode")
-    lines = [json.loads(line) for f in files for line in f.read_text().splitlines()]
-    assert len(lines) == 10  # one per episode
-    for rec in lines:
-        assistants = [m for m in rec["messages"] if m["role"] == "assistant"]
-        assert len(assistants) == rec["step_index"] + 1
-        Action(**json.loads(assistants[-1]["content"][0]["text"]))
 
 
 def test_dataset_loads_with_hf_datasets(tiny_dataset):

@@ -1,7 +1,9 @@
 """Candidate mode with the heightmap as an image (tiny Qwen3-VL, CPU): the patches are the
-transformers processor's, the prompt holds one pad per visual token, the image reaches the
-scores (and a blank one does not), batches pad without changing scores, soft targets reduce to
-the label's cross-entropy, and ``map`` survives save/load (old directories read as text)."""
+transformers processor's, normalised with each family's own mean and std, the prompt holds one
+pad per visual token, the image reaches the scores (and a blank one does not), batches pad
+without changing scores, soft targets reduce to the label's cross-entropy, ``map`` and the
+normalisation survive save/load (old directories read as text and 0.5), and the device and
+dtype settings are checked."""
 
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 from packlab.vlm.candidate.collect import Labeller
 from packlab.vlm.candidate.compose import state_messages
-from packlab.vlm.candidate.image import heightmap_image, patchify
+from packlab.vlm.candidate.device import autocast, placement, resolve_device
+from packlab.vlm.candidate.image import QWEN3_MEAN, QWEN3_STD, heightmap_image, patchify
 from packlab.vlm.candidate.pointer import (
     ImageGrid,
     PointerModel,
@@ -47,6 +50,9 @@ pytestmark = pytest.mark.torch
 
 PROPOSER = ProposerConfig(k=8, rule="lowest")
 CARD = {"proposer": asdict(PROPOSER), "instructions": "short", "prompt_version": PROMPT_VERSION}
+#: OpenAI CLIP's normalisation, Qwen2.5-VL's processor's.
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -222,3 +228,88 @@ def test_the_loss_trains_the_vision_tower(states):
         soft_loss(model.score(b), b["targets"], b["valid"]).backward()
         assert (weight.grad is not None and float(weight.grad.abs().sum()) > 0) == trained, map_
         assert any(k.startswith("visual.") for k in model.state_dict()) == trained, map_
+
+
+def _processor_pixels(family: str, images: np.ndarray) -> np.ndarray:
+    """transformers' processor of the family on the grey images copied to RGB."""
+    rgb = [np.repeat(im[..., None], 3, axis=-1) for im in images]
+    return image_processor_for(family)(images=rgb, return_tensors="np")["pixel_values"]
+
+
+def test_the_default_normalisation_is_the_one_every_earlier_model_used():
+    # Bit for bit (v * 2 / 255 - 1), so that models trained and exported before the
+    # normalisation was configurable score exactly as they did.
+    images = np.random.default_rng(1).integers(0, 256, size=(2, 128, 128), dtype=np.uint8)
+    pixels, _ = patchify(images, 16, 2, 2)
+    values = pixels.reshape(2, 8 // 2, 8 // 2, 2, 2, 3, 2, 16, 16)  # (b, ., ., ., ., c, t, p, p)
+    ref = images.astype(np.float32) * (2.0 / 255.0) - 1.0
+    first = values[0, 0, 0, 0, 0, 0, 0]  # the top-left patch of image 0, channel 0, frame 0
+    np.testing.assert_array_equal(first, ref[0, :16, :16])
+    assert np.array_equal(pixels, patchify(images, 16, 2, 2, QWEN3_MEAN, QWEN3_STD)[0])
+
+
+@pytest.mark.parametrize(
+    ("family", "mean", "std"),
+    [("qwen2_5_vl", CLIP_MEAN, CLIP_STD), ("qwen3_vl", QWEN3_MEAN, QWEN3_STD)],
+)
+def test_each_family_normalises_with_its_own_processor(states, family, mean, std):
+    vlm = build_tiny_model(family, "tiny")
+    grid = ImageGrid.of(vlm)
+    assert (grid.mean, grid.std) == (tuple(mean), tuple(std))
+    enc = encode(vlm.tokenizer, states[-1], "short", map="image", grid=grid)
+    pixels = collate([enc], vlm.tokenizer.pad_token_id)["pixel_values"].numpy()
+    np.testing.assert_allclose(pixels, _processor_pixels(family, enc.image[None]), atol=1e-5)
+    floor = pixels.reshape(len(pixels), 3, -1)[:, :, 0]  # a pixel's value in the 3 channels
+    channels = {tuple(np.round(row, 4)) for row in floor}
+    assert len(channels) > 1 and all(len(set(c)) == (3 if family == "qwen2_5_vl" else 1)
+                                     for c in channels)  # fmt: skip
+
+
+def test_a_saved_model_keeps_its_normalisation_and_older_ones_read_as_qwen3(states, tmp_path):
+    torch.manual_seed(0)
+    model = PointerModel(build_tiny_model("qwen2_5_vl", "tiny"), map="image").eval()
+    path = save_pointer(model, tmp_path / "clip", {**CARD, "map": "image"})
+    meta = json.loads((path / "packlab_model.json").read_text())
+    assert meta["image_mean"] == list(CLIP_MEAN) and meta["image_std"] == list(CLIP_STD)
+    assert ImageGrid.of(load_pointer(path).vlm) == ImageGrid.of(model.vlm)
+    for key in ("image_mean", "image_std"):  # what a packlab before the record wrote
+        del meta[key]
+    (path / "packlab_model.json").write_text(json.dumps(meta))
+    old = ImageGrid.of(load_pointer(path).vlm)
+    assert (old.mean, old.std) == (QWEN3_MEAN, QWEN3_STD)  # what it was trained with
+
+
+def test_device_and_dtype_settings_name_the_field():
+    for config in (DaggerConfig, PointerTrainConfig):
+        extra = {"states": ()} if config is PointerTrainConfig else {}
+        name = config.__name__
+        with pytest.raises(ConfigError, match=rf"{name}\.device = 'xyz'"):
+            config(out="x", device="xyz", **extra)
+        with pytest.raises(ConfigError, match=rf"{name}\.dtype = 'fp16'"):
+            config(out="x", dtype="fp16", **extra)
+        with pytest.raises(ConfigError, match=rf"{name}\.dtype = 'bf16': device 'cpu'"):
+            config(out="x", device="cpu", dtype="bf16", **extra)
+        for device in ("auto", "cpu", "cuda", "cuda:1"):  # names torch takes
+            assert config(out="x", device=device, **extra).device == device
+    assert (DaggerConfig(out="x").device, DaggerConfig(out="x").dtype) == ("auto", "fp32")
+
+
+def test_auto_resolves_to_the_cpu_without_a_gpu(monkeypatch):
+    if not torch.cuda.is_available():
+        assert resolve_device("DaggerConfig", "auto") == "cpu"  # this machine
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert placement("DaggerConfig", "auto", "fp32") == "cpu"
+    with pytest.raises(ConfigError, match=r"DaggerConfig\.dtype = 'bf16': device 'auto' \(cpu"):
+        placement("DaggerConfig", "auto", "bf16")
+    with pytest.raises(ConfigError, match=r"DaggerConfig\.device = 'cuda:1': torch sees 0"):
+        placement("DaggerConfig", "cuda:1", "fp32")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("DaggerConfig", "auto") == "cuda"
+
+
+def test_fp32_runs_without_autocast(pointer, states):
+    tok = pointer.vlm.tokenizer
+    batch = collate([encode(tok, states[0], "short", map="image")], tok.pad_token_id)
+    with torch.inference_mode(), autocast("cpu", "fp32"):
+        assert not torch.is_autocast_enabled("cpu")
+        assert pointer.score(batch).dtype == torch.float32

@@ -217,6 +217,8 @@ def test_training_resumes_exactly(states, tmp_path):
         card["pointer_train"]["states"] == ["states.jsonl"] and "out" not in card["pointer_train"]
     )
     assert str(tmp_path) not in json.dumps(card)
+    # The device it ran on (resolved, not "auto") and its precision.
+    assert (card["pointer_train"]["device"], card["pointer_train"]["dtype"]) == ("cpu", "fp32")
 
     ref, got, mid = whole.state_dict(), resumed.state_dict(), half.state_dict()
     assert ref.keys() == got.keys()

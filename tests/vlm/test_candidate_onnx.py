@@ -1,5 +1,6 @@
 """The candidate-mode VLM on ONNX Runtime: the ONNX path builds the torch path's very prompt
-text, token ids and M-RoPE positions, its graphs pick the same listed placement as torch on
+text, token ids, M-RoPE positions and normalised pixels, its graphs pick the same listed placement
+as torch on
 generated states (the shipped model and tiny random ones), it plays without importing torch,
 and every way a directory can be unfit says what to run."""
 
@@ -183,7 +184,7 @@ def _saved_tiny(tmp_path: Path, family: str, map: str, lines: bool, pool: str):
 @pytest.mark.parametrize(("family", "map", "lines", "pool"), TINY_CONFIGS)
 def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, family, map, lines, pool):
     _torch()
-    from packlab.vlm.candidate.encoding import PromptSettings
+    from packlab.vlm.candidate.encoding import ImageGrid, PromptSettings
     from packlab.vlm.candidate.onnx_export import export_onnx
     from packlab.vlm.candidate.onnx_scoring import load_onnx_pointer
 
@@ -192,9 +193,50 @@ def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, family
     assert exported.extra["check"]["argmax_equal"] == 4
     assert set(exported.graphs) == ({"text"} if map == "text" else {"text", "vision"})
     onnx_model = load_onnx_pointer(path)
+    assert onnx_model.grid == ImageGrid.of(model.vlm)  # the card carries the normalisation
     settings = PromptSettings.of(onnx_model.meta)
     equal, worst = _agreement(model, onnx_model, generated, settings)
     assert equal == len(generated) and worst < 1e-4
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("family", ["qwen2_5_vl", "qwen3_vl"])
+def test_onnx_feeds_the_pixels_torch_normalises(generated, tmp_path, family):
+    # The runtime normalises outside the graphs, with the mean and std of the card's grid: the
+    # vision graph's input must be the torch path's pixel_values (CLIP's normalisation for
+    # Qwen2.5-VL, 0.5 for Qwen3-VL).
+    _torch()
+    from packlab.vlm.candidate import onnx_scoring, scoring
+    from packlab.vlm.candidate.encoding import PromptSettings
+    from packlab.vlm.candidate.onnx_export import export_onnx
+    from packlab.vlm.candidate.pointer import collate
+
+    model, path = _saved_tiny(tmp_path, family, "image", True, "last")
+    grid = export_onnx(path, check_states=2).extra["grid"]
+    clip = family == "qwen2_5_vl"
+    assert (grid["mean"][0] != 0.5) == clip and (grid["std"][0] != 0.5) == clip
+    runtime = onnx_scoring.load_onnx_pointer(path)
+    settings = PromptSettings.of(runtime.meta)
+    for observation, listed in generated[:4]:
+        enc = scoring._encode(model, observation, listed, settings)
+        ref = collate([enc], model.vlm.tokenizer.pad_token_id)["pixel_values"].numpy()
+        step = onnx_scoring.encode_step(runtime, observation, listed, settings)
+        np.testing.assert_array_equal(runtime.grid.pixels(step.image[None])[0], ref)
+
+
+@needs_export
+def test_a_card_without_a_normalisation_reads_as_qwen3s(tmp_path):
+    # A card written before the grid carried the normalisation (the shipped one): its model
+    # was exported and checked with 0.5.
+    from packlab.vlm.candidate.onnx_scoring import load_onnx_pointer
+
+    path = _copy_shipped(tmp_path)
+    card = json.loads((path / CARD_FILE).read_text())
+    for key in ("mean", "std"):
+        card["extra"]["grid"].pop(key, None)
+    (path / CARD_FILE).write_text(json.dumps(card))
+    grid = load_onnx_pointer(path).grid
+    assert grid.mean == grid.std == (0.5, 0.5, 0.5)
 
 
 @pytest.mark.torch

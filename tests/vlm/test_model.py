@@ -5,6 +5,8 @@ Needs the vlm extra (torch, transformers); skipped in the core install.
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -12,6 +14,8 @@ pytest.importorskip("transformers")
 
 from PIL import Image
 
+from packlab.core.choices import ModelDType, choices
+from packlab.core.errors import ConfigError
 from packlab.core.types import Action
 from packlab.vlm.data.encoding import (
     IGNORE_INDEX,
@@ -20,8 +24,18 @@ from packlab.vlm.data.encoding import (
     encode,
     encode_fitting,
 )
-from packlab.vlm.model.checkpoint import FAMILIES, family_of, load_model, save_model
+from packlab.vlm.model.chatml import IMAGE_PAD
+from packlab.vlm.model.checkpoint import (
+    FAMILIES,
+    TORCH_DTYPES,
+    family_of,
+    load_model,
+    save_model,
+    torch_dtype,
+)
+from packlab.vlm.model.spec import make_model
 from packlab.vlm.model.tiny import build_tiny_model, mrope_sections
+from packlab.vlm.model.tokenizer import TOKENIZER_NAME, build_tokenizer
 from packlab.vlm.prompt.render import (
     PROMPT_VERSION,
     PromptOptions,
@@ -218,3 +232,117 @@ def test_unknown_family_and_size():
         build_tiny_model("llava")
     with pytest.raises(ValueError, match="size"):
         build_tiny_model("qwen3_5", "huge")
+
+
+def _param_dtypes(vlm) -> set:
+    return {p.dtype for p in vlm.model.parameters()}
+
+
+def _write_config(folder, vocab_size: int = 151936):
+    """A config.json as a real Qwen3-VL checkpoint has one: the full vocabulary and the real
+    vocabulary's special token ids (the class defaults), but tiny dimensions."""
+    folder.mkdir(parents=True, exist_ok=True)
+    config = {
+        "model_type": "qwen3_vl",
+        "text_config": {
+            "vocab_size": vocab_size,
+            "hidden_size": 64,
+            "intermediate_size": 128,
+            "num_hidden_layers": 2,
+            "num_attention_heads": 2,
+            "num_key_value_heads": 1,
+            "head_dim": 32,
+            "rope_parameters": {
+                "rope_type": "default",
+                "rope_theta": 5_000_000.0,
+                "mrope_interleaved": True,
+                "mrope_section": mrope_sections(16, (24, 20, 20)),
+            },
+        },
+        "vision_config": {
+            "depth": 1,
+            "hidden_size": 32,
+            "num_heads": 2,
+            "intermediate_size": 64,
+            "out_hidden_size": 64,
+            "num_position_embeddings": 256,
+            "deepstack_visual_indexes": [0],
+        },
+    }
+    (folder / "config.json").write_text(json.dumps(config))
+    return folder / "config.json"
+
+
+def test_torch_dtypes_cover_the_choices():
+    assert tuple(TORCH_DTYPES) == choices(ModelDType)
+    assert torch_dtype("bf16") is torch.bfloat16
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_tiny_spec_builds_in_bf16(family):
+    vlm = make_model(f"tiny:{family}:tiny", dtype="bf16")
+    assert _param_dtypes(vlm) == {torch.bfloat16}
+    # fp32 stays the default, and the dtype does not change what the seed draws.
+    fp32 = make_model(f"tiny:{family}:tiny")
+    assert _param_dtypes(fp32) == {torch.float32}
+    first = next(iter(fp32.model.state_dict()))
+    assert torch.equal(
+        vlm.model.state_dict()[first], fp32.model.state_dict()[first].to(torch.bfloat16)
+    )
+
+
+def test_config_spec_with_only_config_json(tmp_path, fixed_state):
+    _write_config(tmp_path / "ckpt")
+    vlm = make_model(f"config:{tmp_path / 'ckpt'}", seed=1, dtype="bf16")
+    assert _param_dtypes(vlm) == {torch.bfloat16}
+    assert vlm.family == "qwen3_vl" and vlm.meta["tokenizer"] == TOKENIZER_NAME
+    # The project tokenizer, its ids in the config in place of the real vocabulary's.
+    assert len(vlm.tokenizer) == len(build_tokenizer(seed=1))
+    assert len(vlm.tokenizer) <= vlm.model.config.text_config.vocab_size == 151936
+    assert vlm.model.config.image_token_id == vlm.tokenizer.convert_tokens_to_ids(IMAGE_PAD)
+    container, _, current = _with_images(fixed_state)
+    enc = encode(render_messages(container, [], current), vlm.tokenizer, vlm.image_processor)
+    with torch.no_grad():
+        out = vlm.model(**collate([enc], vlm.tokenizer.pad_token_id))
+    assert out.logits.dtype == torch.bfloat16 and bool(torch.isfinite(out.logits).all())
+    # The file itself names the same model; the seed fixes the weights.
+    again = make_model(f"config:{tmp_path / 'ckpt' / 'config.json'}", seed=1, dtype="bf16")
+    name, weight = next(iter(vlm.model.state_dict().items()))
+    assert torch.equal(again.model.state_dict()[name], weight)
+
+
+def test_config_spec_uses_the_directory_tokenizer(tmp_path):
+    saved = build_tiny_model("qwen3_5", "tiny", seed=4)
+    save_model(saved, tmp_path / "ckpt")
+    vlm = make_model(f"config:{tmp_path / 'ckpt'}", seed=0)
+    assert vlm.tokenizer.get_vocab() == saved.tokenizer.get_vocab()
+    assert vlm.meta["tokenizer"] == TOKENIZER_NAME and vlm.family == "qwen3_5"
+
+
+def test_checkpoint_loads_in_the_asked_dtype(tmp_path):
+    save_model(build_tiny_model("qwen3_vl", "tiny"), tmp_path / "ckpt")
+    assert _param_dtypes(make_model(str(tmp_path / "ckpt"), dtype="bf16")) == {torch.bfloat16}
+    assert _param_dtypes(make_model(str(tmp_path / "ckpt"))) == {torch.float32}
+
+
+def test_config_vocab_smaller_than_the_tokenizer(tmp_path):
+    file = _write_config(tmp_path / "ckpt", vocab_size=100)
+    with pytest.raises(ConfigError, match=r"text_config\.vocab_size = 100") as err:
+        make_model(f"config:{tmp_path / 'ckpt'}")
+    assert str(file) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "spec,dtype,named",
+    [
+        ("tiny:qwen3_vl:tiny", "bf32", "'bf32'"),
+        ("tiny:qwen3_vl:tiny", "float16", "'float16'"),
+        ("tiny:llava:tiny", "fp32", "llava"),
+        ("tiny:qwen3_vl", "fp32", "'tiny:qwen3_vl'"),
+        ("no/such/dir", "fp32", "'no/such/dir'"),
+        ("config:no/such/dir", "fp32", "no/such/dir"),
+    ],
+)
+def test_bad_spec_or_dtype(spec, dtype, named):
+    with pytest.raises(ConfigError, match=named):
+        make_model(spec, dtype=dtype)

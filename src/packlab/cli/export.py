@@ -1,4 +1,7 @@
-"""``packlab export onnx RUN_DIR``: a trained learned policy's networks as ONNX graphs, so it
+"""``packlab export sft DATASET``: a dataset's SFT conversations in a trainer's format
+(:mod:`packlab.datagen.sft_export`).
+
+``packlab export onnx RUN_DIR``: a trained learned policy's networks as ONNX graphs, so it
 plays on ONNX Runtime from the core install (no torch). Exporting needs the extra the model was
 trained with (torch); the directory kind is read from its files:
 
@@ -49,6 +52,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="generated observations on which torch and ONNX must agree (0: skip the check)",
     )
     onnx.set_defaults(func=run_export)
+    sft = sub.add_parser(
+        "sft",
+        help="a dataset's SFT conversations: hf (TRL, datasets) or verl (the reference's schema)",
+        description="Rewrite the SFT export of a PackData directory from its step shards: one "
+        "conversation per episode (or per window of --window steps), the loss on every answer.",
+    )
+    sft.add_argument("dataset", type=Path, help="a PackData dataset directory")
+    sft.add_argument(
+        "--format",
+        dest="sft_format",
+        default="hf",
+        help="hf: messages + embedded images, read by datasets and TRL (DIR/sft); verl: the "
+        "reference's verl schema, images by path (DIR/sft-verl); default %(default)s",
+    )
+    sft.add_argument(
+        "--window",
+        type=int,
+        default=0,
+        help="steps per conversation; longer episodes are cut into windows, every step a target "
+        "once (0: whole episodes); default %(default)s",
+    )
+    sft.add_argument("--out", type=Path, default=None, help="output directory (see --format)")
+    sft.set_defaults(func=run_export_sft)
+
+
+def run_export_sft(args: argparse.Namespace) -> int:
+    """``packlab export sft``: files in, files out (the step shards are only read)."""
+    from packlab.datagen.sft_export import SFT_FORMATS, export_sft
+
+    if args.sft_format not in SFT_FORMATS:
+        raise ConfigError(f"format = {args.sft_format!r}: choose from {', '.join(SFT_FORMATS)}")
+    written = export_sft(args.dataset, args.sft_format, args.window, args.out)
+    print(f"wrote {len(written)} file(s) under {written[0].parent}")
+    return 0
 
 
 def exporter_for(directory: Path) -> tuple[str, str]:

@@ -156,7 +156,21 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
         "--image-size",
         help="heightmap image side in pixels; default {default}",
     )
-    add_field(p, DatasetConfig, "sft", "--sft", help="SFT export granularity; default {default}")
+    add_field(
+        p,
+        DatasetConfig,
+        "sft",
+        "--sft",
+        help="SFT export: one conversation per episode, or none; default {default}",
+    )
+    add_field(
+        p,
+        DatasetConfig,
+        "sft_window",
+        "--sft-window",
+        help="steps per SFT conversation, longer episodes cut into windows (0: whole); "
+        "default {default}",
+    )
     add_field(
         p,
         DatasetConfig,

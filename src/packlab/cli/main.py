@@ -33,7 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("generate", "generate a PackData dataset"),
     "inspect-data": ("inspect_data", "summarise a PackData dataset directory"),
     "train": ("train", "train models (sft: supervised fine-tuning of the VLM)"),
-    "export": ("export", "export a trained learned policy to ONNX (plays without torch)"),
+    "export": ("export", "export SFT data for trainers, or a learned policy to ONNX"),
     "serve": ("serve", "serve a packing VLM over an OpenAI-compatible API (test server)"),
     "viz": ("viz", "draw recorded episodes, or view them in Rerun"),
 }

@@ -19,9 +19,16 @@ from packlab.core.choices import TEACHERS
 from packlab.core.errors import PacklabError
 from packlab.rl.config import ImitationConfig, RLTrainConfig
 from packlab.vlm.candidate.recipe import DaggerConfig
-from packlab.vlm.data.sft_examples import RECIPES
+from packlab.vlm.data.sft_dataset import RECIPES
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side, missing_extra
-from packlab.vlm.train.config import LR_PRETRAINED, LR_TINY, SFTConfig
+from packlab.vlm.train.config import (
+    DTYPES,
+    LR_PRETRAINED,
+    LR_TINY,
+    REPORTERS,
+    TRUNCATIONS,
+    SFTConfig,
+)
 
 #: What ``train sft`` and ``train candidate`` do (data checks, curves), and what ``train rl``
 #: and ``train rl-imitate`` do: imported when one runs.
@@ -40,34 +47,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="train_command", required=True)
     s = sub.add_parser(
         "sft",
-        help="fine-tune a Qwen-VL-family model on a PackData SFT export",
-        description="Step-level SFT with the loss on the answer tokens only. Multi-GPU: "
-        "accelerate launch --config_file configs/accelerate/fsdp_8gpu.yaml "
-        "-m packlab.cli.main train sft ...",
+        help="fine-tune a Qwen-VL-family model on a PackData SFT export (TRL)",
+        description="One conversation per episode, the loss on every answer. Rerun the same "
+        "command to resume from the last checkpoint. Several GPUs: accelerate launch "
+        "--config_file configs/accelerate/fsdp_8gpu.yaml -m packlab.cli.main train sft ...",
     )
     field = partial(add_field, s, SFTConfig)
     field(
-        "data", "--data", required=True, help="dataset directory (reads sft/*.jsonl) or one .jsonl"
+        "data",
+        "--data",
+        required=True,
+        help="a dataset directory (its sft/*.parquet), an export directory or one .parquet",
     )
     field(
         "model",
         "--model",
-        help="local checkpoint directory, or tiny:<family>:<size> for a random-weight model "
-        "(families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, small, base); "
-        "default {default}",
+        help="a local checkpoint directory, config:PATH (random weights of a config.json), or "
+        "tiny:<family>:<size> (families qwen3_5, qwen3_vl, qwen2_5_vl; sizes tiny, mini, "
+        "small, base); default {default}",
     )
-    field(
-        "out", "--out", required=True, help="run directory (config, loss log, curve, checkpoints)"
-    )
+    field("out", "--out", required=True, help="run directory (config, log, checkpoints, final)")
+    field("dtype", "--dtype", choices=DTYPES, help="weights as loaded; default {default}")
     field("epochs", "--epochs", help="default {default}")
     field(
         "lr", "--lr", help=f"default {LR_PRETRAINED:g} for checkpoints, {LR_TINY:g} for tiny models"
     )
-    field(
-        "micro_batch",
-        "--micro-batch",
-        help="examples per forward pass per device; default {default}",
-    )
+    field("micro_batch", "--micro-batch", help="episodes per forward pass per device; {default}")
     field(
         "grad_accum",
         "--grad-accum",
@@ -76,16 +81,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     field(
         "max_length",
         "--max-length",
-        help="token limit; the oldest past steps are dropped until an example fits; "
+        help="tokens per example; default: the longest example's",
+    )
+    field(
+        "truncation",
+        "--truncation",
+        choices=TRUNCATIONS,
+        help="an example over --max-length: error (stop before training) or drop (counted); "
         "default {default}",
     )
     field("max_steps", "--max-steps", help="stop after this many optimizer steps")
     field("warmup_ratio", "--warmup-ratio", help="default {default}")
     field("weight_decay", "--weight-decay", help="default {default}")
-    field("precision", "--precision", help="default {default}")
     field("gradient_checkpointing", "--gradient-checkpointing")
     field("lora", "--lora", help="train LoRA adapters (merged into the final model)")
+    field("qlora", "--qlora", help="LoRA on 4-bit base weights (CUDA, bitsandbytes)")
     field("lora_r", "--lora-r", help="default {default}")
+    field("lora_alpha", "--lora-alpha", help="default {default}")
+    field("lora_dropout", "--lora-dropout", help="default {default}")
+    field("lora_targets", "--lora-targets", help="module-name regex; default: LLM projections")
+    field(
+        "train_vision",
+        "--train-vision",
+        help="the vision tower trains too (LoRA: adapted); default frozen",
+    )
     field("history", "--history", help="default {default}")
     field("image", "--image", help="default {default}")
     field("recipe", "--recipe", choices=tuple(RECIPES), help="default {default}")
@@ -94,6 +113,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--data-fraction",
         help="fraction of episodes kept (seeded); default {default}",
     )
+    field("val_fraction", "--val-fraction", help="episodes held out for validation; {default}")
+    field("save_every", "--save-every", help="optimizer steps between checkpoints; {default}")
+    field("save_total_limit", "--save-total-limit", help="checkpoints kept; default {default}")
+    field("eval_every", "--eval-every", help="steps between validation losses; {default}")
+    field(
+        "play_cases",
+        "--play-cases",
+        help="generated validation cases per level the model plays closed loop (0: none); "
+        "default {default}",
+    )
+    field("play_every", "--play-every", help="steps between plays; default {default}")
+    field("play_backend", "--play-backend", help="default {default}")
+    field("workers", "--workers", help="DataLoader worker processes; default {default}")
+    field("report_to", "--report-to", choices=REPORTERS, help="default {default}")
     field("seed", "--seed", help="default {default}")
     field(
         "template_kwargs",
@@ -155,6 +188,18 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
     field("seed", "--seed", help="default {default}")
     field("minutes_per_round", "--minutes-per-round", help="cap on each round's training")
     field("threads", "--threads", help="torch threads for training; default torch's")
+    field(
+        "device",
+        "--device",
+        help="where training and its evaluations run: auto (a GPU when torch sees one), cpu, "
+        "cuda or cuda:<index>; default {default}",
+    )
+    field(
+        "dtype",
+        "--dtype",
+        help="bf16: forward passes under bf16 autocast on a GPU, weights and optimizer fp32; "
+        "default {default}",
+    )
     c.set_defaults(func=run_candidate)
 
 

@@ -52,10 +52,16 @@ RolloutBase = Literal["sdf", "lowest", "sdf+lowest", "sdf+lowest+flush"]
 OverflowRule = Literal["place", "score"]
 #: Which box of a guess the planner commits (``policies/plan/complete.commit_of``).
 CommitRule = Literal["enclosed", "first"]
-#: SFT export of a dataset: one chat example per step (its history as context), per episode, none.
-SFTExport = Literal["per_step", "per_episode", "none"]
+#: SFT export of a dataset: one multi-turn conversation per episode (packlab.datagen.sft_export),
+#: or none.
+SFTExport = Literal["episode", "none"]
 #: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).
 Precision = Literal["auto", "bf16", "no"]
+#: The dtype a VLM's weights are built or loaded in (``packlab.vlm.model.spec.make_model``).
+ModelDType = Literal["fp32", "bf16", "fp16"]
+#: A pointer model's training precision (``packlab train candidate --dtype``): fp32, or bf16
+#: autocast of the forward passes on a GPU while the weights and the optimizer stay float32.
+AutocastDType = Literal["fp32", "bf16"]
 #: How a bench episode failed (a failed record's ``error_kind``; docs/robustness.md): the policy
 #: or engine raised (or its worker died), it ran past ``--episode-timeout``, or a remote
 #: policy's server was unreachable.

@@ -17,8 +17,10 @@ run summary            ``format`` = ``SUMMARY_FORMAT``  summaries without ``form
 run config, the part   ``format``, one of               run-1 directories are read (their records
 a report reads         ``RUN_FORMATS``                  migrate); resuming them is refused by
 (``config.json``)                                       ``packlab.bench.config.check_resumable``
-dataset info           ``format_version`` =             none: ``packdata-1`` is the first; a file
-(``meta/info.json``)   ``PACKDATA_FORMAT``              without the field is refused
+dataset info           ``format_version`` =             ``packdata-1`` (its SFT export was one
+(``meta/info.json``)   ``PACKDATA_FORMAT``              JSONL example per step) is read as is;
+                                                        ``packlab export sft`` rewrites its export;
+                                                        a file without the field is refused
 =====================  ===============================  =========================================
 
 Any other version (a newer packlab wrote it, or the file is not ours) is a ``RecordFormatError``
@@ -64,8 +66,11 @@ RUN_FORMATS = (RUN_FORMAT_1, RUN_FORMAT)
 #: Version of ``summary.json``. Summaries written before it carried one are migrated.
 SUMMARY_FORMAT = "packlab-bench-summary-1"
 #: Version of a PackData directory (``meta/info.json`` ``format_version``); bump when a file's
-#: layout or a column's meaning changes.
-PACKDATA_FORMAT = "packdata-1"
+#: layout or a column's meaning changes. packdata-2: the SFT export is one Parquet conversation per
+#: episode (``packlab.datagen.sft_export``); packdata-1 wrote JSONL, one example per step.
+PACKDATA_FORMAT = "packdata-2"
+#: PackData versions this code reads (steps and episodes did not change between them).
+PACKDATA_FORMATS = ("packdata-1", PACKDATA_FORMAT)
 
 # -- JSON values -------------------------------------------------------------------------------
 
@@ -710,9 +715,9 @@ def run_config_from_json(data: bytes | str, source: str) -> RunConfigHead:
 
 
 def dataset_info_from_json(data: bytes | str, source: str) -> DatasetInfo:
-    """meta/info.json as a DatasetInfo; its ``format_version`` must be PACKDATA_FORMAT."""
+    """meta/info.json as a DatasetInfo; its ``format_version`` must be one of PACKDATA_FORMATS."""
     obj = _object(loads(data, source), source, None)
-    if check_version(obj, "format_version", (PACKDATA_FORMAT,), source) is None:
+    if check_version(obj, "format_version", PACKDATA_FORMATS, source) is None:
         raise RecordFormatError(
             source,
             None,

@@ -301,8 +301,11 @@ class DatasetConfig:
     validation: ValidationConfig = field(default_factory=ValidationConfig)
     shard_size: int = 100
     image_size: int = 224
-    #: SFT export: one chat example per step (its whole history as context), per episode, none.
-    sft: SFTExport = "per_step"
+    #: SFT export: one multi-turn conversation per episode (``sft/<shard>.parquet``), or none.
+    sft: SFTExport = "episode"
+    #: Steps per SFT conversation (0: whole episodes); longer episodes are cut into consecutive
+    #: windows, every step a target in exactly one.
+    sft_window: int = 0
     recipe: str | None = None
     #: The policy whose actions the trajectories hold. "oracle": the layout's own plan (the
     #: replay that validated the case). Any other registered policy (e.g. "plan", "sdf") is run
@@ -355,6 +358,8 @@ class DatasetConfig:
         if not 16 <= self.image_size <= 4096:
             raise ConfigError(f"image_size = {self.image_size}: must be in [16, 4096] px")
         require_choice(self.sft, SFTExport, "sft")
+        if self.sft_window < 0:
+            raise ConfigError(f"sft_window = {self.sft_window}: must be >= 0 (0: whole episodes)")
         require_choice(self.sides, SideNames, "sides")
         if not self.teacher.strip():
             raise ConfigError("teacher = '': name a registered policy, e.g. oracle or plan")

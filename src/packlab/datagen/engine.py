@@ -38,6 +38,7 @@ from packlab.datagen import format as fmt
 from packlab.datagen.config import GENERATOR_NAME, GENERATOR_VERSION, DatasetConfig, RunOptions
 from packlab.datagen.generator import SlotOutcome, fill_slot
 from packlab.datagen.seeds import id_prefix
+from packlab.datagen.sft_export import sft_table
 from packlab.datagen.validate import replay
 from packlab.executors import Context, Lost, WorkerLost, progress_bar, run_items
 from packlab.vlm.prompt.render import PROMPT_VERSION
@@ -149,8 +150,9 @@ def run_shard(
         root / fmt.EPISODES_DIR / f"{spec.name}.parquet", fmt.episodes_table(episode_rows)
     )
     if cfg.sft != "none":
-        fmt.atomic_write_bytes(
-            root / fmt.SFT_DIR / f"{spec.name}.jsonl", fmt.sft_jsonl(step_rows, cfg.sft)
+        fmt.write_parquet(
+            root / fmt.SFT_DIR / f"{spec.name}.parquet",
+            sft_table(step_rows, root, "hf", cfg.sft_window),
         )
     stats = ShardStats(
         spec.name,
@@ -273,8 +275,8 @@ def dataset_info(cfg: DatasetConfig, shards: list[ShardStats]) -> DatasetInfo:
         files=FilesInfo(
             steps=f"{fmt.STEPS_DIR}/*.parquet",
             episodes=f"{fmt.EPISODES_DIR}/*.parquet",
-            sft=f"{fmt.SFT_DIR}/*.jsonl" if cfg.sft != "none" else None,
-            sft_mode=cfg.sft,
+            sft=f"{fmt.SFT_DIR}/*.parquet" if cfg.sft != "none" else None,
+            sft_mode=cfg.sft if not cfg.sft_window else f"{cfg.sft}, window {cfg.sft_window}",
             images=f"{fmt.IMAGES_DIR}/<difficulty>/<shard>/<episode_id>/<step>.png",
         ),
     )

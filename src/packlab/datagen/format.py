@@ -9,7 +9,7 @@ Layout of a dataset directory (every path inside is relative, so the directory c
     data/episodes/<shard>.parquet   one row per kept episode (case, metrics, provenance)
     data/steps/<shard>.parquet      one row per step (shown buffer, action, heightmap, image path)
     images/<difficulty>/<shard>/<episode_id>/<step>.png   heightmap before each step
-    sft/<shard>.jsonl               chat examples rendered by packlab.vlm.prompt.render
+    sft/<shard>.parquet             one conversation per episode (packlab.datagen.sft_export)
 
 ``<shard>`` is ``<difficulty>-<index:05d>``. Files speak centimetres as the case format does,
 except heightmaps, which keep the core's exact integer millimetres (``heightmap_mm``). Every file
@@ -24,7 +24,7 @@ import io
 import json
 import os
 import shutil
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -38,13 +38,7 @@ from packlab.core.records import PACKDATA_FORMAT, DatasetInfo, dataset_info_from
 from packlab.core.types import Action, Container, ShownItem
 from packlab.datagen.validate import Trajectory
 from packlab.sim.raster import heightmap_to_image
-from packlab.vlm.prompt.render import (
-    PROMPT_VERSION,
-    TurnState,
-    action_text,
-    render_messages,
-    with_answer,
-)
+from packlab.vlm.prompt.render import action_text
 
 #: Bump when a file's layout or a column's meaning changes (stated once, beside the record
 #: types: packlab.core.records.PACKDATA_FORMAT, ``format_version`` of meta/info.json).
@@ -335,7 +329,7 @@ def episode_row(trajectory: Trajectory) -> dict[str, Any]:
 # -- SFT export -------------------------------------------------------------------------------
 
 
-def _shown_items(row_shown: Sequence[dict[str, Any]]) -> tuple[ShownItem, ...]:
+def shown_items(row_shown: Sequence[dict[str, Any]]) -> tuple[ShownItem, ...]:
     return tuple(
         ShownItem(
             shown_index=s["object_id"],
@@ -348,73 +342,10 @@ def _shown_items(row_shown: Sequence[dict[str, Any]]) -> tuple[ShownItem, ...]:
     )
 
 
-def _container_of(row: dict[str, Any]) -> Container:
+def container_of(row: dict[str, Any]) -> Container:
     size = tuple(round(v * 10) for v in row["container_size_cm"])
     xy, z = (round(v * 10) for v in row["grid_cell_size_cm"])
     return Container(size, xy, z)  # type: ignore[arg-type]
-
-
-def sft_records(rows: Sequence[dict[str, Any]], mode: str) -> Iterable[dict[str, Any]]:
-    """Chat examples of one episode's step rows (in step order), rendered by vlm.prompt.render.
-
-    ``per_step``: one example per step, its context the whole history before it (the format
-    ``packlab.vlm.data.sft_examples`` reads). ``per_episode``: one example per episode, the full
-    conversation ending with the last step's answer. Images are the rows' relative paths.
-    """
-    if not rows:
-        return
-    container = _container_of(rows[0])
-    turns = [
-        TurnState(
-            image=r["image"],
-            shown=_shown_items(r["shown"]),
-            step_index=r["step_index"],
-            remaining=r["remaining"],
-        )
-        for r in rows
-    ]
-    actions = [Action(**r["action"]) for r in rows]
-    last = len(rows) - 1
-    targets = range(len(rows)) if mode == "per_step" else [last]
-    for t in targets:
-        past = list(zip(turns[:t], actions[:t]))
-        messages = with_answer(render_messages(container, past, turns[t]), actions[t])
-        yield {
-            "messages": messages,
-            "episode_id": rows[t]["episode_id"],
-            "difficulty": rows[t]["difficulty"],
-            "step_index": rows[t]["step_index"],
-            "mode": mode,
-            "prompt_version": PROMPT_VERSION,
-        }
-
-
-def sft_jsonl(rows: Sequence[dict[str, Any]], mode: str) -> bytes:
-    """JSONL bytes of the SFT examples of many episodes' step rows (grouped by episode)."""
-    lines: list[str] = []
-    start = 0
-    for i in range(1, len(rows) + 1):
-        if i == len(rows) or rows[i]["episode_id"] != rows[start]["episode_id"]:
-            lines += [
-                json.dumps(r, separators=(",", ":")) for r in sft_records(rows[start:i], mode)
-            ]
-            start = i
-    return "".join(line + "\n" for line in lines).encode()
-
-
-def export_sft(dataset_dir: str | os.PathLike[str], mode: str = "per_step") -> list[Path]:
-    """(Re)write ``sft/*.jsonl`` of an existing dataset from its step shards.
-
-    Files in, files out.
-    """
-    root = Path(dataset_dir)
-    written = []
-    for path in sorted((root / STEPS_DIR).glob("*.parquet")):
-        rows = pq.read_table(path).to_pylist()
-        out = root / SFT_DIR / f"{path.stem}.jsonl"
-        atomic_write_bytes(out, sft_jsonl(rows, mode))
-        written.append(out)
-    return written
 
 
 # -- dataset card -----------------------------------------------------------------------------
@@ -447,6 +378,13 @@ def _case_settings_note(info: DatasetInfo) -> str:
     return "".join(notes) + ("\n" if notes else "")
 
 
+def _sft_config(info: DatasetInfo) -> str:
+    """The card's ``sft`` config (the export's conversations) when the dataset has one."""
+    if info.files.sft is None or not info.files.sft.endswith(".parquet"):
+        return ""
+    return f'- config_name: sft\n  data_files: "{info.files.sft}"\n'
+
+
 def dataset_card(info: DatasetInfo) -> str:
     """README.md of a dataset: the YAML header lets ``datasets.load_dataset(DIR, name)`` work."""
     counts = info.counts
@@ -458,6 +396,7 @@ def dataset_card(info: DatasetInfo) -> str:
         f'  data_files: "{STEPS_DIR}/*.parquet"\n'
         "- config_name: episodes\n"
         f'  data_files: "{EPISODES_DIR}/*.parquet"\n'
+        f"{_sft_config(info)}"
         "---\n\n"
         f"# {info.name}\n\n"
         "Closed-loop bin-packing trajectories made by packlab's layout-first data engine: perfect\n"
@@ -471,7 +410,10 @@ def dataset_card(info: DatasetInfo) -> str:
         f'steps = datasets.load_dataset("parquet", data_files="{STEPS_DIR}/*.parquet", '
         'split="train")\n'
         "```\n\n"
-        "Images (`image` column) and SFT messages reference PNGs relative to this directory.\n"
+        "The `sft` config holds one conversation per episode (`messages` and `images`, the PNGs\n"
+        "embedded), which TRL's SFTTrainer reads as it is:\n"
+        '`datasets.load_dataset(DIR, "sft", split="train")`.\n'
+        "The `image` column of the steps names PNGs relative to this directory.\n"
         "Heightmap images: x along columns (left to right), y along rows (top to bottom), "
         "cell (0, 0)\n"
         "top-left; colour is absolute height from the floor to the container rim.\n"

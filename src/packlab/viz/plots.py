@@ -253,18 +253,23 @@ def average_overall_figure(summary: RunSummary, intervals: Intervals | None = No
 
 
 def loss_curve_figure(log_path: str | os.PathLike[str], title: str = "SFT loss") -> Figure:
-    """Loss per optimizer step (and a moving average) from an SFT run's loss_log.jsonl."""
+    """Training loss per logged step (and a moving average), and the validation loss where the
+    run measured one, from an SFT run's loss_log.jsonl (other lines, e.g. play results, skipped)."""
     text = Path(log_path).read_text()
     rows = [json.loads(line) for line in text.splitlines() if line.strip()]
-    steps = [r["step"] for r in rows]
-    losses = [r["loss"] for r in rows]
+    train = [r for r in rows if "loss" in r]
+    val = [r for r in rows if "eval_loss" in r]
+    steps = [r["step"] for r in train]
+    losses = [r["loss"] for r in train]
     fig = Figure(figsize=(6, 3.5), dpi=120)
     ax = fig.add_subplot()
-    ax.plot(steps, losses, lw=0.8, alpha=0.5, label="per step")
+    ax.plot(steps, losses, lw=0.8, alpha=0.5, label="training, per step")
     w = max(1, len(losses) // 20)
     if len(losses) >= 2 * w > 2:
         avg = [sum(losses[i - w + 1 : i + 1]) / w for i in range(w - 1, len(losses))]
-        ax.plot(steps[w - 1 :], avg, lw=1.6, label=f"moving mean ({w})")
+        ax.plot(steps[w - 1 :], avg, lw=1.6, label=f"training, moving mean ({w})")
+    if val:
+        ax.plot([r["step"] for r in val], [r["eval_loss"] for r in val], "o-", label="validation")
     ax.set_xlabel("optimizer step")
     ax.set_ylabel("answer-token NLL")
     ax.set_title(title)

@@ -30,7 +30,15 @@ from packlab.vlm.candidate.compose import (
     observation_messages,
     state_messages,
 )
-from packlab.vlm.candidate.image import blank_image, heightmap_image, image_side, visual_tokens
+from packlab.vlm.candidate.image import (
+    QWEN3_MEAN,
+    QWEN3_STD,
+    blank_image,
+    heightmap_image,
+    image_side,
+    patchify,
+    visual_tokens,
+)
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.model.chatml import IM_END, IMAGE_PAD
 from packlab.vlm.prompt.compact import candidate_line
@@ -59,27 +67,68 @@ class PromptSettings:
         )
 
 
+#: A model card's record of the normalisation its pointer model was trained with (the image
+#: processor's names), written by :func:`packlab.vlm.candidate.saved.save_pointer`.
+NORM_KEYS = ("image_mean", "image_std")
+
+
+def _triple(values: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def image_norm(vlm: Any) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(mean, std) per RGB channel a loaded model's images are normalised with: its model
+    card's record (what a saved pointer model was trained with), else its image processor's
+    (the checkpoint's ``preprocessor_config.json``, or its family's), else Qwen3-VL's."""
+    meta = getattr(vlm, "meta", None) or {}
+    if all(meta.get(k) is not None for k in NORM_KEYS):
+        return _triple(meta["image_mean"]), _triple(meta["image_std"])
+    processor = getattr(vlm, "image_processor", None)
+    mean = getattr(processor, "image_mean", None)
+    std = getattr(processor, "image_std", None)
+    if mean is None or std is None:
+        return QWEN3_MEAN, QWEN3_STD
+    return _triple(mean), _triple(std)
+
+
 @dataclass(frozen=True, slots=True)
 class ImageGrid:
     """A vision tower's patch geometry (from its config): pixels per patch side, patches per
-    merged token side, frames per patch."""
+    merged token side, frames per patch; and the normalisation of its pixels (mean and std per
+    RGB channel). The ONNX card stores it whole (``extra.grid``), so both runtimes patchify
+    and normalise alike; a card without ``mean`` and ``std`` was exported with Qwen3-VL's."""
 
     patch: int = 16
     merge: int = 2
     temporal: int = 2
+    mean: tuple[float, ...] = QWEN3_MEAN
+    std: tuple[float, ...] = QWEN3_STD
+
+    def __post_init__(self) -> None:
+        # A card read from JSON gives lists: tuples compare equal to the torch side's grid.
+        object.__setattr__(self, "mean", _triple(self.mean))
+        object.__setattr__(self, "std", _triple(self.std))
+        if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
+            raise ValueError(f"image mean {self.mean} / std {self.std}: expected 3 each, std > 0")
 
     @classmethod
     def of(cls, vlm: Any) -> ImageGrid:
-        """The grid of a loaded :class:`~packlab.vlm.model.checkpoint.VLM`."""
+        """The grid of a loaded :class:`~packlab.vlm.model.checkpoint.VLM` (:func:`image_norm`)."""
         v = vlm.model.config.vision_config
-        return cls(int(v.patch_size), int(v.spatial_merge_size), int(v.temporal_patch_size))
+        mean, std = image_norm(vlm)
+        return cls(int(v.patch_size), int(v.spatial_merge_size), int(v.temporal_patch_size),
+                   mean, std)  # fmt: skip
 
     @classmethod
-    def from_config(cls, config: dict[str, Any]) -> ImageGrid:
-        """The grid of a checkpoint's ``config.json`` (read without transformers)."""
-        v = config["vision_config"]
+    def from_config(
+        cls, config: dict[str, Any], preprocessor: dict[str, Any] | None = None
+    ) -> ImageGrid:
+        """The grid of a checkpoint's ``config.json`` and ``preprocessor_config.json`` (read
+        without transformers; no preprocessor config: Qwen3-VL's normalisation)."""
+        v, pre = config["vision_config"], preprocessor or {}
         return cls(int(v["patch_size"]), int(v["spatial_merge_size"]),
-                   int(v["temporal_patch_size"]))  # fmt: skip
+                   int(v["temporal_patch_size"]), pre.get("image_mean") or QWEN3_MEAN,
+                   pre.get("image_std") or QWEN3_STD)  # fmt: skip
 
     @property
     def thw(self) -> tuple[int, int, int]:
@@ -94,6 +143,11 @@ class ImageGrid:
     @property
     def tokens(self) -> int:
         return visual_tokens(self.side, self.patch, self.merge)
+
+    def pixels(self, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`.image.patchify` of (B, side, side) uint8 images with this grid's geometry and
+        normalisation: ``pixel_values`` and ``image_grid_thw``."""
+        return patchify(images, self.patch, self.merge, self.temporal, self.mean, self.std)
 
 
 #: Qwen3-VL's grid (the tiny models' too); :meth:`ImageGrid.of` reads a model's own.

@@ -14,7 +14,7 @@ import torch
 
 from packlab.core.types import Case
 from packlab.sim.episode import run_episode
-from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate
+from packlab.vlm.candidate.pointer import Encoded, PointerModel, collate, to_device
 from packlab.vlm.candidate.policy import IN_MEMORY, CandidateVLMPolicy
 from packlab.vlm.prompt.render import PROMPT_VERSION
 
@@ -74,7 +74,7 @@ def heldout_metrics(model: PointerModel, held: Heldout, answer: str = "index") -
     with torch.inference_mode():
         for i in range(0, len(held.states), EVAL_BATCH):
             part = held.states[i : i + EVAL_BATCH]
-            b = collate(part, pad)
+            b = to_device(collate(part, pad), model.device)
             seen: dict = defaultdict(list)
             rows = _json_rows(model, b, part, seen) if answer == "json" else _pointer_rows(model, b)
             nll.extend(rows[0])

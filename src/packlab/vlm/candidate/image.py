@@ -7,7 +7,11 @@ container (the padding of a non-square or small container) are rim-high walls, s
 go there. A container with more cells per side than the image has pixels is max-pooled first.
 :func:`patchify` turns images into the Qwen-VL ``pixel_values`` and ``image_grid_thw``, exactly as
 transformers' Qwen2-VL image processor does after its resize (a test checks it), but without PIL
-or a resize, so that encoding a step costs well under a millisecond.
+or a resize, so that encoding a step costs well under a millisecond. It normalises with the
+checkpoint's own per-channel mean and std (its image processor's ``image_mean`` and
+``image_std``: CLIP's for Qwen2.5-VL, 0.5 for the Qwen3 families), carried by
+:class:`.encoding.ImageGrid`; :data:`QWEN3_MEAN` and :data:`QWEN3_STD` only where a model names
+none.
 
 Image side: :data:`TOKENS_PER_SIDE` merged tokens per side, each ``patch_size *
 spatial_merge_size`` pixels (16 * 2 = 32 for Qwen3-VL), so 4 -> a 128 x 128 image, 8 x 8 = 64
@@ -29,6 +33,11 @@ from packlab.core.types import Container
 TOKENS_PER_SIDE = 4
 #: Pixel values of the image (uint8): 0 is the floor, 255 the rim (and the walls outside).
 FULL = 255
+#: Qwen3-VL's normalisation per RGB channel: the fallback for a model whose checkpoint names
+#: none, and what every pointer model saved before the normalisation was recorded was trained
+#: with.
+QWEN3_MEAN = (0.5, 0.5, 0.5)
+QWEN3_STD = (0.5, 0.5, 0.5)
 
 
 def image_side(patch_size: int, merge_size: int) -> int:
@@ -67,17 +76,34 @@ def blank_image(side: int) -> np.ndarray:
     return np.zeros((side, side), dtype=np.uint8)
 
 
+def _affine(mean: tuple[float, ...], std: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(scale, shift) per channel with ``(v / 255 - mean) / std == v * scale - shift``: one
+    multiply-add, which for mean = std = 0.5 is ``v * (2 / 255) - 1`` bit for bit (the form
+    every earlier model was trained and exported with)."""
+    scale = [1.0 / (255.0 * s) for s in std]
+    shift = [m / s for m, s in zip(mean, std, strict=True)]
+    return np.asarray(scale, dtype=np.float32), np.asarray(shift, dtype=np.float32)
+
+
 def patchify(
-    images: np.ndarray, patch_size: int, merge_size: int, temporal_patch_size: int
+    images: np.ndarray,
+    patch_size: int,
+    merge_size: int,
+    temporal_patch_size: int,
+    mean: tuple[float, ...] = QWEN3_MEAN,
+    std: tuple[float, ...] = QWEN3_STD,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(B, H, W) uint8 grayscale images -> ``pixel_values`` (B * gh * gw, 3 * T * P * P) float32,
-    normalised as the Qwen3-VL processor does ((v / 255 - 0.5) / 0.5, the same value in the 3
-    channels and the T temporal copies), and ``image_grid_thw`` (B, 3) int64 = (1, gh, gw)."""
+    normalised as the checkpoint's processor does ((v / 255 - mean[c]) / std[c] in channel c of
+    the grey value copied to the 3 RGB channels, the same in the T temporal copies), and
+    ``image_grid_thw`` (B, 3) int64 = (1, gh, gw)."""
     b, h, w = images.shape
     gh, gw, m, p = h // patch_size, w // patch_size, merge_size, patch_size
-    x = images.astype(np.float32) * (2.0 / 255.0) - 1.0
+    scale, shift = _affine(mean, std)
+    x = images.astype(np.float32)
     x = x.reshape(b, gh // m, m, p, gw // m, m, p).transpose(0, 1, 4, 2, 5, 3, 6)
     x = x.reshape(b, gh * gw, 1, 1, p * p)  # patches in merge order, then (channel, time, pixel)
+    x = x * scale[:, None, None] - shift[:, None, None]  # (b, gh * gw, 3, 1, p * p)
     x = np.broadcast_to(x, (b, gh * gw, 3, temporal_patch_size, p * p))
     pixels = np.ascontiguousarray(x).reshape(b * gh * gw, 3 * temporal_patch_size * p * p)
     grid = np.tile(np.array([[1, gh, gw]], dtype=np.int64), (b, 1))

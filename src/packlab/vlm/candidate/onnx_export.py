@@ -45,7 +45,6 @@ from packlab.sim.episode import run_episode
 from packlab.vlm.candidate import onnx_scoring, scoring
 from packlab.vlm.candidate.encoding import ImageGrid, PromptSettings
 from packlab.vlm.candidate.files import HEAD_FILE
-from packlab.vlm.candidate.image import patchify
 from packlab.vlm.candidate.json_tokenizer import JsonTokenizer
 from packlab.vlm.candidate.onnx_graphs import (
     TEXT_OUTPUTS,
@@ -141,7 +140,7 @@ def export_vision(model: PointerModel, grid: ImageGrid, directory: Path) -> Grap
     graph = VisionGraph(model, grid.thw)
     spec = GraphSpec(f"{VISION_GRAPH}.onnx", VISION_INPUTS, graph.outputs)
     pixels = np.zeros((1, grid.side, grid.side), dtype=np.uint8)
-    sample = torch.from_numpy(patchify(pixels, grid.patch, grid.merge, grid.temporal)[0])
+    sample = torch.from_numpy(grid.pixels(pixels)[0])
     _export(graph, (sample,), directory / spec.file,
             input_names=list(spec.inputs), output_names=list(spec.outputs))  # fmt: skip
     return spec

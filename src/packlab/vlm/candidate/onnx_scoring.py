@@ -3,9 +3,11 @@ Runtime, core install: no torch, no transformers); the torch path is :mod:`.scor
 
 A step is encoded by :mod:`.encoding`, the code the torch path and training use, with the
 checkpoint's ``tokenizer.json`` read by :class:`.json_tokenizer.JsonTokenizer`; the heightmap
-image is patchified by :func:`.image.patchify`, and the M-RoPE position ids come from
-:mod:`.rope`. The vision graph turns the image into visual tokens, and the text graph returns
-one score per listed line (:mod:`.onnx_graphs`, written by :mod:`.onnx_export`).
+image is patchified and normalised outside the graphs by :func:`.image.patchify`, with the
+mean and std the card stores in ``extra.grid`` (the torch model's own, :class:`ImageGrid`), and
+the M-RoPE position ids come from :mod:`.rope`. The vision graph turns the image into visual
+tokens, and the text graph returns one score per listed line (:mod:`.onnx_graphs`, written by
+:mod:`.onnx_export`).
 Torch-free.
 """
 
@@ -26,7 +28,6 @@ from packlab.policies.onnx_model import OnnxGraph, open_graphs
 from packlab.vlm.candidate.compose import IMAGE_MAPS
 from packlab.vlm.candidate.encoding import Encoded, ImageGrid, PromptSettings, encode_observation
 from packlab.vlm.candidate.files import CANDIDATE_FORMAT
-from packlab.vlm.candidate.image import patchify
 from packlab.vlm.candidate.json_tokenizer import JsonTokenizer
 from packlab.vlm.candidate.rope import rope_positions
 
@@ -75,7 +76,7 @@ def load_onnx_pointer(directory: str | Path, threads: int | None = 1) -> OnnxPoi
     card, graphs = open_graphs(directory, POINTER_KIND, graph_names(meta), threads)
     try:
         grid = ImageGrid(**card.extra["grid"])
-    except (KeyError, TypeError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"{directory / 'onnx.json'}: field 'extra.grid' malformed ({exc!r})")
     return OnnxPointer(directory, meta, JsonTokenizer(directory), grid, graphs)
 
@@ -91,8 +92,7 @@ def graph_inputs(model: OnnxPointer, enc: Encoded) -> dict[str, np.ndarray]:
         "vectors": enc.vectors,
     }
     if enc.image is not None:
-        grid = model.grid
-        pixels, _ = patchify(enc.image[None], grid.patch, grid.merge, grid.temporal)
+        pixels, _ = model.grid.pixels(enc.image[None])
         vision = model.graphs[VISION_GRAPH].run(pixel_values=pixels)
         feed["visual_at"] = np.flatnonzero(enc.ids == enc.image_token).astype(np.int64)
         feed["visual"] = vision["visual"]

@@ -41,7 +41,6 @@ from packlab.vlm.candidate.encoding import (  # noqa: F401 (the encoding's names
     prompt_text,
     soft_of,
 )
-from packlab.vlm.candidate.image import patchify
 from packlab.vlm.model.checkpoint import VLM
 
 
@@ -148,6 +147,16 @@ class PointerModel(nn.Module):
         """Scores of a :func:`collate` batch."""
         return self(batch)
 
+    @property
+    def device(self) -> torch.device:
+        """Where the parameters are (the batches go there: :func:`to_device`)."""
+        return next(self.parameters()).device
+
+
+def to_device(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict:
+    """A :func:`collate` batch on ``device`` (collate builds it on the CPU)."""
+    return {k: v.to(device) for k, v in batch.items()}
+
 
 def soft_loss(scores: torch.Tensor, targets: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Mean cross-entropy of the scores' softmax over the listed lines against target
@@ -178,7 +187,7 @@ def _images(batch: Sequence[Encoded], ids: torch.Tensor, mask: torch.Tensor) -> 
     if not all(shown) or any(e.grid != grid for e in batch) or grid is None:
         raise ValueError("a batch mixes states with and without (or with different) images")
     images = np.stack([e.image for e in batch])  # type: ignore[misc]
-    pixels, thw = patchify(images, grid.patch, grid.merge, grid.temporal)
+    pixels, thw = grid.pixels(images)
     pads = torch.zeros_like(ids)
     for n, e in enumerate(batch):
         pads[n, : len(e.ids)] = torch.from_numpy(e.ids == e.image_token)

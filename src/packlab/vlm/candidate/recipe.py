@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from packlab.core.choices import TEACHERS, PointerMap, require_choice
+from packlab.core.choices import TEACHERS, AutocastDType, PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.policies.candidates import STUDENT_K
 from packlab.vlm.candidate.compose import Instructions
+from packlab.vlm.candidate.precision import check_device, check_dtype
 
 #: The recipe's module (vlm extra), imported when ``packlab train candidate`` runs.
 DAGGER_MODULE = "packlab.vlm.candidate.dagger"
@@ -42,6 +43,13 @@ class DaggerConfig:
     seed: int = 0
     minutes_per_round: float | None = None
     threads: int | None = None  # torch threads for training (None: torch's default)
+    #: Where training and its evaluation run: auto (a GPU when torch sees one), cpu, cuda,
+    #: cuda:<index>. Collection plays the previous round's ONNX export on the CPU whatever this
+    #: is, and the saved model is on the CPU, so it plays and resumes anywhere.
+    device: str = "auto"
+    #: fp32, or bf16: forward passes under bf16 autocast on a GPU that has it (weights and
+    #: optimizer stay float32); refused where there is none.
+    dtype: AutocastDType = "fp32"
 
     def __post_init__(self) -> None:
         if self.teacher not in TEACHERS:
@@ -52,3 +60,5 @@ class DaggerConfig:
         require_choice(self.map, PointerMap, "map")
         if self.rounds < 0:
             raise ConfigError(f"rounds = {self.rounds}: must be >= 0")
+        check_device("DaggerConfig", self.device)
+        check_dtype("DaggerConfig", self.dtype, self.device)

@@ -5,7 +5,10 @@ The directory is an ordinary checkpoint (:func:`packlab.vlm.model.checkpoint.sav
 ``"action_format": "candidate"`` with the proposer, the instructions and the teacher it was
 trained with, so the policy rebuilds exactly the training-time prompt. Its ``map`` says how the
 model sees the heightmap (:data:`packlab.core.choices.PointerMap`); a directory written before
-that field existed holds a text-map model and loads with ``map`` = ``"text"``.
+that field existed holds a text-map model and loads with ``map`` = ``"text"``. Its
+``image_mean`` and ``image_std`` are the normalisation the model was trained with
+(:func:`.encoding.image_norm`); a directory written before they were recorded was trained with
+Qwen3-VL's (0.5), whatever its family's processor says, and loads with those.
 Imports torch: only the vlm extra may import this module.
 """
 
@@ -18,7 +21,9 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from packlab.core.errors import ConfigError
+from packlab.vlm.candidate.encoding import image_norm
 from packlab.vlm.candidate.files import CANDIDATE_FORMAT, HEAD_FILE, is_pointer_dir
+from packlab.vlm.candidate.image import QWEN3_MEAN, QWEN3_STD
 from packlab.vlm.candidate.pointer import PointerModel
 from packlab.vlm.model.checkpoint import PACKLAB_META, load_model, save_model
 
@@ -27,8 +32,11 @@ LEGACY_MAP = "text"
 
 
 def save_pointer(model: PointerModel, path: Path, meta: dict[str, Any]) -> Path:
-    save_model(model.vlm, path, extra_meta={**meta, "action_format": CANDIDATE_FORMAT})
-    save_file({k: v.detach().contiguous() for k, v in model.head.state_dict().items()},
+    mean, std = image_norm(model.vlm)
+    norm = {"image_mean": list(mean), "image_std": list(std)}
+    save_model(model.vlm, path, extra_meta={**meta, **norm, "action_format": CANDIDATE_FORMAT})
+    # On the CPU, so that a head trained on a GPU loads anywhere.
+    save_file({k: v.detach().cpu().contiguous() for k, v in model.head.state_dict().items()},
               str(path / HEAD_FILE))  # fmt: skip
     return path
 
@@ -44,6 +52,8 @@ def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
             f"expected {CANDIDATE_FORMAT!r}"
         )
     vlm.meta.setdefault("map", LEGACY_MAP)
+    vlm.meta.setdefault("image_mean", list(QWEN3_MEAN))  # saved before it was recorded
+    vlm.meta.setdefault("image_std", list(QWEN3_STD))
     lines = bool(vlm.meta.get("line_vectors", False))  # a card before line vectors: text only
     model = PointerModel(vlm, vlm.meta.get("pool", "last"), vlm.meta["map"], lines)
     model.head.load_state_dict(load_file(str(path / HEAD_FILE)))

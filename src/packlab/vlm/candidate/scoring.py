@@ -19,6 +19,7 @@ from packlab.vlm.candidate.pointer import (
     PointerModel,
     collate,
     encode_observation,
+    to_device,
 )
 from packlab.vlm.model.chatml import IM_END
 
@@ -41,13 +42,22 @@ def score_listed(
     listed: Sequence[Candidate],
     settings: PromptSettings,
 ) -> np.ndarray:
-    """One score per listed placement (higher is better)."""
-    batch = collate(
-        [_encode(model, observation, listed, settings)], model.vlm.tokenizer.pad_token_id
-    )
+    """One score per listed placement (higher is better), on the model's device."""
+    batch = _batch(model, observation, listed, settings)
     with torch.inference_mode():
         scores = model.score(batch)
-    return scores[0].float().numpy()
+    return scores[0].float().cpu().numpy()
+
+
+def _batch(
+    model: PointerModel,
+    observation: Observation,
+    listed: Sequence[Candidate],
+    settings: PromptSettings,
+) -> dict[str, torch.Tensor]:
+    """The step as a batch of one on the model's device (a model in training may be on a GPU)."""
+    pad = model.vlm.tokenizer.pad_token_id
+    return to_device(collate([_encode(model, observation, listed, settings)], pad), model.device)
 
 
 #: Longest free-JSON answer generated (an action is about 20 tokens).
@@ -61,9 +71,7 @@ def generate_answer(
     settings: PromptSettings,
 ) -> str:
     """The model's greedy free-JSON answer text (the format ablation's policy)."""
-    batch = collate(
-        [_encode(model, observation, listed, settings)], model.vlm.tokenizer.pad_token_id
-    )
+    batch = _batch(model, observation, listed, settings)
     ids = batch["ids"]
     images = {k: batch[k] for k in IMAGE_KEYS if k in batch}
     end = model.vlm.tokenizer.convert_tokens_to_ids(IM_END)
@@ -77,7 +85,7 @@ def generate_answer(
             eos_token_id=end,
             pad_token_id=model.vlm.tokenizer.pad_token_id,
         )
-    return model.vlm.tokenizer.decode(out[0, ids.shape[1] :], skip_special_tokens=True)
+    return model.vlm.tokenizer.decode(out[0, ids.shape[1] :].cpu(), skip_special_tokens=True)
 
 
 def set_threads(threads: int | None) -> None:

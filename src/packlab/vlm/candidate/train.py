@@ -17,7 +17,7 @@ import math
 import time
 import zlib
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,12 +25,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from packlab.core.choices import PointerMap, require_choice
+from packlab.core.choices import AutocastDType, PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.policies.candidates import STUDENT_K, ProposerConfig
 from packlab.policies.provenance import card_path, provenance, selection_record
 from packlab.vlm.candidate.compose import Answer, Instructions
+from packlab.vlm.candidate.device import autocast, placement
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.onnx_export import export_onnx
@@ -42,7 +43,9 @@ from packlab.vlm.candidate.pointer import (
     collate,
     encode,
     soft_loss,
+    to_device,
 )
+from packlab.vlm.candidate.precision import check_device, check_dtype
 from packlab.vlm.candidate.saved import load_pointer, save_pointer
 from packlab.vlm.candidate.states import read_states, shuffled
 from packlab.vlm.model.spec import make_model
@@ -77,10 +80,13 @@ class PointerTrainConfig:
     heldout_every: int = 10  # every n-th case (by hash) is held out
     seed: int = 0
     threads: int | None = None
-    #: Where the updates run (a torch device: "cpu", "cuda"). Evaluation and the saved model
-    #: stay on the CPU, so a model trained on a GPU plays and resumes anywhere. Only the CPU
-    #: promises the same model for the same seed; a GPU's kernels may differ in the last bits.
+    #: Where the updates and the evaluations run: auto (a GPU when torch sees one), cpu, cuda,
+    #: cuda:<index>. Checkpoints and the saved model are on the CPU, so a model trained on a GPU
+    #: plays and resumes anywhere. Only the CPU promises the same model for the same seed; a
+    #: GPU's kernels may differ in the last bits.
     device: str = "cpu"
+    #: fp32, or bf16 autocast of the forward passes on a GPU (weights and optimizer float32).
+    dtype: AutocastDType = "fp32"
     minutes: float | None = None  # stop early (with a checkpoint) after this long
     #: Stop (with a checkpoint) once this many updates are done, counted like ``steps`` (which
     #: alone sets the schedule): a rerun with a larger ``stop_after`` or none goes on exactly.
@@ -90,6 +96,8 @@ class PointerTrainConfig:
     def __post_init__(self) -> None:
         require_choice(self.map, PointerMap, "map")
         require_choice(self.answer, Answer, "answer")
+        check_device("PointerTrainConfig", self.device)
+        check_dtype("PointerTrainConfig", self.dtype, self.device)
 
 
 #: Observations on which a trained model's ONNX export is checked against torch.
@@ -155,8 +163,7 @@ def _schedule(cfg: PointerTrainConfig):
 def _batch(train: Sequence[Encoded], cfg: PointerTrainConfig, step: int, pad: int) -> dict:
     rng = np.random.default_rng([cfg.seed, step])
     picks = rng.choice(len(train), size=min(cfg.batch, len(train)), replace=False)
-    batch = collate([train[i] for i in picks], pad)
-    return {k: v.to(cfg.device) for k, v in batch.items()}
+    return to_device(collate([train[i] for i in picks], pad), cfg.device)
 
 
 @dataclass
@@ -183,13 +190,26 @@ def _setup(cfg: PointerTrainConfig) -> _State:
     return st
 
 
+def _on_cpu(value: Any) -> Any:
+    """Every tensor in a (nested) state dict moved to the CPU, so that a checkpoint written on
+    a GPU loads on a machine without one."""
+    if isinstance(value, torch.Tensor):
+        return value.cpu()
+    if isinstance(value, dict):
+        return {k: _on_cpu(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_on_cpu(v) for v in value)
+    return value
+
+
 def _save(cfg: PointerTrainConfig, st: _State) -> None:
     ckpt = Path(cfg.out) / CHECKPOINT
     tmp = ckpt.with_suffix(".tmp")
     torch.save(
         {
-            "model": {k: v.cpu() for k, v in st.model.state_dict().items()},
-            "opt": st.opt.state_dict(),
+            "model": _on_cpu(st.model.state_dict()),
+            # Optimizer.load_state_dict moves the moments back to each parameter's device.
+            "opt": _on_cpu(st.opt.state_dict()),
             "sched": st.sched.state_dict(),
             "step": st.step,
             "seconds": st.seconds,
@@ -208,8 +228,9 @@ def _loss(model: PointerModel, batch: dict, answer: str) -> torch.Tensor:
     return soft_loss(model.score(batch), batch["targets"], batch["valid"])
 
 
-def _update(st: _State, batch: dict, answer: str) -> float:
-    loss = _loss(st.model, batch, answer)
+def _update(cfg: PointerTrainConfig, st: _State, batch: dict) -> float:
+    with autocast(cfg.device, cfg.dtype):  # the forward pass only; backward follows its dtypes
+        loss = _loss(st.model, batch, cfg.answer)
     st.opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(st.model.parameters(), 1.0)
@@ -225,11 +246,12 @@ OnLog = Callable[[Path, Path], None]
 def _evaluate(
     cfg, st: _State, held: Heldout, cases: Sequence[Case], loss: float, on_log: OnLog | None
 ) -> None:
-    st.model.eval().cpu()  # the same parameters, moved: the optimizer keeps its references
+    st.model.eval()  # on the training device: the batches follow the model (pointer.to_device)
     row = {"step": st.step, "seconds": round(st.seconds, 1), "train_loss": round(loss, 4)}
-    row.update(heldout_metrics(st.model, held, cfg.answer))
-    row.update(closed_loop(st.model, cases, _card(cfg)))
-    st.model.train().to(cfg.device)
+    with autocast(cfg.device, cfg.dtype):
+        row.update(heldout_metrics(st.model, held, cfg.answer))
+        row.update(closed_loop(st.model, cases, _card(cfg)))
+    st.model.train()
     log = Path(cfg.out) / LOG
     new = not log.is_file()
     with open(log, "a") as f:
@@ -287,6 +309,8 @@ def train_pointer(
     """Train (or resume) and write ``out/final`` with its ONNX export (index answers; the
     free-JSON ablation plays under torch only); returns that directory."""
     torch.set_num_threads(cfg.threads) if cfg.threads else None
+    # "auto" resolved once (the card records the device used); refused here before any work.
+    cfg = replace(cfg, device=placement("PointerTrainConfig", cfg.device, cfg.dtype))
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     st = _setup(cfg)
@@ -298,7 +322,7 @@ def train_pointer(
     start = time.perf_counter() - st.seconds
     end = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
     while st.step < end:
-        losses.append(_update(st, _batch(train, cfg, st.step, pad), cfg.answer))
+        losses.append(_update(cfg, st, _batch(train, cfg, st.step, pad)))
         st.step += 1
         st.seconds = time.perf_counter() - start
         bar.update(1)

@@ -1,15 +1,10 @@
-"""Chat messages (from :mod:`packlab.vlm.prompt.render`) -> model tensors, for training and
-inference.
+"""Chat messages (from :mod:`packlab.vlm.prompt.render`) -> model tensors, for inference.
 
-One example is encoded as the model will see it at inference: the chat template renders the
-context with the generation prompt (``<|im_start|>assistant\\n``), each image placeholder is
-expanded to one ``<|image_pad|>`` per merged visual token, and, for training, the answer tokens
-plus the end-of-turn token are appended. Labels are -100 everywhere except those appended tokens
-(the paper's loss on the answer only; the end-of-turn token is included so the model learns to
-stop, which greedy decoding relies on). Building the training sequence as prompt + answer, rather
-than rendering a conversation that contains the answer, guarantees that the trained prefix is
-byte-for-byte the inference prompt whatever the checkpoint's chat template does with past
-assistant turns.
+A context is encoded as the model sees it at inference: the chat template renders it with the
+generation prompt (``<|im_start|>assistant\\n``), and each image placeholder is expanded to one
+``<|image_pad|>`` per merged visual token. Training batches are built by TRL's collator from the
+model's processor (:mod:`packlab.vlm.train.sft`); a test checks that both encode a context to
+the same tokens.
 
 Long histories: :func:`encode_fitting` drops the oldest past step (its user turn and its answer)
 until the sequence fits ``max_length``; the system prompt and the current turn are never cut.
@@ -28,7 +23,6 @@ from PIL import Image
 
 from packlab.vlm.prompt.render import BLANK_IMAGE, drop_oldest_step
 
-IGNORE_INDEX = -100
 IMAGE_PAD = "<|image_pad|>"
 END_OF_TURN = "<|im_end|>"
 
@@ -50,7 +44,6 @@ class Encoded:
 
     input_ids: torch.Tensor  # (seq,) int64
     mm_token_type_ids: torch.Tensor  # (seq,) int64: 0 text, 1 image token
-    labels: torch.Tensor | None  # (seq,) int64, IGNORE_INDEX outside the answer; None for prompts
     pixel_values: torch.Tensor | None  # (sum of patches over images, patch_dim) float32
     image_grid_thw: torch.Tensor | None  # (n_images, 3) int64: temporal, height, width patches
 
@@ -87,18 +80,13 @@ def message_images(messages: Sequence[dict[str, Any]]) -> list[Any]:
     ]
 
 
-def end_of_turn_id(tokenizer) -> int:
-    return int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
-
-
 def encode(
     messages: Sequence[dict[str, Any]],
     tokenizer,
     image_processor,
-    answer: str | None = None,
     config: ProcessingConfig = ProcessingConfig(),
 ) -> Encoded:
-    """Encode one context (and, for training, its answer text) into model inputs."""
+    """Encode one context (ending with the user turn to answer) into model inputs."""
     images = [resolve_image(im, config) for im in message_images(messages)]
     text = tokenizer.apply_chat_template(
         list(messages), tokenize=False, add_generation_prompt=True, **config.template_kwargs
@@ -115,15 +103,7 @@ def encode(
         merge = int(image_processor.merge_size) ** 2
         counts = [int(g.prod()) // merge for g in grid]
         text = parts[0] + "".join(IMAGE_PAD * n + rest for n, rest in zip(counts, parts[1:]))
-    prompt_ids = tokenizer(text, add_special_tokens=False)["input_ids"]
-    ids = list(prompt_ids)
-    labels = None
-    if answer is not None:
-        answer_ids = tokenizer(answer, add_special_tokens=False)["input_ids"] + [
-            end_of_turn_id(tokenizer)
-        ]
-        ids += answer_ids
-        labels = torch.tensor([IGNORE_INDEX] * len(prompt_ids) + answer_ids, dtype=torch.long)
+    ids = tokenizer(text, add_special_tokens=False)["input_ids"]
     input_ids = torch.tensor(ids, dtype=torch.long)
     image_token = tokenizer.convert_tokens_to_ids(IMAGE_PAD)
     mm = (input_ids == image_token).long()
@@ -132,14 +112,13 @@ def encode(
             "image tokens in the sequence do not match the image grids "
             "(does the tokenizer split <|image_pad|>?)"
         )
-    return Encoded(input_ids, mm, labels, pixel_values, grid)
+    return Encoded(input_ids, mm, pixel_values, grid)
 
 
 def encode_fitting(
     messages: Sequence[dict[str, Any]],
     tokenizer,
     image_processor,
-    answer: str | None = None,
     config: ProcessingConfig = ProcessingConfig(),
 ) -> tuple[Encoded, int]:
     """:func:`encode`, dropping the oldest past steps until ``config.max_length`` holds.
@@ -150,7 +129,7 @@ def encode_fitting(
     dropped = 0
     msgs: list[dict[str, Any]] | None = list(messages)
     while True:
-        enc = encode(msgs, tokenizer, image_processor, answer, config)  # type: ignore[arg-type]
+        enc = encode(msgs, tokenizer, image_processor, config)  # type: ignore[arg-type]
         if config.max_length is None or enc.length <= config.max_length:
             return enc, dropped
         msgs = drop_oldest_step(msgs)  # type: ignore[arg-type]
@@ -162,9 +141,9 @@ def encode_fitting(
 
 
 def collate(
-    examples: Sequence[Encoded], pad_id: int, padding_side: str = "right"
+    examples: Sequence[Encoded], pad_id: int, padding_side: str = "left"
 ) -> dict[str, torch.Tensor]:
-    """Pad a batch. Right padding for training; left padding for batched generation."""
+    """Pad a batch of prompts (left padding for batched generation)."""
     if padding_side not in ("left", "right"):
         raise ValueError(f"padding_side must be 'left' or 'right', got {padding_side!r}")
     n = max(e.length for e in examples)
@@ -178,8 +157,6 @@ def collate(
         "attention_mask": torch.stack([pad(torch.ones_like(e.input_ids), 0) for e in examples]),
         "mm_token_type_ids": torch.stack([pad(e.mm_token_type_ids, 0) for e in examples]),
     }
-    if all(e.labels is not None for e in examples):
-        out["labels"] = torch.stack([pad(e.labels, IGNORE_INDEX) for e in examples])  # type: ignore[arg-type]
     pv = [e.pixel_values for e in examples if e.pixel_values is not None]
     if pv:
         # The Qwen-VL models take the patches of all images of the batch as one flat sequence.

@@ -114,6 +114,28 @@ class VLMPolicy:
         self._renderer: ContextRenderer | None = None
         self.resolved: dict[str, Any] = {}
 
+    @classmethod
+    def from_vlm(
+        cls,
+        vlm: Any,
+        options: PromptOptions | None = None,
+        max_new_tokens: int = 64,
+        image_size: int = DEFAULT_IMAGE_SIZE,
+        template_kwargs: dict[str, Any] | None = None,
+        name: str = "vlm",
+    ) -> VLMPolicy:
+        """A policy playing a model already in memory (a trainer's closed-loop evaluation):
+        nothing is loaded; the model stays where it is, in its dtype."""
+        policy = cls(max_new_tokens=max_new_tokens, name=name)  # its default spec is never loaded
+        policy.model_spec = "in-memory"
+        runtime = import_torch_side(RUNTIME_MODULE)
+        policy._generator = runtime.make_generator(
+            vlm, max_new_tokens, True, image_size, None, dict(template_kwargs or {})
+        )
+        policy._renderer = ContextRenderer(options or PromptOptions(), image_size)
+        policy.resolved = {"model": "in-memory", "family": vlm.family, "greedy": True}
+        return policy
+
     # -- pickling: config only; each process loads its own model -----------------------------
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)

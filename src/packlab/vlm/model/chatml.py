@@ -38,6 +38,32 @@ CHAT_TEMPLATE = (
 )
 
 
+#: :data:`CHAT_TEMPLATE` with ``{% generation %}`` markers around each assistant turn's text and
+#: its ``<|im_end|>``: it renders the same string, and transformers' processors return from it the
+#: mask of assistant tokens that TRL's assistant-only loss reads (the end-of-turn token inside the
+#: mask, so the model learns to stop).
+TRAINING_CHAT_TEMPLATE = (
+    "{%- for message in messages -%}"
+    "{{- '<|im_start|>' + message['role'] + '\\n' -}}"
+    "{%- if message['role'] == 'assistant' -%}{%- generation -%}"
+    "{%- if message['content'] is string -%}{{- message['content'] -}}"
+    "{%- else -%}{%- for item in message['content'] -%}"
+    "{%- if item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
+    "{%- endfor -%}{%- endif -%}"
+    "{{- '<|im_end|>' -}}{%- endgeneration -%}{{- '\\n' -}}"
+    "{%- else -%}"
+    "{%- if message['content'] is string -%}{{- message['content'] -}}"
+    "{%- else -%}{%- for item in message['content'] -%}"
+    "{%- if item['type'] == 'image' -%}{{- '<|vision_start|><|image_pad|><|vision_end|>' -}}"
+    "{%- elif item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
+    "{%- endfor -%}{%- endif -%}"
+    "{{- '<|im_end|>\\n' -}}"
+    "{%- endif -%}"
+    "{%- endfor -%}"
+    "{%- if add_generation_prompt -%}{{- '<|im_start|>assistant\\n' -}}{%- endif -%}"
+)
+
+
 def is_project_template(template: str) -> bool:
     """Whether a saved chat template is :data:`CHAT_TEMPLATE` (a trailing newline aside)."""
     return template.strip() == CHAT_TEMPLATE

@@ -21,6 +21,7 @@ import torch
 from transformers import AutoModelForImageTextToText, AutoTokenizer, PreTrainedTokenizerFast
 from transformers.models.qwen2_vl.image_processing_pil_qwen2_vl import Qwen2VLImageProcessorPil
 
+from packlab.core.choices import ModelDType, require_choice
 from packlab.vlm.model.tokenizer import TOKENIZER_NAME
 from packlab.vlm.prompt.render import PROMPT_VERSION
 
@@ -37,6 +38,13 @@ MODEL_TYPE_FAMILY = {
 #: Written beside a checkpoint that packlab saved: family, size, prompt version, training config.
 PACKLAB_META = "packlab_model.json"
 
+#: :data:`~packlab.core.choices.ModelDType` name -> torch dtype.
+TORCH_DTYPES: dict[str, torch.dtype] = {
+    "fp32": torch.float32,
+    "bf16": torch.bfloat16,
+    "fp16": torch.float16,
+}
+
 _CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 _CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 
@@ -50,6 +58,15 @@ class VLM:
     image_processor: Qwen2VLImageProcessorPil
     family: str
     meta: dict[str, Any]
+
+
+def torch_dtype(name: ModelDType | str) -> torch.dtype:
+    """The torch dtype of a :data:`~packlab.core.choices.ModelDType` name (``bf16``...).
+
+    Raises ``ConfigError`` naming any other value.
+    """
+    require_choice(name, ModelDType, "dtype")
+    return TORCH_DTYPES[name]
 
 
 def image_processor_for(family: str, max_pixels: int = 1024 * 1024) -> Qwen2VLImageProcessorPil:
@@ -69,9 +86,15 @@ def image_processor_for(family: str, max_pixels: int = 1024 * 1024) -> Qwen2VLIm
     )
 
 
+def config_file(path: str | Path) -> Path:
+    """The config.json of a checkpoint directory, or ``path`` itself when it names a file."""
+    path = Path(path)
+    return path if path.is_file() else path / "config.json"
+
+
 def family_of(path: str | Path) -> str:
-    """The family of a checkpoint directory, from its config.json model_type."""
-    cfg = json.loads((Path(path) / "config.json").read_text())
+    """The family of a checkpoint directory (or of a config.json), from its model_type."""
+    cfg = json.loads(config_file(path).read_text())
     mt = cfg.get("model_type", "")
     if mt not in MODEL_TYPE_FAMILY:
         raise ValueError(
@@ -81,28 +104,63 @@ def family_of(path: str | Path) -> str:
     return MODEL_TYPE_FAMILY[mt]
 
 
+def saved_meta(path: str | Path) -> dict[str, Any]:
+    """The packlab metadata saved in a checkpoint directory ({} when packlab did not save it)."""
+    meta_path = Path(path) / PACKLAB_META
+    return json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+
+
+def has_tokenizer(path: str | Path) -> bool:
+    """Whether a directory holds a saved tokenizer."""
+    path = Path(path)
+    return (path / "tokenizer.json").is_file() or (path / "tokenizer_config.json").is_file()
+
+
+def load_tokenizer(path: str | Path) -> Any:
+    """The tokenizer saved in a directory."""
+    if saved_meta(path).get("tokenizer") == TOKENIZER_NAME:
+        # Our tokenizer.json is complete; read it as is rather than through the family's class.
+        return PreTrainedTokenizerFast.from_pretrained(path, local_files_only=True)
+    return AutoTokenizer.from_pretrained(path, local_files_only=True)
+
+
+def load_image_processor(path: str | Path, family: str) -> Qwen2VLImageProcessorPil:
+    """The image processor saved in a directory, else the family's default one."""
+    if (Path(path) / "preprocessor_config.json").is_file():
+        return Qwen2VLImageProcessorPil.from_pretrained(path, local_files_only=True)
+    return image_processor_for(family)
+
+
 def load_model(
-    path: str | Path, dtype: torch.dtype | str = torch.float32, device: str = "cpu"
+    path: str | Path,
+    dtype: torch.dtype | ModelDType = torch.float32,
+    device: str = "cpu",
+    quantization_config: Any = None,
 ) -> VLM:
-    """Load any Qwen-VL-family checkpoint from a local directory (never from a hub)."""
+    """Load any Qwen-VL-family checkpoint from a local directory (never from a hub).
+
+    The weights are materialised straight in ``dtype`` (transformers reads each tensor from the
+    memory-mapped safetensors and casts it as it goes), so a bf16 load never holds an fp32 copy.
+    ``quantization_config`` (a transformers ``BitsAndBytesConfig``, QLoRA) loads the weights
+    quantized, placed on ``device`` by transformers itself.
+    """
     path = Path(path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: no config.json (expected a local checkpoint directory)")
+    if not isinstance(dtype, torch.dtype):
+        dtype = torch_dtype(dtype)
     family = family_of(path)
-    model = AutoModelForImageTextToText.from_pretrained(path, dtype=dtype, local_files_only=True)
-    model.to(device).eval()
-    meta_path = path / PACKLAB_META
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {"family": family}
-    if meta.get("tokenizer") == TOKENIZER_NAME:
-        # Our tokenizer.json is complete; read it as is rather than through the family's class.
-        tokenizer = PreTrainedTokenizerFast.from_pretrained(path, local_files_only=True)
-    else:
-        tokenizer = AutoTokenizer.from_pretrained(path, local_files_only=True)
-    if (path / "preprocessor_config.json").is_file():
-        image_processor = Qwen2VLImageProcessorPil.from_pretrained(path, local_files_only=True)
-    else:
-        image_processor = image_processor_for(family)
-    return VLM(model, tokenizer, image_processor, family, meta)
+    extra = {} if quantization_config is None else {"quantization_config": quantization_config}
+    if quantization_config is not None:
+        extra["device_map"] = {"": device}  # a quantized model cannot be moved after loading
+    model = AutoModelForImageTextToText.from_pretrained(
+        path, dtype=dtype, local_files_only=True, **extra
+    )
+    if quantization_config is None:
+        model.to(device)
+    model.eval()
+    meta = saved_meta(path) or {"family": family}
+    return VLM(model, load_tokenizer(path), load_image_processor(path, family), family, meta)
 
 
 def save_model(
@@ -110,14 +168,18 @@ def save_model(
     path: str | Path,
     extra_meta: dict[str, Any] | None = None,
     state_dict: dict[str, Any] | None = None,
+    weights: bool = True,
 ) -> Path:
     """Write model, tokenizer, image processor and packlab metadata for :func:`load_model`.
 
-    ``state_dict`` overrides the model's own (a gathered one under FSDP).
+    ``state_dict`` overrides the model's own (a gathered one under FSDP). ``weights=False``
+    writes everything but the weights and config, for a trainer that saved those itself
+    (gathered from every process).
     """
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    vlm.model.save_pretrained(path, state_dict=state_dict)
+    if weights:
+        vlm.model.save_pretrained(path, state_dict=state_dict)
     vlm.tokenizer.save_pretrained(path)
     vlm.image_processor.save_pretrained(path)
     meta = {

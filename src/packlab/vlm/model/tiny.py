@@ -1,25 +1,43 @@
-"""Tiny random-weight Qwen-VL-family models, built offline (tests, CPU runs, latency checks).
+"""Random-weight Qwen-VL-family models, built offline: tiny ones (tests, CPU runs, latency
+checks) and ones of a given config.json (memory and speed checks of real dimensions).
 
 Tiny models are the same classes as the real backbones with small dimensions, so tests and CPU
 runs exercise the real code paths (M-RoPE, the vision tower, Qwen3.5's gated-delta-net layers).
-They carry the project's own tokenizer (:mod:`packlab.vlm.model.tokenizer`).
+They carry the project's own tokenizer (:mod:`packlab.vlm.model.tokenizer`), as does a config's
+model unless the config's directory holds a tokenizer.
+Both are built directly in the requested dtype: a 2B model in bf16 never holds an fp32 copy.
 Imports torch/transformers: only the vlm extra may import this module.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
 from transformers import (
+    AutoConfig,
     AutoModelForImageTextToText,
     Qwen2_5_VLConfig,
     Qwen3_5Config,
     Qwen3VLConfig,
 )
 
-from packlab.vlm.model.checkpoint import FAMILIES, VLM, image_processor_for
+from packlab.core.choices import ModelDType
+from packlab.core.errors import ConfigError
+from packlab.vlm.model.checkpoint import (
+    FAMILIES,
+    VLM,
+    config_file,
+    family_of,
+    has_tokenizer,
+    image_processor_for,
+    load_image_processor,
+    load_tokenizer,
+    saved_meta,
+    torch_dtype,
+)
 from packlab.vlm.model.tokenizer import TOKENIZER_NAME, build_tokenizer, special_token_ids
 
 
@@ -228,21 +246,37 @@ def tiny_config(family: str, size: str, token_ids: dict[str, int], vocab_size: i
     return _CONFIG_BUILDERS[family](s, text, _vision_common(s), ids)
 
 
-def build_tiny_model(family: str = "qwen3_5", size: str = "tiny", seed: int = 0) -> VLM:
+def random_model(config: Any, seed: int, dtype: torch.dtype) -> Any:
+    """The config's model class with seeded random weights, allocated directly in ``dtype``.
+
+    ``_from_config`` makes ``dtype`` torch's default while the modules are built, so no fp32
+    copy of the weights ever exists (casting afterwards would hold both for a moment).
+    """
+    torch.manual_seed(seed)
+    model_cls = AutoModelForImageTextToText._model_mapping[type(config)]
+    return model_cls._from_config(config, dtype=dtype).eval()
+
+
+def _generate_with(model: Any, ids: dict[str, int]) -> None:
+    """Make generation stop and pad at the tokenizer's ids."""
+    model.generation_config.eos_token_id = ids["eos_token_id"]
+    model.generation_config.pad_token_id = ids["pad_token_id"]
+
+
+def build_tiny_model(
+    family: str = "qwen3_5", size: str = "tiny", seed: int = 0, dtype: ModelDType = "fp32"
+) -> VLM:
     """A random-weight model of the family's real class, with the project's own tokenizer.
 
-    Fully offline and deterministic for (family, size, seed).
+    Fully offline and deterministic for (family, size, seed, dtype).
     """
+    weights_dtype = torch_dtype(dtype)
     tokenizer = build_tokenizer(seed=seed)
     ids = special_token_ids(tokenizer)
     vocab = -(-len(tokenizer) // 64) * 64  # pad the embedding to a multiple of 64 rows
     config = tiny_config(family, size, ids, vocab)
-    torch.manual_seed(seed)
-    model_cls = AutoModelForImageTextToText._model_mapping[type(config)]
-    model = model_cls(config)
-    model.generation_config.eos_token_id = ids["eos_token_id"]
-    model.generation_config.pad_token_id = ids["pad_token_id"]
-    model.eval()
+    model = random_model(config, seed, weights_dtype)
+    _generate_with(model, ids)
     meta = {
         "family": family,
         "size": size,
@@ -251,3 +285,63 @@ def build_tiny_model(family: str = "qwen3_5", size: str = "tiny", seed: int = 0)
         "tokenizer": TOKENIZER_NAME,
     }
     return VLM(model, tokenizer, image_processor_for(family), family, meta)
+
+
+def _use_token_ids(config: Any, ids: dict[str, int]) -> None:
+    """Point the config's special token ids at the project tokenizer's: a real model's config
+    names ids of the real vocabulary, where the project tokenizer has other tokens or none."""
+    for key in _VISION_TOKEN_IDS:
+        setattr(config, key, ids[key])
+    text = config.get_text_config()
+    text.pad_token_id = ids["pad_token_id"]
+    text.eos_token_id = ids["eos_token_id"]
+    text.bos_token_id = None  # the project tokenizer has no BOS token
+
+
+def _check_vocab(config: Any, tokenizer: Any, file: Path) -> None:
+    """Every token id must have an embedding row; a larger vocabulary (padding) is fine."""
+    text = config.get_text_config()
+    field = "vocab_size" if text is config else "text_config.vocab_size"
+    if text.vocab_size < len(tokenizer):
+        raise ConfigError(
+            f"{file}: {field} = {text.vocab_size}: smaller than the tokenizer "
+            f"({len(tokenizer)} tokens); every token id needs an embedding row"
+        )
+
+
+def build_config_model(path: str | Path, seed: int = 0, dtype: ModelDType = "fp32") -> VLM:
+    """A model of a config.json (or of a directory's) with seeded random weights.
+
+    The tokenizer and image processor are the directory's when it holds them, else the
+    project's own tokenizer (the config's special token ids are then replaced by its ids) and
+    the family's image processor. Raises ``ConfigError`` when the config's vocabulary is smaller
+    than the tokenizer.
+    """
+    weights_dtype = torch_dtype(dtype)
+    file = config_file(path)
+    if not file.is_file():
+        raise ConfigError(f"model = config:{path}: no config.json there")
+    try:
+        family = family_of(file)
+    except ValueError as exc:  # a model_type of no supported family
+        raise ConfigError(str(exc)) from None
+    config = AutoConfig.from_pretrained(file)
+    folder = file.parent
+    meta: dict[str, Any] = {"family": family, "seed": seed, "config": str(file)}
+    ids = None
+    if has_tokenizer(folder):
+        tokenizer = load_tokenizer(folder)
+        # Saving this model must mark the tokenizer as load_model's reading of it needs.
+        if "tokenizer" in (folder_meta := saved_meta(folder)):
+            meta["tokenizer"] = folder_meta["tokenizer"]
+    else:
+        # Seeded as tiny models' are, so config and tiny models of one seed share a tokenizer.
+        tokenizer = build_tokenizer(seed=seed)
+        ids = special_token_ids(tokenizer)
+        _use_token_ids(config, ids)
+        meta["tokenizer"] = TOKENIZER_NAME
+    _check_vocab(config, tokenizer, file)
+    model = random_model(config, seed, weights_dtype)
+    if ids is not None:
+        _generate_with(model, ids)
+    return VLM(model, tokenizer, load_image_processor(folder, family), family, meta)

@@ -300,6 +300,18 @@ def with_answer(messages: list[dict[str, Any]], action: Action) -> list[dict[str
     ]
 
 
+def render_conversation(
+    container: Container, turns: Sequence[TurnState], actions: Sequence[Action]
+) -> list[dict[str, Any]]:
+    """A whole episode (or a window of it) as one conversation: the system turn, then a user
+    turn and the assistant's answer for every step. Each assistant turn is a training target; the
+    context in front of answer t is exactly :func:`render_messages` of the steps before it."""
+    if not turns or len(turns) != len(actions):
+        raise ValueError(f"{len(turns)} turns and {len(actions)} actions: need as many, >= 1")
+    past = list(zip(turns[:-1], actions[:-1]))
+    return with_answer(render_messages(container, past, turns[-1]), actions[-1])
+
+
 def blank_like(image: Any) -> Any:
     """An all-zero image of the same size and mode as ``image`` (PIL image or numpy array).
 

@@ -1,367 +1,397 @@
-"""Supervised fine-tuning of a packing VLM on step-level examples (loss on the answer only).
+"""Supervised fine-tuning of a packing VLM with TRL's ``SFTTrainer``.
 
-An accelerate training loop over :func:`packlab.vlm.data.encoding.encode_fitting` examples:
-AdamW, linear warmup then cosine decay, gradient accumulation to a global batch, epochs, bf16
-where the hardware has it, gradient checkpointing, optional LoRA (peft). The same loop runs on one
-CPU, one GPU, or several GPUs under ``accelerate launch`` (FSDP included); the model's own
-cross-entropy over ``labels`` is the loss, and labels are -100 outside the answer tokens.
+One example is one episode (or a window of it) from the SFT export: the loss is on every
+assistant turn (TRL's assistant-only loss, from the chat template's generation markers), so an
+episode of T steps is encoded once for its T labelled actions. TRL and transformers do the rest:
+the collator (chat template, image-token expansion, masking), the loop, AdamW with warmup and
+cosine decay, gradient accumulation, bf16, gradient checkpointing, LoRA (peft), FSDP and
+DeepSpeed under ``accelerate launch``, checkpoints every ``save_every`` steps, and a resume that
+restores optimizer, scheduler, RNG and data position. packlab adds the data (selection,
+ablations, validation split by episode), a length check that never cuts an episode silently,
+a JSONL log that survives resumes, closed-loop play of generated validation cases, and a final
+model directory that packlab's policies load.
 
-Writes into ``out``: ``sft_config.json`` (resolved config, prompt version, data counts),
-``loss_log.jsonl`` (one line per optimizer step), ``sft_summary.json``, ``checkpoints/epoch-N``
-and ``final`` (a full model directory that :func:`packlab.vlm.model.checkpoint.load_model`
-reads). The loss curve (``loss_curve.png``) is drawn from ``loss_log.jsonl`` by the caller
-(``packlab train sft`` uses :func:`packlab.viz.plots.plot_loss_curve`): this package draws nothing.
+Writes into ``out``: ``sft_config.json`` (resolved config, data counts), ``loss_log.jsonl``
+(one line per logged step: loss, lr, grad norm; validation loss and play results when they
+run), ``checkpoint-N/`` (resume points, the last ``save_total_limit`` kept), ``runs/``
+(TensorBoard, where installed), ``sft_summary.json`` and ``final/`` (a full model directory;
+LoRA adapters merged into the base weights).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 import torch
-from accelerate import Accelerator
-from accelerate.utils import set_seed
-from tqdm.auto import tqdm
-from transformers import get_cosine_schedule_with_warmup
+from transformers import TrainerCallback
+from transformers.trainer_utils import get_last_checkpoint
+from trl import SFTConfig as TRLConfig
+from trl import SFTTrainer
 
 from packlab.core.errors import ConfigError
-from packlab.vlm.data.encoding import ProcessingConfig, collate, encode_fitting
-from packlab.vlm.data.sft_examples import SFTExample, load_sft_examples, select_examples
-from packlab.vlm.model.checkpoint import VLM, save_model
+from packlab.core.types import Case
+from packlab.vlm.data.sft_dataset import SFTData, load_sft_data
+from packlab.vlm.model.checkpoint import VLM, load_model, save_model, torch_dtype
+from packlab.vlm.model.processor import processor_for
 from packlab.vlm.model.spec import make_model
-from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions, ablate
-from packlab.vlm.train.config import LORA_TARGETS, SFTConfig
+from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
+from packlab.vlm.train.closed_loop import play
+from packlab.vlm.train.config import LORA_VISION_TARGETS, SFTConfig, resume_conflicts
+from packlab.vlm.train.lengths import fit_lengths
 
-__all__ = ["LOSS_LOG", "SFTResult", "train_sft"]
+__all__ = ["LOSS_LOG", "SFTResult", "resolve_dtype", "train_sft"]
 
-#: One JSON line per optimizer step: step, epoch, loss, lr, elapsed_s.
+#: One JSON line per logged optimizer step (and per validation or play result).
 LOSS_LOG = "loss_log.jsonl"
+CONFIG_FILE = "sft_config.json"
 
 
 @dataclass(frozen=True)
 class SFTResult:
     out: Path
     final_checkpoint: Path
-    losses: tuple[float, ...]  # mean answer-token loss per optimizer step
-    n_examples: int
+    losses: tuple[float, ...]  # training loss per logged step, this run and the resumed part
+    n_examples: int  # conversations trained on
+    labelled_actions: int  # assistant turns in them
+    dropped_examples: int  # longer than max_length under truncation="drop"
     optimizer_steps: int
     wall_time_s: float
+    resumed_from: str | None
     is_main_process: bool = True  # False on the other ranks of a multi-process run
 
     @property
     def loss_log(self) -> Path:
-        """The run's loss log (written by the main process)."""
         return self.out / LOSS_LOG
 
 
-class _Collator:
-    """A batch of examples -> padded model inputs: each context ablated to the run's options,
-    encoded with its answer, oldest past steps dropped to fit; counts the steps dropped."""
+def resolve_dtype(name: str) -> str:
+    """``auto``: bf16 on a GPU that supports it, fp32 elsewhere (CPU bf16 matmuls are slow)."""
+    if name != "auto":
+        return name
+    return "bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "fp32"
 
-    def __init__(self, vlm: VLM, options: PromptOptions, config: ProcessingConfig) -> None:
-        self.vlm, self.options, self.config = vlm, options, config
-        self.dropped_steps = 0
 
-    def __call__(self, items: list[SFTExample]) -> dict[str, torch.Tensor]:
-        encoded = []
-        for ex in items:
-            enc, dropped = encode_fitting(
-                ablate(ex.context, self.options),
-                self.vlm.tokenizer,
-                self.vlm.image_processor,
-                answer=ex.answer,
-                config=self.config,
+def _report_to(name: str) -> list[str]:
+    if name == "auto":
+        return ["tensorboard"] if importlib.util.find_spec("tensorboard") else []
+    if name != "none" and importlib.util.find_spec(name) is None:
+        raise ConfigError(f"report_to = {name!r}: {name} is not installed (pip install {name})")
+    return [] if name == "none" else [name]
+
+
+def _last_checkpoint(cfg: SFTConfig) -> str | None:
+    """The checkpoint to resume from, after checking that the run is the same run."""
+    out = Path(cfg.out)
+    last = get_last_checkpoint(str(out)) if out.is_dir() else None
+    if last is None:
+        return None
+    saved_path = out / CONFIG_FILE
+    if saved_path.is_file():
+        saved = json.loads(saved_path.read_text()).get("config", {})
+        conflicts = resume_conflicts(saved, cfg)
+        if conflicts:
+            raise ConfigError(
+                f"{saved_path}: resuming {last} with other settings ({'; '.join(conflicts)}); "
+                "use the run's settings or a new --out"
             )
-            self.dropped_steps += dropped
-            encoded.append(enc)
-        return collate(encoded, self.vlm.tokenizer.pad_token_id)
+    return last
 
 
-@dataclass
-class _Run:
-    """One training run's objects, as prepared by accelerate."""
-
-    cfg: SFTConfig
-    acc: Any  # accelerate.Accelerator
-    vlm: VLM
-    model: Any  # the prepared (possibly wrapped) model
-    params: list[torch.nn.Parameter]
-    optimizer: Any
-    scheduler: Any
-    loader: Any
-    collator: _Collator
-    n_examples: int
-    updates_per_epoch: int
-    total_updates: int
-    t0: float
-
-    @property
-    def out(self) -> Path:
-        return Path(self.cfg.out)
+def _trim_log(out: Path, step: int) -> None:
+    """Drop log lines past ``step`` (written after the checkpoint a resume starts from)."""
+    path = out / LOSS_LOG
+    if not path.is_file():
+        return
+    kept = [ln for ln in path.read_text().splitlines() if json.loads(ln).get("step", 0) <= step]
+    path.write_text("".join(ln + "\n" for ln in kept))
 
 
-@dataclass
-class _Progress:
-    """What the loop accumulates: per-update losses, the current window of micro-batch losses."""
-
-    log: TextIO | None
-    bar: Any  # tqdm
-    losses: list[float] = field(default_factory=list)
-    step: int = 0
-    window: list[float] = field(default_factory=list)
+def _checkpoint_step(checkpoint: str) -> int:
+    state = json.loads((Path(checkpoint) / "trainer_state.json").read_text())
+    return int(state["global_step"])
 
 
-def _apply_lora(model, cfg: SFTConfig):
-    from peft import LoraConfig, get_peft_model
+def _load(cfg: SFTConfig, dtype: str) -> VLM:
+    """The model in ``dtype``; QLoRA: a checkpoint's weights in 4-bit NF4, computing in
+    ``dtype``, prepared for adapters (norms in fp32, input gradients on)."""
+    if not cfg.qlora:
+        return make_model(cfg.model, cfg.seed, dtype=dtype)  # type: ignore[arg-type]
+    if not torch.cuda.is_available() or importlib.util.find_spec("bitsandbytes") is None:
+        raise ConfigError(
+            "qlora = True: needs a CUDA GPU and bitsandbytes (pip install bitsandbytes)"
+        )
+    if cfg.is_tiny or cfg.model.startswith("config:"):
+        raise ConfigError(f"qlora = True: model = {cfg.model!r}: needs a checkpoint directory")
+    from peft import prepare_model_for_kbit_training
+    from transformers import BitsAndBytesConfig
 
-    lcfg = LoraConfig(
+    quant = BitsAndBytesConfig(
+        load_in_4bit=True,
+        bnb_4bit_quant_type="nf4",
+        bnb_4bit_use_double_quant=True,
+        bnb_4bit_compute_dtype=torch_dtype(dtype),
+    )
+    device = f"cuda:{torch.cuda.current_device()}"
+    vlm = load_model(cfg.model, dtype, device, quantization_config=quant)  # type: ignore[arg-type]
+    vlm.model = prepare_model_for_kbit_training(vlm.model, cfg.gradient_checkpointing)
+    return vlm
+
+
+def _freeze_vision(model: Any) -> int:
+    """Full fine-tuning without ``train_vision``: the vision tower keeps its weights."""
+    n = 0
+    for name, p in model.named_parameters():
+        if ".visual." in f".{name}":
+            p.requires_grad_(False)
+            n += p.numel()
+    return n
+
+
+def _peft_config(cfg: SFTConfig) -> Any:
+    from peft import LoraConfig
+
+    targets = cfg.lora_targets
+    if cfg.train_vision:
+        targets = f"({targets})|({LORA_VISION_TARGETS})"
+    return LoraConfig(
         r=cfg.lora_r,
         lora_alpha=cfg.lora_alpha,
         lora_dropout=cfg.lora_dropout,
-        target_modules=LORA_TARGETS,
+        target_modules=targets,
         bias="none",
-    )
-    return get_peft_model(model, lcfg)
-
-
-def _precision(cfg: SFTConfig) -> str:
-    if cfg.precision != "auto":
-        return cfg.precision
-    return "bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no"
-
-
-def _examples(
-    cfg: SFTConfig, examples: list[SFTExample] | None
-) -> tuple[list[SFTExample], Path | None]:
-    """The examples the run trains on (the recipe and data fraction applied) and their image
-    root (None when the caller passed the examples)."""
-    image_root: Path | None = None
-    if examples is None:
-        examples, image_root = load_sft_examples(cfg.data)
-    examples = select_examples(examples, cfg.recipe, cfg.data_fraction, cfg.seed)
-    if not examples:
-        raise ConfigError(
-            f"data = {cfg.data!r}: no examples left after recipe={cfg.recipe!r}, "
-            f"data_fraction={cfg.data_fraction}"
-        )
-    return examples, image_root
-
-
-def _trainable_model(cfg: SFTConfig, vlm: VLM):
-    """The model in training mode: checkpointing and LoRA applied as configured."""
-    model = vlm.model
-    if cfg.gradient_checkpointing:
-        # The transformers the vlm extra pins names it activation checkpointing (the old
-        # gradient_checkpointing_enable warns, and goes in v6).
-        model.activation_checkpointing_enable(
-            activation_checkpointing_kwargs={"use_reentrant": False}
-        )
-        model.config.use_cache = False
-    if cfg.lora:
-        model = _apply_lora(model, cfg)
-    model.train()
-    return model
-
-
-def _prepare(
-    cfg: SFTConfig, acc, vlm: VLM, examples: list[SFTExample], collator: _Collator, t0: float
-) -> _Run:
-    """Loader, optimizer and schedule, prepared by accelerate (in this order: seeds matter)."""
-    model = _trainable_model(cfg, vlm)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    loader = torch.utils.data.DataLoader(
-        examples,
-        batch_size=cfg.micro_batch,
-        shuffle=True,  # type: ignore[arg-type]
-        collate_fn=collator,
-        generator=gen,
-    )
-    params = [p for p in model.parameters() if p.requires_grad]
-    optimizer = torch.optim.AdamW(params, lr=cfg.resolved_lr, weight_decay=cfg.weight_decay)
-    model, optimizer, loader = acc.prepare(model, optimizer, loader)
-    # Counted after prepare: under several processes each one sees its shard of the loader, and
-    # these are the optimizer steps every process takes (the global batch covers all of them).
-    updates_per_epoch = math.ceil(len(loader) / cfg.grad_accum)
-    total_updates = updates_per_epoch * cfg.epochs
-    if cfg.max_steps is not None:
-        total_updates = min(total_updates, cfg.max_steps)
-    # accelerate advances a prepared scheduler once per process at every optimizer step, so the
-    # schedule is laid out over num_processes times as many ticks.
-    ticks = acc.num_processes
-    scheduler = get_cosine_schedule_with_warmup(
-        optimizer,
-        int(cfg.warmup_ratio * total_updates) * ticks,
-        max(total_updates, 1) * ticks,
-    )
-    scheduler = acc.prepare(scheduler)
-    return _Run(
-        cfg=cfg,
-        acc=acc,
-        vlm=vlm,
-        model=model,
-        params=params,
-        optimizer=optimizer,
-        scheduler=scheduler,
-        loader=loader,
-        collator=collator,
-        n_examples=len(examples),
-        updates_per_epoch=updates_per_epoch,
-        total_updates=total_updates,
-        t0=t0,
+        task_type="CAUSAL_LM",
     )
 
 
-def _write_resolved_config(run: _Run) -> None:
-    """``sft_config.json``: the config as resolved, the prompt version and the data counts."""
-    cfg, acc = run.cfg, run.acc
-    run.out.mkdir(parents=True, exist_ok=True)
-    resolved = {
-        **cfg.to_dict(),
-        "prompt_version": PROMPT_VERSION,
-        "n_examples": run.n_examples,
-        "updates_per_epoch": run.updates_per_epoch,
-        "total_updates": run.total_updates,
-        "precision": acc.mixed_precision,
-        "devices": acc.num_processes,
-        "global_batch": cfg.micro_batch * cfg.grad_accum * acc.num_processes,
-        "family": run.vlm.family,
-    }
-    (run.out / "sft_config.json").write_text(json.dumps(resolved, indent=1, sort_keys=True) + "\n")
+def _trl_args(cfg: SFTConfig, dtype: str, max_length: int, has_val: bool) -> TRLConfig:
+    return TRLConfig(
+        output_dir=cfg.out,
+        num_train_epochs=cfg.epochs,
+        max_steps=cfg.max_steps or -1,
+        per_device_train_batch_size=cfg.micro_batch,
+        per_device_eval_batch_size=cfg.micro_batch,
+        gradient_accumulation_steps=cfg.grad_accum,
+        learning_rate=cfg.resolved_lr,
+        lr_scheduler_type="cosine",
+        warmup_steps=cfg.warmup_ratio,  # a float below 1 is a fraction of the run
+        weight_decay=cfg.weight_decay,
+        max_grad_norm=cfg.max_grad_norm,
+        bf16=dtype == "bf16",
+        fp16=dtype == "fp16",
+        # transformers 5 names gradient checkpointing "activation checkpointing".
+        activation_checkpointing=cfg.gradient_checkpointing,
+        activation_checkpointing_kwargs={"use_reentrant": False},
+        logging_steps=cfg.log_every,
+        save_strategy="steps",
+        save_steps=cfg.save_every,
+        save_total_limit=cfg.save_total_limit,
+        eval_strategy="steps" if has_val else "no",
+        eval_steps=cfg.eval_every,
+        seed=cfg.seed,
+        data_seed=cfg.seed,
+        dataloader_num_workers=cfg.workers,
+        report_to=_report_to(cfg.report_to),
+        max_length=max_length,
+        assistant_only_loss=True,
+        # Vision rows are encoded by the collator in the DataLoader (workers, not up front).
+        dataset_kwargs={"skip_prepare_dataset": True},
+        remove_unused_columns=False,
+        disable_tqdm=False,
+        use_cpu=not torch.cuda.is_available(),
+    )
 
 
-def _save_checkpoint(run: _Run, dest: Path, final: bool) -> None:
-    """A model directory at ``dest`` (LoRA: the adapter only, merged into the final model)."""
-    cfg, acc, vlm = run.cfg, run.acc, run.vlm
-    acc.wait_for_everyone()
-    unwrapped = acc.unwrap_model(run.model)
-    unwrapped.config.use_cache = True  # checkpoints are for inference; training turned it off
-    if cfg.lora and final:
-        unwrapped = unwrapped.merge_and_unload()  # a plain model that load_model reads
-    elif cfg.lora:
-        if acc.is_main_process:
-            unwrapped.save_pretrained(dest / "adapter")  # intermediate LoRA: the adapter only
+class _JsonLog(TrainerCallback):
+    """Appends every log record (train loss, validation loss) to ``loss_log.jsonl``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def write(self, step: int, epoch: float | None, record: dict[str, Any]) -> None:
+        line = {"step": step, "epoch": round(epoch or 0.0, 4), **record}
+        with self.path.open("a") as fh:
+            fh.write(json.dumps(line) + "\n")
+
+    def on_log(self, args: Any, state: Any, control: Any, logs: Any = None, **kw: Any) -> None:
+        if state.is_world_process_zero and logs:
+            self.write(state.global_step, state.epoch, logs)
+
+
+class _Play(TrainerCallback):
+    """Plays the validation cases every ``every`` steps and at the end. The result goes to the
+    JSONL log, the trainer's log history and TensorBoard, as its own record (logging it through
+    ``Trainer.log`` mid-step would take the place of that step's loss record)."""
+
+    def __init__(
+        self, cfg: SFTConfig, vlm: VLM, cases: list[Case], image_size: int, log: _JsonLog
+    ) -> None:
+        self.cfg, self.vlm, self.cases, self.image_size, self.log = cfg, vlm, cases, image_size, log
+        self.trainer: Any = None
+        self.last_step = -1
+
+    def _run(self, state: Any, model: Any) -> None:
+        if state.global_step == self.last_step or not state.is_world_process_zero:
+            return
+        self.last_step = state.global_step
+        result = play(
+            model,
+            self.vlm,
+            self.cases,
+            PromptOptions(self.cfg.history, self.cfg.image),
+            self.image_size,
+            self.cfg.play_backend,
+            dict(self.cfg.template_kwargs),
+        ).to_dict()
+        self.log.write(state.global_step, state.epoch, result)
+        state.log_history.append({**result, "step": state.global_step})
+        for cb in self.trainer.callback_handler.callbacks:
+            writer = getattr(cb, "tb_writer", None)
+            if writer is not None:
+                for k, v in result.items():
+                    writer.add_scalar(f"play/{k}", v, state.global_step)
+
+    def on_step_end(self, args: Any, state: Any, control: Any, model: Any = None, **kw: Any):
+        if state.global_step % self.cfg.play_every == 0:
+            self._run(state, model)
+
+    def on_train_end(self, args: Any, state: Any, control: Any, model: Any = None, **kw: Any):
+        self._run(state, model)
+
+
+def _image_size(data: SFTData) -> int:
+    """The side of the export's images (the renderer must draw the same for play)."""
+    for images in data.train["images"]:
+        if images:
+            return int(images[0].size[0])
+    return 224
+
+
+def _write_config(cfg: SFTConfig, out: Path, extra: dict[str, Any]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    resolved = {"config": cfg.to_dict(), "prompt_version": PROMPT_VERSION, **extra}
+    (out / CONFIG_FILE).write_text(json.dumps(resolved, indent=1, sort_keys=True) + "\n")
+
+
+def _save_final(trainer: Any, cfg: SFTConfig, vlm: VLM, dtype: str, final: Path) -> None:
+    """``final``: a full model directory. Under FSDP or DeepSpeed ``save_model`` gathers the
+    shards; LoRA adapters are saved, then merged into a freshly loaded base on the main process
+    (merging the wrapped, sharded model in place would merge into one shard)."""
+    meta = {"sft_config": cfg.to_dict(), "action_format": "json"}
+    if not cfg.lora:
+        trainer.save_model(str(final))
+        if trainer.is_world_process_zero():
+            model = trainer.accelerator.unwrap_model(trainer.model)
+            model.config.use_cache = True  # checkpoints are for inference
+            bundle = VLM(model, vlm.tokenizer, vlm.image_processor, vlm.family, vlm.meta)
+            save_model(bundle, final, extra_meta=meta, weights=False)
         return
-    # Under FSDP/DeepSpeed the full weights must be gathered from every process first.
-    state = (
-        acc.get_state_dict(run.model)
-        if acc.num_processes > 1 and not (cfg.lora and final)
-        else None
-    )
-    if acc.is_main_process:
-        save_model(
-            VLM(unwrapped, vlm.tokenizer, vlm.image_processor, vlm.family, vlm.meta),
-            dest,
-            extra_meta={"sft_config": cfg.to_dict()},
-            state_dict=state,
-        )
+    adapter = final.parent / "adapter"
+    trainer.save_model(str(adapter))
+    if not trainer.is_world_process_zero():
+        return
+    from peft import PeftModel
+
+    base = make_model(cfg.model, cfg.seed, dtype=dtype)
+    merged = PeftModel.from_pretrained(base.model, str(adapter)).merge_and_unload()
+    merged.config.use_cache = True
+    bundle = VLM(merged, vlm.tokenizer, vlm.image_processor, vlm.family, vlm.meta)
+    save_model(bundle, final, extra_meta=meta)
 
 
-def _micro_step(run: _Run, batch: dict[str, torch.Tensor], window: list[float]) -> None:
-    """Forward and backward one micro-batch; the optimizer steps when accumulation is done."""
-    acc = run.acc
-    with acc.accumulate(run.model):
-        loss = run.model(**batch).loss
-        acc.backward(loss)
-        window.append(loss.detach().float().item())
-        if acc.sync_gradients and run.cfg.max_grad_norm > 0:
-            acc.clip_grad_norm_(run.params, run.cfg.max_grad_norm)
-        run.optimizer.step()
-        run.scheduler.step()
-        run.optimizer.zero_grad()
-
-
-def _record_update(run: _Run, progress: _Progress, epoch: int) -> None:
-    """Book one optimizer step: its mean loss, a loss-log line, the progress bar."""
-    progress.step += 1
-    mean = sum(progress.window) / len(progress.window)
-    progress.window = []
-    progress.losses.append(mean)
-    if progress.log is not None and progress.step % run.cfg.log_every == 0:
-        line = {
-            "step": progress.step,
-            "epoch": epoch + 1,
-            "loss": round(mean, 6),
-            "lr": run.scheduler.get_last_lr()[0],
-            "elapsed_s": round(time.perf_counter() - run.t0, 2),
-        }
-        progress.log.write(json.dumps(line) + "\n")
-        progress.log.flush()
-    progress.bar.update(1)
-    progress.bar.set_postfix(loss=f"{mean:.4f}", epoch=epoch + 1)
-
-
-def _run_epoch(run: _Run, progress: _Progress, epoch: int) -> bool:
-    """One pass over the loader; True when the run's optimizer-step budget is spent."""
-    for batch in run.loader:
-        _micro_step(run, batch, progress.window)
-        if run.acc.sync_gradients:
-            _record_update(run, progress, epoch)
-            if progress.step >= run.total_updates:
-                return True
-    return False
-
-
-def _train_epochs(run: _Run, progress: _Progress) -> None:
-    """Every epoch (or until the step budget), with a checkpoint after each but the last."""
-    cfg = run.cfg
-    for epoch in range(cfg.epochs):
-        done = _run_epoch(run, progress, epoch)
-        if cfg.save_every_epoch and not done and epoch + 1 < cfg.epochs:
-            _save_checkpoint(run, run.out / "checkpoints" / f"epoch-{epoch + 1}", final=False)
-        if done:
-            break
-
-
-def _write_summary(run: _Run, progress: _Progress) -> None:
-    summary = {
-        "optimizer_steps": progress.step,
-        "first_loss": progress.losses[0],
-        "last_loss": progress.losses[-1],
-        "history_steps_dropped_for_length": run.collator.dropped_steps,
-        "wall_time_s": round(time.perf_counter() - run.t0, 2),
-    }
-    (run.out / "sft_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+def _losses(out: Path) -> tuple[float, ...]:
+    path = out / LOSS_LOG
+    if not path.is_file():
+        return ()
+    lines = [json.loads(ln) for ln in path.read_text().splitlines()]
+    return tuple(float(x["loss"]) for x in lines if "loss" in x)
 
 
 def train_sft(
-    cfg: SFTConfig, examples: list[SFTExample] | None = None, progress: bool = True
+    cfg: SFTConfig, play_cases: list[Case] | None = None, progress: bool = True
 ) -> SFTResult:
-    """Run one SFT job described by ``cfg`` (``examples`` overrides reading ``cfg.data``)."""
+    """Run (or resume) the SFT job described by ``cfg``; ``play_cases`` are the generated
+    validation cases the model plays (``cfg.play_cases`` per level, made by the caller)."""
     t0 = time.perf_counter()
-    acc = Accelerator(gradient_accumulation_steps=cfg.grad_accum, mixed_precision=_precision(cfg))
-    set_seed(cfg.seed)
-    examples, image_root = _examples(cfg, examples)
+    out = Path(cfg.out)
+    resume = _last_checkpoint(cfg)
+    dtype = resolve_dtype(cfg.dtype)
     options = PromptOptions(cfg.history, cfg.image)
-    pcfg = ProcessingConfig(
-        image_root=str(image_root) if image_root else None,
-        max_length=cfg.max_length,
-        template_kwargs=dict(cfg.template_kwargs),
+    data = load_sft_data(
+        cfg.data, options, cfg.recipe, cfg.data_fraction, cfg.val_fraction, cfg.seed
     )
-    vlm = make_model(cfg.model, cfg.seed)
-    run = _prepare(cfg, acc, vlm, examples, _Collator(vlm, options, pcfg), t0)
-    if acc.is_main_process:
-        _write_resolved_config(run)
-    log = (run.out / LOSS_LOG).open("w") if acc.is_main_process else None
-    bar = tqdm(total=run.total_updates, desc="sft", disable=not (progress and acc.is_main_process))
-    state = _Progress(log, bar)
-    _train_epochs(run, state)
-    bar.close()
-    if log is not None:
-        log.close()
-    final = run.out / "final"
-    _save_checkpoint(run, final, final=True)
-    if acc.is_main_process and state.losses:
-        _write_summary(run, state)
-    return SFTResult(
-        run.out,
-        final,
-        tuple(state.losses),
-        len(examples),
-        state.step,
-        time.perf_counter() - t0,
-        acc.is_main_process,
+    vlm = _load(cfg, dtype)
+    checkpoint = None if cfg.is_tiny or cfg.model.startswith("config:") else cfg.model
+    processor = processor_for(vlm, checkpoint)
+    fitted = fit_lengths(data, processor, cfg.max_length, cfg.truncation, cfg.template_kwargs)
+    data = fitted.data
+    frozen = 0 if (cfg.lora or cfg.train_vision) else _freeze_vision(vlm.model)
+    args = _trl_args(cfg, dtype, fitted.max_length, data.val is not None)
+    if not progress:
+        args.disable_tqdm = True
+    json_log = _JsonLog(out / LOSS_LOG)
+    callbacks: list[Any] = [json_log]
+    player = None
+    if play_cases:
+        player = _Play(cfg, vlm, play_cases, _image_size(data), json_log)
+        callbacks.append(player)
+    trainer = SFTTrainer(
+        model=vlm.model,
+        args=args,
+        train_dataset=data.train,
+        eval_dataset=data.val,
+        processing_class=processor,
+        peft_config=_peft_config(cfg) if cfg.lora else None,
+        callbacks=callbacks,
     )
+    if player is not None:
+        player.trainer = trainer
+    counts = {
+        "dtype": dtype,
+        "devices": trainer.accelerator.num_processes,
+        "global_batch": cfg.micro_batch * cfg.grad_accum * trainer.accelerator.num_processes,
+        "train_examples": len(data.train),
+        "train_labelled_actions": SFTData.labelled_actions(data.train),
+        "val_examples": len(data.val) if data.val is not None else 0,
+        "max_length": fitted.max_length,
+        "dropped_for_length": fitted.dropped,
+        "frozen_vision_parameters": frozen,
+        "family": vlm.family,
+    }
+    if trainer.is_world_process_zero():
+        _write_config(cfg, out, counts)
+        if resume is not None:
+            _trim_log(out, _checkpoint_step(resume))
+        else:
+            (out / LOSS_LOG).unlink(missing_ok=True)
+    trainer.train(resume_from_checkpoint=resume)
+    final = out / "final"
+    _save_final(trainer, cfg, vlm, dtype, final)
+    losses = _losses(out)
+    result = SFTResult(
+        out=out,
+        final_checkpoint=final,
+        losses=losses,
+        n_examples=len(data.train),
+        labelled_actions=counts["train_labelled_actions"],
+        dropped_examples=fitted.dropped,
+        optimizer_steps=trainer.state.global_step,
+        wall_time_s=time.perf_counter() - t0,
+        resumed_from=resume,
+        is_main_process=trainer.is_world_process_zero(),
+    )
+    if result.is_main_process and losses:
+        summary = {
+            "optimizer_steps": result.optimizer_steps,
+            "first_loss": losses[0],
+            "last_loss": losses[-1],
+            "resumed_from": resume,
+            "wall_time_s": round(result.wall_time_s, 2),
+            **counts,
+        }
+        (out / "sft_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return result
