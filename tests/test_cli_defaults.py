@@ -31,6 +31,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "train rl": ["train", "rl"],
     "train rl-imitate": ["train", "rl-imitate", "--states", "s.jsonl"],
     "export onnx": ["export", "onnx", "runs/rl/best"],
+    "export sft": ["export", "sft", "data/packdata"],
     "serve": ["serve"],
     "viz episode": [
         "viz",
@@ -56,12 +57,13 @@ CLI_ONLY: dict[str, set[str]] = {
     "cases export": {"--format", "--out"},
     "cases fresh": {"--seed", "--out", "--per-level"},
     "generate": set(),
-    "inspect-data": {"--plots", "--json"},
+    "inspect-data": {"--plots", "--json", "--tokenizer", "--token-sample"},
     "train sft": set(),
     "train candidate": {"--cases"},
     "train rl": {"--cases"},
     "train rl-imitate": {"--states", "--cases"},
     "export onnx": {"--check-states"},
+    "export sft": {"--format", "--window", "--out"},
     "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
     # Live episodes take the bench's RunConfig; absent flags leave its defaults (stated there).

@@ -29,6 +29,8 @@ EXPORTERS = (
     ("card.json", "packlab.rl.onnx_export", "rl"),
     ("packlab_model.json", "packlab.vlm.candidate.onnx_export", "vlm"),
 )
+#: What ``packlab export sft`` runs (imported when it does).
+SFT_EXPORT_MODULE = "packlab.datagen.sft_export"
 #: Generated observations on which the export compares torch's and ONNX's decisions.
 DEFAULT_CHECK_STATES = 64
 #: The pointer VLM's tie tolerance (``packlab.vlm.candidate.onnx_export.TIE_TOLERANCE``, which
@@ -79,11 +81,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_export_sft(args: argparse.Namespace) -> int:
     """``packlab export sft``: files in, files out (the step shards are only read)."""
-    from packlab.datagen.sft_export import SFT_FORMATS, export_sft
-
-    if args.sft_format not in SFT_FORMATS:
-        raise ConfigError(f"format = {args.sft_format!r}: choose from {', '.join(SFT_FORMATS)}")
-    written = export_sft(args.dataset, args.sft_format, args.window, args.out)
+    exporter = importlib.import_module(SFT_EXPORT_MODULE)
+    if args.sft_format not in exporter.SFT_FORMATS:
+        choices = ", ".join(exporter.SFT_FORMATS)
+        raise ConfigError(f"format = {args.sft_format!r}: choose from {choices}")
+    written = exporter.export_sft(args.dataset, args.sft_format, args.window, args.out)
     print(f"wrote {len(written)} file(s) under {written[0].parent}")
     return 0
 

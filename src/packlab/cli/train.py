@@ -45,6 +45,12 @@ def _template_kwargs(text: str) -> dict[str, Any]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="train_command", required=True)
+    register_sft(sub)
+    register_candidate(sub)
+    register_rl(sub)
+
+
+def register_sft(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser(
         "sft",
         help="fine-tune a Qwen-VL-family model on a PackData SFT export (TRL)",
@@ -105,6 +111,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--train-vision",
         help="the vision tower trains too (LoRA: adapted); default frozen",
     )
+    _sft_data_and_eval_flags(s)
+    s.set_defaults(func=run_sft)
+
+
+def _sft_data_and_eval_flags(s: argparse.ArgumentParser) -> None:
+    """``train sft``'s flags for the data, its ablations, evaluation, saving and logging."""
+    field = partial(add_field, s, SFTConfig)
     field("history", "--history", help="default {default}")
     field("image", "--image", help="default {default}")
     field("recipe", "--recipe", choices=tuple(RECIPES), help="default {default}")
@@ -134,9 +147,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         parse=_template_kwargs,
         help="JSON chat-template variables, e.g. '{\"enable_thinking\": false}'",
     )
-    s.set_defaults(func=run_sft)
-    register_candidate(sub)
-    register_rl(sub)
 
 
 def _torch_side(module: str):

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from packlab.core.errors import ConfigError
 from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions, ablate
@@ -142,8 +143,6 @@ def _split_images(messages: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _blank(image: Any) -> Any:
-    from PIL import Image
-
     return Image.new(image.mode, image.size)
 
 

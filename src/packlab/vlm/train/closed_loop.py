@@ -73,7 +73,8 @@ def play(
     policy = VLMPolicy.from_vlm(
         bundle, options, image_size=image_size, template_kwargs=template_kwargs, name="sft-play"
     )
-    metrics, parsed, levels = [], [], {}
+    metrics, parsed = [], []
+    levels: dict[str, list[float]] = {}
     try:
         with torch.no_grad():
             for case in cases:

@@ -88,7 +88,8 @@ def fit_lengths(
     over_train, over_val = _over(data.train, train_len, limit), _over(data.val, val_len, limit)
     dropped = len(over_train) + len(over_val)
     if dropped and truncation == "error":
-        ds, idx = (data.train, over_train[0]) if over_train else (data.val, over_val[0])
+        ds: Any = data.train if over_train else data.val
+        idx = over_train[0] if over_train else over_val[0]
         row = ds[idx]
         n = (train_len if over_train else val_len)[idx]
         raise ConfigError(

@@ -25,7 +25,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from transformers import TrainerCallback
@@ -33,6 +33,7 @@ from transformers.trainer_utils import get_last_checkpoint
 from trl import SFTConfig as TRLConfig
 from trl import SFTTrainer
 
+from packlab.core.choices import ModelDType
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.vlm.data.sft_dataset import SFTData, load_sft_data
@@ -69,10 +70,10 @@ class SFTResult:
         return self.out / LOSS_LOG
 
 
-def resolve_dtype(name: str) -> str:
+def resolve_dtype(name: str) -> ModelDType:
     """``auto``: bf16 on a GPU that supports it, fp32 elsewhere (CPU bf16 matmuls are slow)."""
     if name != "auto":
-        return name
+        return cast(ModelDType, name)
     return "bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "fp32"
 
 
@@ -116,11 +117,11 @@ def _checkpoint_step(checkpoint: str) -> int:
     return int(state["global_step"])
 
 
-def _load(cfg: SFTConfig, dtype: str) -> VLM:
+def _load(cfg: SFTConfig, dtype: ModelDType) -> VLM:
     """The model in ``dtype``; QLoRA: a checkpoint's weights in 4-bit NF4, computing in
     ``dtype``, prepared for adapters (norms in fp32, input gradients on)."""
     if not cfg.qlora:
-        return make_model(cfg.model, cfg.seed, dtype=dtype)  # type: ignore[arg-type]
+        return make_model(cfg.model, cfg.seed, dtype=dtype)
     if not torch.cuda.is_available() or importlib.util.find_spec("bitsandbytes") is None:
         raise ConfigError(
             "qlora = True: needs a CUDA GPU and bitsandbytes (pip install bitsandbytes)"
@@ -137,7 +138,7 @@ def _load(cfg: SFTConfig, dtype: str) -> VLM:
         bnb_4bit_compute_dtype=torch_dtype(dtype),
     )
     device = f"cuda:{torch.cuda.current_device()}"
-    vlm = load_model(cfg.model, dtype, device, quantization_config=quant)  # type: ignore[arg-type]
+    vlm = load_model(cfg.model, dtype, device, quantization_config=quant)
     vlm.model = prepare_model_for_kbit_training(vlm.model, cfg.gradient_checkpointing)
     return vlm
 
@@ -168,7 +169,9 @@ def _peft_config(cfg: SFTConfig) -> Any:
     )
 
 
-def _trl_args(cfg: SFTConfig, dtype: str, max_length: int, has_val: bool) -> TRLConfig:
+def _trl_args(
+    cfg: SFTConfig, dtype: ModelDType, max_length: int, has_val: bool, progress: bool
+) -> TRLConfig:
     return TRLConfig(
         output_dir=cfg.out,
         num_train_epochs=cfg.epochs,
@@ -201,7 +204,7 @@ def _trl_args(cfg: SFTConfig, dtype: str, max_length: int, has_val: bool) -> TRL
         # Vision rows are encoded by the collator in the DataLoader (workers, not up front).
         dataset_kwargs={"skip_prepare_dataset": True},
         remove_unused_columns=False,
-        disable_tqdm=False,
+        disable_tqdm=not progress,
         use_cpu=not torch.cuda.is_available(),
     )
 
@@ -277,7 +280,7 @@ def _write_config(cfg: SFTConfig, out: Path, extra: dict[str, Any]) -> None:
     (out / CONFIG_FILE).write_text(json.dumps(resolved, indent=1, sort_keys=True) + "\n")
 
 
-def _save_final(trainer: Any, cfg: SFTConfig, vlm: VLM, dtype: str, final: Path) -> None:
+def _save_final(trainer: Any, cfg: SFTConfig, vlm: VLM, dtype: ModelDType, final: Path) -> None:
     """``final``: a full model directory. Under FSDP or DeepSpeed ``save_model`` gathers the
     shards; LoRA adapters are saved, then merged into a freshly loaded base on the main process
     (merging the wrapped, sharded model in place would merge into one shard)."""
@@ -311,6 +314,49 @@ def _losses(out: Path) -> tuple[float, ...]:
     return tuple(float(x["loss"]) for x in lines if "loss" in x)
 
 
+def _trainer(
+    cfg: SFTConfig,
+    vlm: VLM,
+    processor: Any,
+    data: SFTData,
+    max_length: int,
+    dtype: ModelDType,
+    play_cases: list[Case] | None,
+    progress: bool,
+) -> Any:
+    """TRL's trainer with packlab's callbacks (JSON log, closed-loop play)."""
+    json_log = _JsonLog(Path(cfg.out) / LOSS_LOG)
+    callbacks: list[Any] = [json_log]
+    player = None
+    if play_cases:
+        player = _Play(cfg, vlm, play_cases, _image_size(data), json_log)
+        callbacks.append(player)
+    trainer = SFTTrainer(
+        model=vlm.model,
+        args=_trl_args(cfg, dtype, max_length, data.val is not None, progress),
+        train_dataset=data.train,
+        eval_dataset=data.val,
+        processing_class=processor,
+        peft_config=_peft_config(cfg) if cfg.lora else None,
+        callbacks=callbacks,
+    )
+    if player is not None:
+        player.trainer = trainer
+    return trainer
+
+
+def _write_summary(result: SFTResult, counts: dict[str, Any]) -> None:
+    summary = {
+        "optimizer_steps": result.optimizer_steps,
+        "first_loss": result.losses[0],
+        "last_loss": result.losses[-1],
+        "resumed_from": result.resumed_from,
+        "wall_time_s": round(result.wall_time_s, 2),
+        **counts,
+    }
+    (result.out / "sft_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+
+
 def train_sft(
     cfg: SFTConfig, play_cases: list[Case] | None = None, progress: bool = True
 ) -> SFTResult:
@@ -330,26 +376,7 @@ def train_sft(
     fitted = fit_lengths(data, processor, cfg.max_length, cfg.truncation, cfg.template_kwargs)
     data = fitted.data
     frozen = 0 if (cfg.lora or cfg.train_vision) else _freeze_vision(vlm.model)
-    args = _trl_args(cfg, dtype, fitted.max_length, data.val is not None)
-    if not progress:
-        args.disable_tqdm = True
-    json_log = _JsonLog(out / LOSS_LOG)
-    callbacks: list[Any] = [json_log]
-    player = None
-    if play_cases:
-        player = _Play(cfg, vlm, play_cases, _image_size(data), json_log)
-        callbacks.append(player)
-    trainer = SFTTrainer(
-        model=vlm.model,
-        args=args,
-        train_dataset=data.train,
-        eval_dataset=data.val,
-        processing_class=processor,
-        peft_config=_peft_config(cfg) if cfg.lora else None,
-        callbacks=callbacks,
-    )
-    if player is not None:
-        player.trainer = trainer
+    trainer = _trainer(cfg, vlm, processor, data, fitted.max_length, dtype, play_cases, progress)
     counts = {
         "dtype": dtype,
         "devices": trainer.accelerator.num_processes,
@@ -371,11 +398,10 @@ def train_sft(
     trainer.train(resume_from_checkpoint=resume)
     final = out / "final"
     _save_final(trainer, cfg, vlm, dtype, final)
-    losses = _losses(out)
     result = SFTResult(
         out=out,
         final_checkpoint=final,
-        losses=losses,
+        losses=_losses(out),
         n_examples=len(data.train),
         labelled_actions=counts["train_labelled_actions"],
         dropped_examples=fitted.dropped,
@@ -384,14 +410,6 @@ def train_sft(
         resumed_from=resume,
         is_main_process=trainer.is_world_process_zero(),
     )
-    if result.is_main_process and losses:
-        summary = {
-            "optimizer_steps": result.optimizer_steps,
-            "first_loss": losses[0],
-            "last_loss": losses[-1],
-            "resumed_from": resume,
-            "wall_time_s": round(result.wall_time_s, 2),
-            **counts,
-        }
-        (out / "sft_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    if result.is_main_process and result.losses:
+        _write_summary(result, counts)
     return result
