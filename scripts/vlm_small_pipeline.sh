@@ -4,12 +4,12 @@
 #   bash scripts/vlm_small_pipeline.sh [OUT_DIR]        (default runs/vlm-small)
 #
 # 1. generate a PackData subset with the data engine (training seed space, disjoint from the bench);
-# 2. supervised fine-tuning of a tiny-family model from random weights (loss on answer tokens only);
+# 2. supervised fine-tuning of a tiny-family model from random weights (loss on every answer);
 # 3. evaluate it on packlab-bench-v1 with the bench runner (3 seeds, mujoco), then the paper's
 #    ablations (blank image, current step only, no past actions), each in its own run directory.
 #
 # Every step is resumable: rerunning the same command skips finished dataset shards and bench
-# episodes (training restarts from scratch). Sizes are environment variables so a quick try and
+# episodes, and training continues from its last checkpoint. Sizes are environment variables so a quick try and
 # the full run use the same script:
 #
 #   EPISODES=60,40,20 EPOCHS=1 MAX_STEPS=20 bash scripts/vlm_small_pipeline.sh runs/vlm-try
@@ -18,12 +18,11 @@
 set -euo pipefail
 
 OUT=${1:-runs/vlm-small}
-EPISODES=${EPISODES:-550,275,90}           # easy,medium,hard trajectories (9,301 step examples)
+EPISODES=${EPISODES:-550,275,90}           # easy,medium,hard trajectories (one conversation each)
 DATA_SEED=${DATA_SEED:-7}
 MODEL=${MODEL:-tiny:qwen3_vl:small}         # family:size of the random-weight model
 EPOCHS=${EPOCHS:-1}
-MAX_STEPS=${MAX_STEPS:-1150}                # optimizer steps (x8 examples): about 85 min on 2 CPU cores
-MAX_LENGTH=${MAX_LENGTH:-3072}              # tokens; oldest past steps are dropped to fit
+MAX_STEPS=${MAX_STEPS:-}                    # optimizer steps (x8 episodes); empty: EPOCHS passes
 GRAD_ACCUM=${GRAD_ACCUM:-8}
 SEEDS=${SEEDS:-0,1,2}
 DIFFICULTY=${DIFFICULTY:-}                  # e.g. easy to evaluate on one level only
@@ -31,11 +30,11 @@ DIFFICULTY=${DIFFICULTY:-}                  # e.g. easy to evaluate on one level
 mkdir -p "$OUT"
 echo "== 1/3 data: $EPISODES episodes -> $OUT/data" >&2
 packlab generate --difficulty easy,medium,hard --episodes "$EPISODES" --seed "$DATA_SEED" \
-    --sft per_step --out "$OUT/data"
+    --out "$OUT/data"
 
 echo "== 2/3 SFT: $MODEL, $EPOCHS epoch(s) -> $OUT/sft" >&2
 train_args=(--data "$OUT/data" --model "$MODEL" --out "$OUT/sft" --epochs "$EPOCHS"
-            --max-length "$MAX_LENGTH" --grad-accum "$GRAD_ACCUM")
+            --grad-accum "$GRAD_ACCUM")
 [ -n "$MAX_STEPS" ] && train_args+=(--max-steps "$MAX_STEPS")
 if [ ! -f "$OUT/sft/final/packlab_model.json" ]; then
     packlab train sft "${train_args[@]}"

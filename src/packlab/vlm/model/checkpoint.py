@@ -156,7 +156,9 @@ def load_model(
     model = AutoModelForImageTextToText.from_pretrained(
         path, dtype=dtype, local_files_only=True, **extra
     )
-    if quantization_config is None:
+    if quantization_config is None and device != "cpu":
+        # (On the CPU there is nothing to move; under FSDP's cpu-RAM-efficient loading the other
+        # ranks hold meta tensors, which cannot be copied.)
         model.to(device)
     model.eval()
     meta = saved_meta(path) or {"family": family}

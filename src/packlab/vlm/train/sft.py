@@ -29,7 +29,7 @@ from typing import Any, cast
 
 import torch
 from transformers import TrainerCallback
-from transformers.trainer_utils import get_last_checkpoint
+from transformers.trainer_utils import IntervalStrategy, get_last_checkpoint
 from trl import SFTConfig as TRLConfig
 from trl import SFTTrainer
 
@@ -169,9 +169,8 @@ def _peft_config(cfg: SFTConfig) -> Any:
     )
 
 
-def _trl_args(
-    cfg: SFTConfig, dtype: ModelDType, max_length: int, has_val: bool, progress: bool
-) -> TRLConfig:
+def _trl_args(cfg: SFTConfig, dtype: ModelDType, has_val: bool, progress: bool) -> TRLConfig:
+    """The trainer's arguments; ``max_length`` is set once the examples are measured."""
     return TRLConfig(
         output_dir=cfg.out,
         num_train_epochs=cfg.epochs,
@@ -199,7 +198,6 @@ def _trl_args(
         data_seed=cfg.seed,
         dataloader_num_workers=cfg.workers,
         report_to=_report_to(cfg.report_to),
-        max_length=max_length,
         assistant_only_loss=True,
         # Vision rows are encoded by the collator in the DataLoader (workers, not up front).
         dataset_kwargs={"skip_prepare_dataset": True},
@@ -319,10 +317,8 @@ def _trainer(
     vlm: VLM,
     processor: Any,
     data: SFTData,
-    max_length: int,
-    dtype: ModelDType,
+    args: TRLConfig,
     play_cases: list[Case] | None,
-    progress: bool,
 ) -> Any:
     """TRL's trainer with packlab's callbacks (JSON log, closed-loop play)."""
     json_log = _JsonLog(Path(cfg.out) / LOSS_LOG)
@@ -333,7 +329,7 @@ def _trainer(
         callbacks.append(player)
     trainer = SFTTrainer(
         model=vlm.model,
-        args=_trl_args(cfg, dtype, max_length, data.val is not None, progress),
+        args=args,
         train_dataset=data.train,
         eval_dataset=data.val,
         processing_class=processor,
@@ -370,13 +366,20 @@ def train_sft(
     data = load_sft_data(
         cfg.data, options, cfg.recipe, cfg.data_fraction, cfg.val_fraction, cfg.seed
     )
+    args = _trl_args(cfg, dtype, data.val is not None, progress)
+    # Reading args.device sets up the process group before the weights load: under FSDP with
+    # cpu-RAM-efficient loading, transformers then reads the checkpoint on rank 0 only.
+    _ = args.device
     vlm = _load(cfg, dtype)
     checkpoint = None if cfg.is_tiny or cfg.model.startswith("config:") else cfg.model
     processor = processor_for(vlm, checkpoint)
     fitted = fit_lengths(data, processor, cfg.max_length, cfg.truncation, cfg.template_kwargs)
     data = fitted.data
+    args.max_length = fitted.max_length
+    if data.val is None:
+        args.eval_strategy = IntervalStrategy.NO
     frozen = 0 if (cfg.lora or cfg.train_vision) else _freeze_vision(vlm.model)
-    trainer = _trainer(cfg, vlm, processor, data, fitted.max_length, dtype, play_cases, progress)
+    trainer = _trainer(cfg, vlm, processor, data, args, play_cases)
     counts = {
         "dtype": dtype,
         "devices": trainer.accelerator.num_processes,
