@@ -337,10 +337,10 @@ def test_dataset_info_round_trips_with_sorted_keys():
 
 def test_dataset_info_versions_are_checked():
     with pytest.raises(
-        RecordFormatError, match="d/meta/info.json: field 'format_version' = 'packdata-2': unknown"
+        RecordFormatError, match="d/meta/info.json: field 'format_version' = 'packdata-9': unknown"
     ):
         dataset_info_from_json(
-            json.dumps({**_info_obj(), "format_version": "packdata-2"}), "d/meta/info.json"
+            json.dumps({**_info_obj(), "format_version": "packdata-9"}), "d/meta/info.json"
         )
     obj = _info_obj()
     del obj["format_version"]
