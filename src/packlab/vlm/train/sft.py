@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -324,7 +325,14 @@ def _trainer(
     json_log = _JsonLog(Path(cfg.out) / LOSS_LOG)
     callbacks: list[Any] = [json_log]
     player = None
-    if play_cases:
+    if play_cases and args.world_size > 1:
+        # A sharded model (FSDP, ZeRO-3) cannot run a forward pass on one process alone.
+        print(
+            f"closed-loop play is off across {args.world_size} processes: play the saved "
+            "checkpoints with packlab bench",
+            file=sys.stderr,
+        )
+    elif play_cases:
         player = _Play(cfg, vlm, play_cases, _image_size(data), json_log)
         callbacks.append(player)
     trainer = SFTTrainer(
