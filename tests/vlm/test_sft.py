@@ -333,3 +333,18 @@ def test_two_gloo_processes_match_one_with_the_same_global_batch(sft_data, tmp_p
     b = load_model(tmp_path / "two" / "final").model.state_dict()
     worst = max(float((a[k] - b[k]).abs().max()) for k in a)
     assert worst < 1e-4, worst
+
+
+def test_training_template_renders_what_the_inference_template_renders(sft_data):
+    from packlab.vlm.model.chatml import CHAT_TEMPLATE, TRAINING_CHAT_TEMPLATE, render_chat
+
+    tok = build_tiny_model("qwen3_5", "tiny").tokenizer
+    row = load_sft_data(sft_data).train[0]
+    msgs = row["messages"]
+    for n in (2, 3, len(msgs)):
+        for gen in (True, False):
+            a = tok.apply_chat_template(msgs[:n], chat_template=CHAT_TEMPLATE, tokenize=False,
+                                        add_generation_prompt=gen)  # fmt: skip
+            b = tok.apply_chat_template(msgs[:n], chat_template=TRAINING_CHAT_TEMPLATE,
+                                        tokenize=False, add_generation_prompt=gen)  # fmt: skip
+            assert a == b == render_chat(msgs[:n], add_generation_prompt=gen)

@@ -65,8 +65,9 @@ TRAINING_CHAT_TEMPLATE = (
 
 
 def is_project_template(template: str) -> bool:
-    """Whether a saved chat template is :data:`CHAT_TEMPLATE` (a trailing newline aside)."""
-    return template.strip() == CHAT_TEMPLATE
+    """Whether a saved chat template is :data:`CHAT_TEMPLATE` or its training version (which a
+    trainer's checkpoint carries; it renders the same), a trailing newline aside."""
+    return template.strip() in (CHAT_TEMPLATE, TRAINING_CHAT_TEMPLATE)
 
 
 def _content_text(content: str | Sequence[dict[str, Any]]) -> str:
