@@ -348,3 +348,18 @@ def test_training_template_renders_what_the_inference_template_renders(sft_data)
             b = tok.apply_chat_template(msgs[:n], chat_template=TRAINING_CHAT_TEMPLATE,
                                         tokenize=False, add_generation_prompt=gen)  # fmt: skip
             assert a == b == render_chat(msgs[:n], add_generation_prompt=gen)
+
+
+@pytest.mark.parametrize("family", ["qwen3_5", "qwen2_5_vl"])
+def test_the_processor_pickles_for_dataloader_workers(family):
+    import pickle
+
+    processor = processor_for(build_tiny_model(family, "tiny"))
+    again = pickle.loads(pickle.dumps(processor))
+    assert type(again) is type(processor) and again.chat_template == processor.chat_template
+
+
+def test_dataloader_workers_train_the_same_as_the_main_process(sft_data, tmp_path):
+    a = train_sft(_cfg(sft_data, tmp_path / "a", max_steps=2), progress=False)
+    b = train_sft(_cfg(sft_data, tmp_path / "b", max_steps=2, workers=1), progress=False)
+    assert _losses(a.out) == pytest.approx(_losses(b.out), abs=1e-6)

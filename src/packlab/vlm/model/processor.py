@@ -21,24 +21,31 @@ from transformers import AutoProcessor, Qwen2_5_VLProcessor, Qwen3VLProcessor
 from packlab.vlm.model.chatml import TRAINING_CHAT_TEMPLATE, is_project_template
 from packlab.vlm.model.checkpoint import VLM
 
-#: family -> the transformers processor class its checkpoints name.
-_PROCESSOR_CLASSES = {
-    "qwen3_5": Qwen3VLProcessor,
-    "qwen3_vl": Qwen3VLProcessor,
-    "qwen2_5_vl": Qwen2_5_VLProcessor,
+
+class _ImageOnly:
+    """A processor with the image processor and tokenizer as its only parts (no video
+    processor). Mixed into each family's class below; module-level so that it pickles (DataLoader
+    workers started by spawn)."""
+
+    @classmethod
+    def get_attributes(cls) -> list[str]:
+        return ["image_processor", "tokenizer"]
+
+
+class ImageOnlyQwen3VLProcessor(_ImageOnly, Qwen3VLProcessor):
+    """Qwen3-VL's and Qwen3.5's processor without a video processor."""
+
+
+class ImageOnlyQwen2_5_VLProcessor(_ImageOnly, Qwen2_5_VLProcessor):
+    """Qwen2.5-VL's processor without a video processor."""
+
+
+#: family -> the image-only processor class of its checkpoints' processor.
+_PROCESSOR_CLASSES: dict[str, type] = {
+    "qwen3_5": ImageOnlyQwen3VLProcessor,
+    "qwen3_vl": ImageOnlyQwen3VLProcessor,
+    "qwen2_5_vl": ImageOnlyQwen2_5_VLProcessor,
 }
-
-
-def _image_only(base: type) -> type:
-    """``base`` with the image processor and tokenizer as its only parts (no video processor)."""
-
-    class ImageOnlyProcessor(base):  # type: ignore[misc, valid-type]
-        @classmethod
-        def get_attributes(cls) -> list[str]:
-            return ["image_processor", "tokenizer"]
-
-    ImageOnlyProcessor.__name__ = f"ImageOnly{base.__name__}"
-    return ImageOnlyProcessor
 
 
 def training_chat_template(vlm: VLM) -> str | None:
@@ -59,6 +66,6 @@ def processor_for(vlm: VLM, checkpoint: str | Path | None = None) -> Any:
             return processor
         except (ImportError, OSError, ValueError, AttributeError, TypeError):
             pass  # no processor files, or a video processor needing torchvision: build one
-    cls = _image_only(_PROCESSOR_CLASSES[vlm.family])
+    cls = _PROCESSOR_CLASSES[vlm.family]
     template = training_chat_template(vlm) or getattr(vlm.tokenizer, "chat_template", None)
     return cls(vlm.image_processor, vlm.tokenizer, chat_template=template)
