@@ -379,8 +379,7 @@ def train_sft(
     # cpu-RAM-efficient loading, transformers then reads the checkpoint on rank 0 only.
     _ = args.device
     vlm = _load(cfg, dtype)
-    checkpoint = None if cfg.is_tiny or cfg.model.startswith("config:") else cfg.model
-    processor = processor_for(vlm, checkpoint)
+    processor = processor_for(vlm)
     fitted = fit_lengths(data, processor, cfg.max_length, cfg.truncation, cfg.template_kwargs)
     data = fitted.data
     args.max_length = fitted.max_length
