@@ -55,8 +55,6 @@ CommitRule = Literal["enclosed", "first"]
 #: SFT export of a dataset: one multi-turn conversation per episode (packlab.datagen.sft_export),
 #: or none.
 SFTExport = Literal["episode", "none"]
-#: Training precision: ``auto`` (bf16 when a GPU supports it), ``bf16`` or ``no`` (fp32).
-Precision = Literal["auto", "bf16", "no"]
 #: The dtype a VLM's weights are built or loaded in (``packlab.vlm.model.spec.make_model``).
 ModelDType = Literal["fp32", "bf16", "fp16"]
 #: A pointer model's training precision (``packlab train candidate --dtype``): fp32, or bf16
