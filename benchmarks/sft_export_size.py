@@ -285,16 +285,21 @@ def report(args: argparse.Namespace, work: Path, worktree: Path | None) -> None:
     print(note)
 
 
+def work_dir(stack: contextlib.ExitStack, keep: str | None, prefix: str) -> Path:
+    """``--keep DIR`` (new, kept afterwards) or a temporary directory removed with ``stack``."""
+    if not keep:
+        return Path(stack.enter_context(tempfile.TemporaryDirectory(prefix=prefix)))
+    work = Path(keep)
+    if work.exists():
+        raise SystemExit(f"--keep {work}: exists; give a new directory")
+    work.mkdir(parents=True)
+    return work
+
+
 def main() -> None:
     args = parse_args()
     with contextlib.ExitStack() as stack:
-        if args.keep:
-            work = Path(args.keep)
-            if work.exists():
-                raise SystemExit(f"--keep {work}: exists; give a new directory")
-            work.mkdir(parents=True)
-        else:
-            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sft-size-")))
+        work = work_dir(stack, args.keep, "sft-size-")
         worktree = stack.enter_context(baseline_worktree(args.baseline))
         report(args, work, worktree)
 

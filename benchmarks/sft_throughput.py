@@ -30,7 +30,6 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +41,7 @@ from sft_export_size import (
     markdown,
     old_export,
     scaled_episodes,
+    work_dir,
 )
 
 from packlab.vlm.data import sft_tokens
@@ -265,13 +265,7 @@ def benchmark(args: argparse.Namespace, work: Path, worktree: Path | None) -> No
 def main() -> None:
     args = parse_args()
     with contextlib.ExitStack() as stack:
-        if args.keep:
-            work = Path(args.keep)
-            if work.exists():
-                raise SystemExit(f"--keep {work}: exists; give a new directory")
-            work.mkdir(parents=True)
-        else:
-            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sft-speed-")))
+        work = work_dir(stack, args.keep, "sft-speed-")
         worktree = stack.enter_context(baseline_worktree(args.baseline))
         benchmark(args, work, worktree)
 

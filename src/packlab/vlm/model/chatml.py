@@ -23,19 +23,20 @@ IMAGE_PAD, VIDEO_PAD, VISION_PAD = "<|image_pad|>", "<|video_pad|>", "<|vision_p
 IMAGE_TEXT = VISION_START + IMAGE_PAD + VISION_END
 
 # ChatML as the Qwen models use it. Images become <|vision_start|><|image_pad|><|vision_end|>;
-# the processor then repeats <|image_pad|> once per merged visual token.
-CHAT_TEMPLATE = (
-    "{%- for message in messages -%}"
-    "{{- '<|im_start|>' + message['role'] + '\\n' -}}"
+# the processor then repeats <|image_pad|> once per merged visual token. The pieces are shared by
+# the inference template and its training version below.
+_TURN_START = "{%- for message in messages -%}{{- '<|im_start|>' + message['role'] + '\\n' -}}"
+_CONTENT = (
     "{%- if message['content'] is string -%}{{- message['content'] -}}"
     "{%- else -%}{%- for item in message['content'] -%}"
     "{%- if item['type'] == 'image' -%}{{- '<|vision_start|><|image_pad|><|vision_end|>' -}}"
     "{%- elif item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
     "{%- endfor -%}{%- endif -%}"
-    "{{- '<|im_end|>\\n' -}}"
-    "{%- endfor -%}"
-    "{%- if add_generation_prompt -%}{{- '<|im_start|>assistant\\n' -}}{%- endif -%}"
 )
+_GENERATION_PROMPT = (
+    "{%- endfor -%}{%- if add_generation_prompt -%}{{- '<|im_start|>assistant\\n' -}}{%- endif -%}"
+)
+CHAT_TEMPLATE = _TURN_START + _CONTENT + "{{- '<|im_end|>\\n' -}}" + _GENERATION_PROMPT
 
 
 #: :data:`CHAT_TEMPLATE` with ``{% generation %}`` markers around each assistant turn's text and
@@ -43,24 +44,15 @@ CHAT_TEMPLATE = (
 #: mask of assistant tokens that TRL's assistant-only loss reads (the end-of-turn token inside the
 #: mask, so the model learns to stop).
 TRAINING_CHAT_TEMPLATE = (
-    "{%- for message in messages -%}"
-    "{{- '<|im_start|>' + message['role'] + '\\n' -}}"
-    "{%- if message['role'] == 'assistant' -%}{%- generation -%}"
-    "{%- if message['content'] is string -%}{{- message['content'] -}}"
-    "{%- else -%}{%- for item in message['content'] -%}"
-    "{%- if item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
-    "{%- endfor -%}{%- endif -%}"
-    "{{- '<|im_end|>' -}}{%- endgeneration -%}{{- '\\n' -}}"
-    "{%- else -%}"
-    "{%- if message['content'] is string -%}{{- message['content'] -}}"
-    "{%- else -%}{%- for item in message['content'] -%}"
-    "{%- if item['type'] == 'image' -%}{{- '<|vision_start|><|image_pad|><|vision_end|>' -}}"
-    "{%- elif item['type'] == 'text' -%}{{- item['text'] -}}{%- endif -%}"
-    "{%- endfor -%}{%- endif -%}"
-    "{{- '<|im_end|>\\n' -}}"
-    "{%- endif -%}"
-    "{%- endfor -%}"
-    "{%- if add_generation_prompt -%}{{- '<|im_start|>assistant\\n' -}}{%- endif -%}"
+    _TURN_START
+    + "{%- if message['role'] == 'assistant' -%}{%- generation -%}"
+    + _CONTENT
+    + "{{- '<|im_end|>' -}}{%- endgeneration -%}{{- '\\n' -}}"
+    + "{%- else -%}"
+    + _CONTENT
+    + "{{- '<|im_end|>\\n' -}}"
+    + "{%- endif -%}"
+    + _GENERATION_PROMPT
 )
 
 

@@ -18,6 +18,7 @@ from PIL import Image
 
 from packlab.core.errors import ConfigError
 from packlab.vlm.data.sft_dataset import SFTData
+from packlab.vlm.data.sft_tokens import TokenCounter
 
 
 @dataclass(frozen=True)
@@ -26,21 +27,6 @@ class FittedLengths:
     max_length: int
     dropped: int  # examples over max_length, dropped (truncation="drop")
     longest: int  # tokens of the longest example before dropping
-
-
-class _ImageTokens:
-    """Visual tokens of an image of a given size, as the model's image processor makes them."""
-
-    def __init__(self, image_processor: Any) -> None:
-        self.image_processor = image_processor
-        self.cache: dict[tuple[int, int], int] = {}
-
-    def __call__(self, size: tuple[int, int]) -> int:
-        if size not in self.cache:
-            grid = self.image_processor(images=[Image.new("RGB", size)], return_tensors="pt")
-            merge = int(getattr(self.image_processor, "merge_size", 2)) ** 2
-            self.cache[size] = int(grid["image_grid_thw"][0].prod()) // merge
-        return self.cache[size]
 
 
 def _image_size(image: dict[str, Any]) -> tuple[int, int]:
@@ -55,7 +41,8 @@ def example_lengths(dataset: Any, processor: Any, template_kwargs: dict[str, Any
     from datasets import List
 
     raw = dataset.cast_column("images", List(ImageFeature(decode=False)))
-    image_tokens = _ImageTokens(processor.image_processor)
+    # The template is the processor's (the training one); only the visual-token count is shared.
+    visual = TokenCounter(processor.tokenizer, processor.image_processor, "", "").visual_tokens
     tokenizer = processor.tokenizer
     lengths = []
     for row in raw.select_columns(["messages", "images"]):
@@ -64,7 +51,7 @@ def example_lengths(dataset: Any, processor: Any, template_kwargs: dict[str, Any
         )
         n = len(tokenizer(text, add_special_tokens=False)["input_ids"])
         # Each image's one placeholder token becomes its visual tokens.
-        n += sum(image_tokens(_image_size(im)) - 1 for im in row["images"])
+        n += sum(visual(_image_size(im)) - 1 for im in row["images"])
         lengths.append(n)
     return lengths
 
