@@ -1,4 +1,4 @@
-"""Wall time of the default ``packlab bench`` run, and time per decision of every policy.
+r"""Wall time of the default ``packlab bench`` run, and time per decision of every policy.
 
 Usage:
     python benchmarks/bench_wall_time.py                   # a quarter of the suite, extrapolated

@@ -78,7 +78,7 @@ def main() -> None:
     ap.add_argument("--layout", default="layered")
     ap.add_argument("--validation", default="mujoco")
     ap.add_argument("--image-size", type=int, default=224)
-    ap.add_argument("--sft", default="per_step")
+    ap.add_argument("--sft", default="episode", choices=("episode", "none"))
     ap.add_argument("--cores", type=int, default=2, help="cores to extrapolate the recipe to")
     ap.add_argument("--recipe", default="packdata-20k")
     ap.add_argument(

@@ -8,7 +8,7 @@ run seed ``--seed``) under the structured-light robot noise split into its parts
 yaw error, release height), all together, and the stereo preset, each with seating off
 (``seat_mm = 0``: a box stays where the noise put it, sliding aside only to clear a
 neighbour) and with the honest seat (the presets' ``seat_mm``: guarded pushes toward the sides
-the observed heightmap shows its plan flush with, stopped by contact force; issue 26).
+the observed heightmap shows its plan flush with, stopped by contact force).
 ``--variants`` keeps the noise variants whose names contain one of its comma-separated words.
 Prints mean Overall per policy and variant beside the exact execution, and the wall time.
 """

@@ -10,8 +10,9 @@ thread and every learned policy gets ``threads=1``. The learned policies (vlm, i
 play once per runtime (``runtime=onnx`` | ``runtime=torch``); a policy without the option is
 reported as such. Each row plays ``--cases`` generated hard cases (train seed domain, user seed
 7413, geometric backend; ``--suite NAME``: the first hard cases of a bundled suite instead, the
-cases issue 36's ratio to ``plan-fast`` is stated on, as the planner takes about 1 ms a decision
-on generated hard cases and far longer on the suite's; timing only, nothing is chosen by it)
+cases the learned policies' ratio to ``plan-fast`` is stated on, as the planner takes about 1 ms
+a decision on generated hard cases and far longer on the suite's; timing only, nothing is chosen
+by it)
 ``--repeats`` times after one untimed warm-up case; ``act`` is timed at every step and the
 fastest of the repeats kept per step (the machine is shared: the minimum is the least
 disturbed). Prints mean, median and p95 per row. A decision includes everything the policy

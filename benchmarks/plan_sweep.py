@@ -1,4 +1,4 @@
-"""How the ``plan`` policy's defaults were chosen: variants on generated training cases only.
+r"""How the ``plan`` policy's defaults were chosen: variants on generated training cases only.
 
 Usage:
     python benchmarks/plan_sweep.py          # every variant; results in runs/plan-sweep
@@ -65,23 +65,23 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "guesses-128": ("plan-fast", {"guesses": 128}),
     "nodes-20k": ("plan-fast", {"nodes": 20_000}),
     "nodes-300k": ("plan-fast", {"nodes": 300_000}),
-    "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule before the overflow rule
+    "overflow-place": ("plan-fast", {"overflow": "place"}),  # the rim rule, no overflow rule
     "listed-4": ("plan-fast", {"listed": 4}),  # plan-fast with the students' listed placements
     "final-0": ("plan-fast", {"w_final": 0.0}),  # without the final-height shortfall
     "plan": ("plan", {}),
     "plan-final-0": ("plan", {"w_final": 0.0}),
-    "plan-listed-0": ("plan", {"listed": 0}),  # plan before the students' listed placements
-    # Rollout base policies (session 53): the proposer's first pick, or the cheapest of several.
+    "plan-listed-0": ("plan", {"listed": 0}),  # plan without the students' listed placements
+    # Rollout base policies: the proposer's first pick, or the cheapest of several.
     "plan-rollout-lowest": ("plan", {"rollout": "lowest"}),
     "plan-rollout-sdf+lowest": ("plan", {"rollout": "sdf+lowest"}),
     "plan-rollout-sdf+lowest+flush": ("plan", {"rollout": "sdf+lowest+flush"}),
-    # The mixed-height stage's guesses (sessions 57-58, docs/planner.md).
+    # The mixed-height stage's guesses (docs/planner.md).
     "mixed-jokers-0": ("plan-fast", {"mixed_jokers": 0}),
     "mixed-evidence-0.5": ("plan-fast", {"mixed_evidence": 0.5}),
     "plan-mixed-jokers-0": ("plan", {"mixed_jokers": 0}),
     "plan-mixed-evidence-0.5": ("plan", {"mixed_evidence": 0.5}),
-    "depth-10": ("plan-fast", {"depth": 10}),  # plan-fast at plan's depth (session 57)
-    # The last boxes played out by the planner itself (session 61, docs/planner.md).
+    "depth-10": ("plan-fast", {"depth": 10}),  # plan-fast at plan's depth
+    # The last boxes played out by the planner itself (docs/planner.md).
     "plan-endplay-0": ("plan", {"endplay": 0}),
     "endplay-3": ("plan-fast", {"endplay": 3}),
     "sdf": ("sdf", {}),

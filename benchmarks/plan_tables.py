@@ -1,4 +1,4 @@
-"""The planner's tables: both frozen suites, full visibility, fresh layered / stepped / random sets.
+r"""The planner's tables: both frozen suites, full visibility, fresh layered, stepped, random sets.
 
 Usage:
     python benchmarks/plan_tables.py --out runs/plan-tables             # everything, 3 seeds

@@ -15,7 +15,7 @@ front of it and its answer, i.e. the episode's conversation up to that answer. T
 lengths are read off one encoding of the new conversation (``turn_end_tokens``), and checked
 against the old JSONL's own examples tokenized directly.
 
-    python benchmarks/sft_export_size.py                      # 200 episodes, baseline c941aee
+    python benchmarks/sft_export_size.py                      # 200 episodes, default --baseline
     python benchmarks/sft_export_size.py --episodes 40 --keep /tmp/sft-size
 """
 

@@ -17,7 +17,7 @@ shuffled order is its own). Tokens: the new run logs its cumulative ``num_tokens
 baseline logs none, so its tokens/s is estimated with the mean tokens of its examples (every
 step's context through its answer, counted with the project tokenizer) and marked ``~``.
 
-    python benchmarks/sft_throughput.py                       # 100 episodes, 10 steps, c941aee
+    python benchmarks/sft_throughput.py                       # 100 episodes, 10 steps
     python benchmarks/sft_throughput.py --data /tmp/sft-size/data --steps 10
 """
 

@@ -1,4 +1,4 @@
-"""Candidate-mode ablations, each trained with the same budget: what the model reads and learns.
+r"""Candidate-mode ablations, each trained with the same budget: what the model reads and learns.
 
 Usage:
     python benchmarks/vlm_ablations.py --states RUN/r0/states.jsonl --cases TRAIN_CASES \

@@ -14,8 +14,9 @@ skips the cases already in OUT (resumable).
 
 ``--teacher mc`` labels with the Monte-Carlo rollout teacher instead
 (:mod:`packlab.vlm.candidate.rollout_teacher`: each listed line played to the episode's end on
-the case's true future, a privileged training-time label; exact episodes only). Tried for the
-pointer LM's random-box states in session 54 and not shipped (docs/vlm.md).
+the case's true future, a privileged training-time label; exact episodes only). The shipped
+pointer LM is not trained on it: on random-box states its students scored lower than the
+planner's (docs/history/vlm.md).
 """
 
 from __future__ import annotations

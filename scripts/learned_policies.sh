@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The shipped learned policies of issue 36, end to end on a 2-core CPU, two lanes of one core each
+# The shipped learned policies, end to end on a 2-core CPU, two lanes of one core each
 # (every step resumes when rerun). Sides are named longer first (the default), so no model can
 # learn the catalogue's orientation hint. Cases: generated in the train seed domain (ids carry
 # their seed), never a bench suite; every case file and state row is checked by content.
@@ -53,9 +53,8 @@ cases "$OUT/train-r2.jsonl" 200 3602
 for s in 3 4 5; do cases "$OUT/train-r$s.jsonl" 200 360$s; done
 cases "$OUT/heldout.jsonl" 20 3609   # the selection set of step 6 (60 cases): never trained on
 cat "$OUT"/train-r{0,1,2,3,4,5}.jsonl > "$OUT/train-all.jsonl"
-# Step 7's cases: every family the agents are measured on (issue 36, after the overflow rule;
-# trained only on layered layouts, both agents had scored below the proposer on independently
-# drawn boxes): layered (600, seed 4601), layered in layer order (300, 4602), cut in support and
+# Step 7's cases: every family the agents are measured on (trained only on layered layouts,
+# both agents score below the proposer on independently drawn boxes): layered (600, seed 4601), layered in layer order (300, 4602), cut in support and
 # base-height order (300 + 300, 4603-4604), random boxes (600, 4605), shuffled together so the
 # trainer's own held-out cases mix them too; and its selection set (90 cases, seeds 4609-4611).
 mixed "$OUT/train-mix.jsonl" 4604:100:cut:base-height 4603:100:cut:support 4601:200:layered \
@@ -84,7 +83,7 @@ r1_tapnet=$!
 wait "$r1_irbpp"; wait "$r1_tapnet"
 cat "$OUT/r0-states.jsonl" "$OUT/r1-irbpp.jsonl" "$OUT/r1-tapnet.jsonl" > "$OUT/s-r01.jsonl"
 
-# Round 2 (session 51, for the pointer model of step 5): the shipped irbpp (the package's agent)
+# Round 2 (for the pointer model of step 5): the shipped irbpp (the package's agent)
 # acting on 360 cases of every family, and the planner's own trajectories on the same cases,
 # every state labelled by the planner (about 2.5 min on two processes).
 SHUFFLE=51 mixed "$OUT/r2-cases.jsonl" 5101:50:layered 5102:20:layered:layers \
@@ -123,7 +122,7 @@ lane_tapnet_vlm() {
       --out "$OUT/tapnet-im1p" --epochs 30 --seed 0
   ppo --agent tapnet --placement proposer --init "$OUT/tapnet-im1p" \
       --cases "$OUT/train-all.jsonl" --steps 146432 --out "$OUT/tapnet-ppo0"
-  # 5. vlm-small (session 51): the pointer model with the heightmap as a digit map (no vision
+  # 5. vlm-small: the pointer model with the heightmap as a digit map (no vision
   #    tower), from random weights on rounds 0 + 1 and round 2: all 1,500 updates; then round 3,
   #    that model acting on 360 more cases of every family (DAgger: the states its own mistakes
   #    lead to), and the same training from random weights on rounds 0-3 (the shipped model).
@@ -139,7 +138,7 @@ lane_tapnet_vlm() {
       --states "$OUT/s-r01.jsonl" "$OUT/r2-all.jsonl" "$OUT/r3-vlm.jsonl" \
       --cases "$OUT/train-all.jsonl" --states-cases "$OUT/r2-cases.jsonl" "$OUT/r3-cases.jsonl" \
       --out "$OUT/vlm-text-r3" --steps 1500 --stop-after 1500 --lr 1e-3 --seed 0
-  # Session 53: round 4, that model acting on 240 random-family cases (DAgger), then the same
+  # Round 4: that model acting on 240 random-family cases (DAgger), then the same
   # training on rounds 0-4 without the states whose teacher pick was added to the list as an
   # extra line (`teacher_added`): the label points at a line that never exists at play time.
   SHUFFLE=53 mixed "$OUT/r4-cases.jsonl" 5131:20:random 5132:20:random 5133:20:random \

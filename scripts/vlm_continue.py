@@ -9,11 +9,12 @@ Usage:
 
 ``packlab train candidate`` collects each DAgger round with the model itself acting. This script
 trains on states collected otherwise (e.g. the states the line-vector MLP student of
-``benchmarks/student_probe.py dagger`` reached, or ``scripts/collect_states.py``'s, labelled by
-the planner), warm-starting from a pointer directory with its own settings (map, line vectors,
-K); ``--model tiny:qwen3_vl:mini --map text`` starts from random weights instead, with the line
-vectors, K = 16 and a shuffled listing, as ``train candidate`` does. The closed-loop evaluation uses
-the last five cases per level of ``--cases`` (as the recipe does). Resumable like any training.
+``benchmarks/maintainers/student_probe.py dagger`` reached, or ``scripts/collect_states.py``'s,
+labelled by the planner), warm-starting from a pointer directory with its own settings (map,
+line vectors, K); ``--model tiny:qwen3_vl:mini --map text`` starts from random weights instead,
+with the line vectors, K = 16 and a shuffled listing, as ``train candidate`` does. The
+closed-loop evaluation uses the last five cases per level of ``--cases`` (as the recipe does).
+Resumable like any training.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""One line at the end of a test run when the browser tests were skipped (issue 37).
+"""One line at the end of a test run when the browser tests were skipped.
 
 The tests marked ``browser`` drive a real headless Chromium and skip themselves where Chromium,
 chromedriver or selenium is missing. ``.ci/run`` installs them; README's test command cannot

@@ -1,4 +1,4 @@
-"""Command-line defaults and choices come from the config dataclasses, stated once (issue 11).
+"""Command-line defaults and choices come from the config dataclasses, stated once.
 
 Every option of every ``packlab`` subcommand either sets a config field (``cli/options.py``
 ``add_field``, recorded in ``FIELD_OPTIONS``) or is listed in ``CLI_ONLY`` below; an option that
@@ -26,6 +26,7 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "cases fresh": ["cases", "fresh", "packlab-bench-v1", "--seed", "1", "--out", "x.jsonl"],
     "generate": ["generate", "--out", "data"],
     "inspect-data": ["inspect-data", "data"],
+    "policies": ["policies"],
     "train sft": ["train", "sft", "--data", "data", "--out", "runs/sft"],
     "train candidate": ["train", "candidate", "--cases", "cases", "--out", "runs/cand"],
     "train rl": ["train", "rl"],
@@ -58,6 +59,7 @@ CLI_ONLY: dict[str, set[str]] = {
     "cases fresh": {"--seed", "--out", "--per-level"},
     "generate": set(),
     "inspect-data": {"--plots", "--json", "--tokenizer", "--token-sample"},
+    "policies": {"--json"},
     "train sft": set(),
     "train candidate": {"--cases"},
     "train rl": {"--cases"},

@@ -209,8 +209,9 @@ def test_path_errors_and_aborts_map_to_their_exit_codes(monkeypatch, capsys):
         main(["bench"])
 
 
-#: Issue 37's bad inputs: each is one line, exit code 2, before any heavy import and before a
-#: run directory exists (benchmarks/cli_bad_input.py times them in fresh interpreters).
+#: Bad inputs refused up front: each is one line, exit code 2, before any heavy import and before
+#: a run directory exists (benchmarks/maintainers/cli_bad_input.py times them in fresh
+#: interpreters).
 UP_FRONT = [
     (["bench", "--policies", "dblff"], "'dblff' is not a registered policy (did you mean 'dblf'?)"),
     (["bench", "--policy-arg", "irbpp:modle=x"], "irbpp:modle: unknown option (did you mean"),

@@ -1,4 +1,4 @@
-"""Training and tuning refuse a suite case by its content (issue 36): renamed, reseeded,
+"""Training and tuning refuse a suite case by its content: renamed, reseeded,
 re-exported (JSONL, the reference's parquet layout) or with its sides named the other way round,
 a bundled suite case or a reference benchmark case is still refused; generated cases pass."""
 
@@ -65,7 +65,7 @@ def test_a_renamed_and_reseeded_suite_case_is_refused(suite):
 
 
 def test_a_reseeded_hand_seed_case_is_refused_too():
-    """The hole issue 36 found: a bench case given a small (hand-made) seed passed."""
+    """A bench case given a small (hand-made) seed must be refused too."""
     case = load_suite(BENCH)[0]
     hand = dataclasses.replace(case, seed=17, episode_id="hand-1")
     _refused([hand], "hand.jsonl", case.episode_id)

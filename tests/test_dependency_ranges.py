@@ -1,4 +1,4 @@
-"""pyproject.toml pins every dependency to a range the code is tested with (issue 37).
+"""pyproject.toml pins every dependency to a range the code is tested with.
 
 An open upper bound lets a fresh install take a release nobody has run the tests on (transformers
 was `>=5.0` while it announced removing an argument the VLM passed). Every requirement of the core

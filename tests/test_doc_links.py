@@ -1,4 +1,4 @@
-"""Markdown files link only inside the repository (issue 37).
+"""Markdown files link only inside the repository.
 
 A clone has nothing beside its root: a link such as ``../shared/DESIGN.md`` works on the machine
 it was written on and is dead everywhere else. Every tracked ``*.md`` is read; each relative link

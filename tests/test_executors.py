@@ -184,8 +184,9 @@ def test_ray_gives_the_same_results_and_reports(ray_cluster):
 @pytest.mark.slow
 def test_ray_never_cancels_and_starts_only_a_window_of_items(ray_cluster, tmp_path, monkeypatch):
     """ray.cancel racing a task's completion aborts the driver in Ray 2.60 (forced or not;
-    benchmarks/ray_cancel_race.py): a run stopped early on a caller's cluster cancels nothing,
-    and leaves at most its window of tasks in flight instead of every item of the run."""
+    benchmarks/maintainers/ray_cancel_race.py): a run stopped early on a caller's cluster
+    cancels nothing, and leaves at most its window of tasks in flight instead of every item of
+    the run."""
     import ray
 
     def refuse(*args, **kwargs):

@@ -1,4 +1,4 @@
-"""Model cards record how a model was made without naming a machine's paths (issue 36)."""
+"""Model cards record how a model was made without naming a machine's paths."""
 
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def test_an_rl_card_holds_the_fields_and_no_absolute_path(tmp_path):
 
 
 def test_a_card_without_the_fields_still_reads(tmp_path):
-    # Cards written before issue 36 have no provenance fields: they read with them empty.
+    # Cards written before the provenance fields existed lack them: they read with them empty.
     shipped = json.loads((ROOT / "src/packlab/data/models/irbpp/card.json").read_text())
     fields = ("seed", "commit", "dirty", "init", "states", "selection")
     (tmp_path / "card.json").write_text(
@@ -91,7 +91,7 @@ def test_a_card_without_the_fields_still_reads(tmp_path):
 
 @pytest.mark.parametrize("agent", ["irbpp", "tapnet"])
 def test_the_shipped_cards_say_how_they_were_made(agent):
-    # Issue 36: seed, commit, init checkpoint, cases' digest and selection set; no scratch path.
+    # Seed, commit, init checkpoint, cases' digest and selection set; no scratch path.
     text = (ROOT / "src/packlab/data/models" / agent / "card.json").read_text()
     card = read_card(ROOT / "src/packlab/data/models" / agent)
     assert card.seed is not None and card.commit and card.init and card.init["sha256"]
@@ -100,7 +100,7 @@ def test_the_shipped_cards_say_how_they_were_made(agent):
 
 
 def test_the_shipped_pointer_model_s_card_says_how_it_was_made():
-    # Issue 36: a clean commit, every input by name and sha256 (the states and the cases each
+    # A clean commit, every input by name and sha256 (the states and the cases each
     # state file was collected on), no scratch path.
     text = (ROOT / "src/packlab/data/models/vlm-small/packlab_model.json").read_text()
     card = json.loads(text)

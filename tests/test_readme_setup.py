@@ -1,4 +1,4 @@
-"""README's test command, as .ci/run reads it, installs torch's CPU wheel (issue 37).
+"""README's test command, as .ci/run reads it, installs torch's CPU wheel.
 
 An unqualified ``pip install torch==X`` on Linux takes PyPI's CUDA build (gigabytes); the command
 must name PyTorch's CPU index, keep pip's retries short (CI machines may not reach that index and

@@ -1,5 +1,5 @@
 """Training and tuning refuse bench cases by their seeds, whatever name the cases come under
-(``packlab.datagen.guard``, issue 26): a suite by name, the same suite exported to a file, a
+(``packlab.datagen.guard``): a suite by name, the same suite exported to a file, a
 PackData directory; generated train-domain cases and hand-made (manual-domain) cases pass."""
 
 from __future__ import annotations

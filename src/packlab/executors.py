@@ -548,10 +548,10 @@ def _run_ray(
 
     No task is ever cancelled: in Ray 2.60 ``ray.cancel`` racing a task's completion aborts
     the driver ("Tried to complete task that was not pending", exit 1), forced or not
-    (benchmarks/ray_cancel_race.py reproduces it). When the run stops early, a cluster started
-    here is shut down whole; on a caller's cluster the few tasks in flight run on until they
-    end or reach their own time limit or the deadline, and the items never submitted never
-    start."""
+    (benchmarks/maintainers/ray_cancel_race.py reproduces it). When the run stops early, a
+    cluster started here is shut down whole; on a caller's cluster the few tasks in flight run on
+    until they end or reach their own time limit or the deadline, and the items never submitted
+    never start."""
     ray = _import_ray()
     started_here = not ray.is_initialized()
     before_ray: set[int] = set()

@@ -15,7 +15,7 @@ from packlab.core.types import Case, Container, InternalId, Pose
 
 #: The three metrics of every summary, in table order.
 METRICS = ("success_ratio", "compactness", "overall")
-#: The field's metric (issue 35): packed volume over container volume, reported beside the three
+#: The field's metric: packed volume over container volume, reported beside the three
 #: above (its own table section; ``packlab.bench.summary``).
 UTILIZATION = "space_utilization"
 #: The summary group holding the mean over difficulty levels (the paper's "Average" column).

@@ -1,4 +1,4 @@
-"""``packlab-bench-cut-v1`` (issue 35): cut layouts (boxes of many heights, no flat layers) in
+"""``packlab-bench-cut-v1``: cut layouts (boxes of many heights, no flat layers) in
 their support order, bundled and checksummed; the oracle reaches 1.0 on every case."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``packlab-bench-layers-v1`` (issue 25): v1's recipe in the reference benchmark's arrival
+"""``packlab-bench-layers-v1``: v1's recipe in the reference benchmark's arrival
 order, bundled and checksummed; every case arrives layer by layer."""
 
 from __future__ import annotations

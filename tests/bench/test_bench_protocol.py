@@ -1,4 +1,4 @@
-"""``packlab bench --protocol buffer|online --lookahead k`` (issue 35): config round trip, the
+"""``packlab bench --protocol buffer|online --lookahead k``: config round trip, the
 resume and compare refusals, and space utilization in the summary and table."""
 
 import json
@@ -89,7 +89,7 @@ def test_buffer_run_reports_utilization_without_changing_its_records(tiny_suite,
 
 def test_compare_labels_rows_of_different_protocols_with_their_protocol(tiny_suite, tmp_path):
     """The same cases under the buffer, online and offline protocols in one table: what seeing
-    only part of the sequence costs (issue 35's online gap); each row names its protocol."""
+    only part of the sequence costs (the online gap); each row names its protocol."""
     a = run_tiny(tiny_suite, tmp_path / "a").summary
     b = run_tiny(tiny_suite, tmp_path / "b", protocol="online").summary
     d = run_tiny(tiny_suite, tmp_path / "d", protocol="offline").summary

@@ -1,4 +1,4 @@
-"""Per-decision time in records, the summary and table.md (issue 38), on hand-made records with
+"""Per-decision time in records, the summary and table.md, on hand-made records with
 hand-computed answers, and from a real run rebuilt by ``packlab bench report``."""
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 real ones do: dead (nothing listening), hung (accepts, never answers), garbage (200 with a body
 that is not an answer), 500 (always) and 404 (a wrong model name or URL). Each run must end
 within a bound this test asserts, with the exit code and records docs/robustness.md promises;
-before issue 10 a dead or hung server cost 5 steps x 3 tries x 60 s per episode, about 45 hours
-for the default suite."""
+without those bounds a dead or hung server would cost 5 steps x 3 tries x 60 s per episode, about
+45 hours for the default suite."""
 
 from __future__ import annotations
 

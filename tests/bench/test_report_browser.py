@@ -34,9 +34,12 @@ CHROMIUM = os.environ.get("PACKLAB_CHROMIUM") or next(
     filter(None, map(shutil.which, ("chromium", "chromium-browser", "google-chrome"))), None
 )
 CHROMEDRIVER = os.environ.get("PACKLAB_CHROMEDRIVER") or shutil.which("chromedriver")
-if not (CHROMIUM and CHROMEDRIVER):
+MISSING = [
+    name for name, found in (("chromium", CHROMIUM), ("chromedriver", CHROMEDRIVER)) if not found
+]
+if MISSING:  # name what is missing: a browser without its driver is the common case
     pytest.skip(
-        "no chromium / chromedriver (apt-get install chromium chromium-driver)",
+        f"no {' and no '.join(MISSING)} (apt-get install chromium chromium-driver)",
         allow_module_level=True,
     )
 

@@ -1,5 +1,5 @@
-"""Issue 15's bench switches: --observation, --execution, --noise (opt-in, part of the identity),
-and issue 34's --sides (longer first by default; always part of the identity)."""
+"""The bench's sensing switches: --observation, --execution, --noise (opt-in, part of the
+identity), and --sides (longer first by default; always part of the identity)."""
 
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def test_an_old_run_directory_is_refused_then_resumed_end_to_end(tiny_suite, tmp
     config_path = out / "config.json"
     saved = json.loads(config_path.read_text())
     assert saved["sensing"]["sides"] == "catalogue"
-    del saved["sensing"]  # as a version before issue 34 wrote an exact run's config.json
+    del saved["sensing"]  # as an older version wrote an exact run's config.json
     config_path.write_text(json.dumps(saved))
     with pytest.raises(ConfigError, match="--sides catalogue resumes it"):
         run_tiny(tiny_suite, out, seeds=(0,))

@@ -3,7 +3,7 @@
 Building the top-level parser imports no subcommand's module; a subcommand's parser is built
 from light modules (argument definitions), and the modules that do the work are imported when
 the command runs. Each check runs in a fresh interpreter and reads ``sys.modules``; nothing is
-timed here (``benchmarks/cli_startup.py`` times it).
+timed here (``benchmarks/maintainers/cli_startup.py`` times it).
 """
 
 from __future__ import annotations

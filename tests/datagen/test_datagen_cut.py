@@ -1,4 +1,4 @@
-"""The ``cut`` layout family (issue 35): Zhao et al.'s CUT recipe on the stack cuboid, its two
+"""The ``cut`` layout family: Zhao et al.'s CUT recipe on the stack cuboid, its two
 arrival orders (base-height = CUT-1, support = CUT-2), and the config's refusals."""
 
 from __future__ import annotations

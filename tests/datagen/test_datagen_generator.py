@@ -98,7 +98,7 @@ def test_seed_domains_are_disjoint():
 
 
 def test_generated_ids_carry_their_user_seed():
-    """Issue 36: training (seed 4402) and selection (seed 7413) cases must not share ids, since
+    """Training (seed 4402) and selection (seed 7413) cases must not share ids, since
     states are matched to cases by id; the bench's frozen suite ids keep their shape."""
     a = generate_cases("easy", 2, seed=4402, validate=False, domain="train")
     b = generate_cases("easy", 2, seed=7413, validate=False, domain="train")

@@ -1,4 +1,4 @@
-"""Arrival order ``layers`` (issue 25): layer by layer, supports first, anchor first; ``removal``
+"""Arrival order ``layers``: layer by layer, supports first, anchor first; ``removal``
 stays the default and leaves existing cases (and saved configs) unchanged."""
 
 from __future__ import annotations

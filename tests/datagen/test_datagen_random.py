@@ -1,4 +1,4 @@
-"""The ``random`` layout family (issue 25): drawn boxes within the size rules, no ``gt_plan``,
+"""The ``random`` layout family: drawn boxes within the size rules, no ``gt_plan``,
 total volume under the fill target; episodes run with every heuristic and ``plan-fast``."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The ``rs`` layout family (issue 35): i.i.d. boxes from Zhao et al.'s 64 types (sides 2..5
+"""The ``rs`` layout family: i.i.d. boxes from Zhao et al.'s 64 types (sides 2..5
 units, unit = a tenth of the smaller floor side on the grid), drawn until the container's volume
 is reached; no ``gt_plan``, no replay validation, refused by the oracle."""
 

@@ -1,4 +1,4 @@
-"""No policy reads what the episode does not hand it (issue 26).
+"""No policy reads what the episode does not hand it.
 
 Every policy declared under the ``packlab.policies`` entry-point group (listed at collection
 time, so a newly registered one is covered without touching this file) plays one small case,

@@ -129,7 +129,7 @@ def test_object_rows_place_each_object_by_dblf(cases):
 
 
 def test_object_rows_place_each_object_at_its_first_proposer_listing(cases):
-    """The default rule (issue 36): each object where the proposer lists it first."""
+    """The default rule: each object where the proposer lists it first."""
     episode = Episode("geometric")
     observation = episode.reset(cases[4], 0)
     episode.step(make_dblf().act(observation))

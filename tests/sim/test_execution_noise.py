@@ -1,4 +1,4 @@
-"""Issue 15: execution noise (``packlab.sim.execution``) and noisy drops on the mujoco backend."""
+"""Execution noise (``packlab.sim.execution``) and noisy drops on the mujoco backend."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_perturbation_is_seeded_and_moves_the_drop():
 
 
 def test_offsets_are_the_noise_alone_nothing_clamps_or_corrects_them():
-    # Issue 34: the executed drop is the arm's noise minus the grasp error, whatever lies
+    # The executed drop is the arm's noise minus the grasp error, whatever lies
     # around; a box the noise pushes into a wall is slid off it by the place skill's descent.
     big = ExecutionNoise(xy_sigma_mm=50.0, yaw_sigma_deg=5.0)
     draws = np.random.default_rng(0).normal(size=(200, 3))
@@ -83,7 +83,7 @@ def test_zero_noise_execution_is_exact_execution():
     zero = run_episode(case, make_policy("dblf"), 0, backend="mujoco", execution=ExecutionNoise())
     rec = _record(zero)
     assert all(s.pop("executed") == [0.0, 0.0, 0.0, 0.0] for s in rec["steps"] if s["valid"])
-    # Noisy execution counts what the place skill did (issue 34): nothing, every drop exact.
+    # Noisy execution counts what the place skill did: nothing, every drop exact.
     assert rec["metrics"].pop("skill") == {}
     assert all("skill" not in s for s in rec["steps"])
     assert rec == _record(exact)

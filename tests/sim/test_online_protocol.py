@@ -1,4 +1,4 @@
-"""The online protocol (issue 35): next k boxes in arrival order, place the first, stop at the
+"""The online protocol: next k boxes in arrival order, place the first, stop at the
 first box that fits nowhere; space utilization counts only what was placed."""
 
 import numpy as np

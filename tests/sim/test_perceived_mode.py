@@ -1,4 +1,4 @@
-"""Issue 15: perceived observations and re-plan events in the episode loop."""
+"""Perceived observations and re-plan events in the episode loop."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issues 26 and 34: a place skill that acts only on what the robot knows.
+"""A place skill that acts only on what the robot knows.
 
 The command (``PlaceCommand``) comes from the size the robot was shown and the observed
 heightmap, the executed pose carries the grasped box's pose-estimate error, the descent yields
@@ -262,7 +262,7 @@ def test_a_turned_box_pushed_against_a_face_is_turned_flush_by_the_contact():
 def test_a_box_turned_past_five_degrees_is_still_turned_flush_against_a_whole_face(
     yaw_deg, offset, seat
 ):
-    # Session 52: the stereo preset's arm (3 deg) leaves about one box in ten more than 5 deg
+    # The stereo preset's arm (3 deg) leaves about one box in ten more than 5 deg
     # off square; the wrist yields up to WRIST_YAW_YIELD_DEG (10), so seating against a face
     # along the whole footprint still squares it. Lowered clear of the neighbour (its corner
     # 18-23 mm out), then pushed onto its face from 25-28 mm away (with a 5 deg yield the push
@@ -286,7 +286,7 @@ def test_only_a_face_along_the_whole_footprint_turns_the_box_in_seating():
     assert partial == pytest.approx(2.0, abs=0.01)
 
 
-# -- issue 34: no hidden truth, a physical descent, counted recoveries -------------------------
+# -- no hidden truth, a physical descent, counted recoveries ----------------------------------
 
 
 def _two_sizes_episode(true_size):
@@ -431,7 +431,7 @@ def test_run_details_show_the_skill_counts_and_old_records_still_read():
     assert "### Place skill" in table and "| placements |" in table
 
 
-# -- issue 34: a placement that stopped high is tried again --------------------------------------
+# -- a placement that stopped high is tried again -----------------------------------------------
 
 
 def _slot(size=(100, 100, 100), true_size=None):

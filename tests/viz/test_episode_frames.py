@@ -64,7 +64,7 @@ def test_live_frames_one_per_step_with_latency_and_final_metrics(case):
 
 def test_record_poses_and_resimulation_give_the_same_frames(case):
     record = _record(case)
-    assert has_step_poses(record), "bench records carry per-step poses (issue 16)"
+    assert has_step_poses(record), "bench records carry per-step poses"
     recorded = replay_frames(case, record)
     resimulated = replay_frames(case, _without_poses(record))
     assert (recorded.method, resimulated.method) == (RECORDED_POSES, RESIMULATED)

@@ -135,7 +135,7 @@ def test_collect_writes_labelled_states_and_resumes(cases, tmp_path):
     assert {s.case_id for s in states} == {c.episode_id for c in cases[:2]}
     assert all(0 <= s.label < len(s.listed) and s.teacher == "sdf" for s in states)
     prints = {c.episode_id: case_fingerprint(c) for c in cases}
-    assert all(s.case_sha256 == prints[s.case_id] for s in states)  # issue 36: content hash
+    assert all(s.case_sha256 == prints[s.case_id] for s in states)  # the content hash
     assert done_cases(out) == {c.episode_id for c in cases[:2]}
     again = collect(cases[:3], out, "sdf", "teacher", workers=1, progress=False)
     after = list(read_states(out))
@@ -192,7 +192,7 @@ def test_shuffled_moves_the_label_with_its_placement_and_is_reproducible(cases):
 
 
 def test_collect_on_the_robot_path_labels_what_the_robot_is_shown(cases, tmp_path):
-    # Issue 36: states from perceived + noisy MuJoCo episodes carry what perception showed (fresh
+    # States from perceived + noisy MuJoCo episodes carry what perception showed (fresh
     # ids per observation, sizes measured off the depth image), not the case's boxes.
     out = tmp_path / "robot.jsonl"
     n = collect(cases[:1], out, "sdf", "robot", workers=1, progress=False,

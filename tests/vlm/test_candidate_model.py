@@ -209,7 +209,7 @@ def test_training_resumes_exactly(states, tmp_path):
     assert half.vlm.meta["trained_steps"] == 3
     resumed = load_pointer(train_pointer(replace(cfg, stop_after=None)))
     assert resumed.vlm.meta["trained_steps"] == 6
-    card = whole.vlm.meta  # issue 36: how it was made, without a machine's paths
+    card = whole.vlm.meta  # how it was made, without a machine's paths
     assert card["seed"] == 0 and card["init"] is None and card["dirty"] in (True, False, None)
     assert card["states"] == [{"path": "states.jsonl", "sha256": file_sha256(path)}]
     assert card["selection"]["n"] == 0 and "last update" in card["selection"]["rule"]

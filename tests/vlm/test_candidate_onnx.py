@@ -292,9 +292,9 @@ def test_both_runtimes_play_the_same_episode():
 
 @needs_export
 def test_blank_image_plays_under_onnx_and_changes_what_the_model_reads():
-    # Issue 36: a test that passed with blanking ignored only checked a flag. Here the shipped
-    # model scores the same listed placements of a state with boxes in it, with its map shown
-    # and blanked: the scores must differ (the map is an input), and a blanked episode plays.
+    # Checking a flag would pass with blanking ignored. Here the shipped model scores the same
+    # listed placements of a state with boxes in it, with its map shown and blanked: the scores
+    # must differ (the map is an input), and a blanked episode plays.
     from packlab.cases.load import load_cases
     from packlab.policies.candidates import propose
     from packlab.sim.env import demo_cases_path

@@ -1,4 +1,4 @@
-"""The ``endpoint`` policy against broken servers (issue 10): dead, hung, trickling, garbage,
+"""The ``endpoint`` policy against broken servers: dead, hung, trickling, garbage,
 5xx and 4xx fake servers on 127.0.0.1 (raw sockets, one thread per connection). Each test
 asserts what happens AND that it happens within a bound derived from the configured deadline:
 one request can take at most ``tries * deadline_s + backoffs`` (``worst_case_request_s``), and

@@ -1,5 +1,5 @@
-"""Fuzzing the answer parser (issue 10): any text gives an action or a typed, one-line error, in
-linear time under a length cap; each parse must take under 50 ms (the bound the issue sets).
+"""Fuzzing the answer parser: any text gives an action or a typed, one-line error, in
+linear time under a length cap; each parse must take under 50 ms.
 
 Timing: a parse over the bound is measured again (best of three) before failing, so that a
 scheduler pause on a shared machine is not reported as a slow parser; a slow parser is slow

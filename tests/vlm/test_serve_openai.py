@@ -1,4 +1,4 @@
-"""``packlab serve`` driven by the official ``openai`` client (issue 10): plain and streaming
+"""``packlab serve`` driven by the official ``openai`` client: plain and streaming
 answers, the model listed by its served name, and a client's mistakes answered 400 with a
 reason (through the client as ``openai.BadRequestError`` and through raw HTTP).
 

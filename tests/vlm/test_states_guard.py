@@ -1,4 +1,4 @@
-"""Labelled states are checked by their cases' content (issue 36): every row carries its case's
+"""Labelled states are checked by their cases' content: every row carries its case's
 fingerprint; a row of a suite case, of a case not given, of another case under the same id, or
 without the field is refused by ``train rl-imitate``, ``train candidate`` and the scripts."""
 
@@ -53,8 +53,8 @@ def test_states_of_a_renamed_suite_case_are_refused(tmp_path):
 
 
 def test_states_of_other_cases_under_the_same_ids_are_refused(states, train_cases):
-    """The audit's case: selection cases (seed 7413) and training cases (seed 4402) once had
-    the same ids; now the ids differ and, renamed alike, the content still tells them apart."""
+    """Selection cases (seed 7413) renamed to the ids of training cases (seed 4402): the ids
+    match, and the content still tells them apart."""
     other = generate_cases("easy", 2, 7413, False, domain="train")
     same_ids = [dataclasses.replace(o, episode_id=t.episode_id) for o, t in zip(other, train_cases)]
     with pytest.raises(ConfigError, match="stale or mismatched states"):
@@ -63,20 +63,13 @@ def test_states_of_other_cases_under_the_same_ids_are_refused(states, train_case
         checked_states(states, other)
 
 
-def test_an_old_file_is_refused_until_its_hashes_are_added(states, train_cases, tmp_path,
-                                                           monkeypatch):  # fmt: skip
+def test_a_file_without_case_hashes_is_refused(states, train_cases, tmp_path):
     old = tmp_path / "old.jsonl"
     rows = [msgspec.structs.replace(s, format="packlab-states-2", case_sha256="")
             for s in read_states(states)]  # fmt: skip
     append_states(old, rows)
-    with pytest.raises(ConfigError, match="no case_sha256.*states_add_case_hash"):
+    with pytest.raises(ConfigError, match="no case_sha256.*collect the states again"):
         require_training_states([old], train_cases)
-    cases = save_cases(train_cases, tmp_path / "cases.jsonl")
-    new = tmp_path / "new.jsonl"
-    argv = ["x", "--states", str(old), "--cases", str(cases), "--out", str(new)]
-    monkeypatch.setattr(sys, "argv", argv)
-    runpy.run_path(str(ROOT / "scripts" / "states_add_case_hash.py"), run_name="__main__")
-    assert checked_states(new, train_cases) == list(read_states(states))
 
 
 def test_train_candidate_refuses_stale_states_in_its_run_directory(states, tmp_path, capsys):

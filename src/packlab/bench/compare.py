@@ -56,7 +56,7 @@ MUST_MATCH: dict[str, tuple[str, str]] = {
     "backend": ("backend", "--backend"),
     "difficulties": ("difficulties", "--difficulty"),
 }
-#: The sensing settings (summary ``sensing``, issue 15) a comparison may vary: documented
+#: The sensing settings (summary ``sensing``) a comparison may vary: documented
 #: ablations, each run's rows labelled with its value. Field -> its value when not recorded
 #: (None: the setting does not apply to that run, e.g. segmentation of an exact observation).
 #: ``sides`` not recorded is the catalogue's in exact observation (runs made before it was
@@ -103,7 +103,7 @@ def sensing_settings(summary: RunSummary) -> dict[str, str | None]:
     recorded = (
         msgspec.structs.asdict(sensing)
         if isinstance(sensing, SensingModes)
-        else {}  # absent: both modes exact, sides the catalogue's (made before issue 34)
+        else {}  # absent: both modes exact, sides the catalogue's (an older run)
     )
     out: dict[str, str | None] = {}
     for name, default in ABLATIONS.items():
@@ -161,7 +161,7 @@ def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> 
     """Each run's label, with the settings that differ between the runs appended, e.g.
     ``"lf (sides longer-first)"``; unchanged when no setting differs."""
     settings = [sensing_settings(s) for s in summaries]
-    # The protocol too (issue 35): the same cases under the buffer, online and offline
+    # The protocol too: the same cases under the buffer, online and offline
     # protocols are what measures the cost of seeing only part of the sequence.
     for st, s in zip(settings, summaries):
         st["protocol"] = summary_protocol(s).label

@@ -70,11 +70,11 @@ IDENTITY_KEYS = (
     "backend",
     "difficulties",
     "physics",
-    # Observation, execution and side names (issue 15, 34): compared as ``saved_sensing``
+    # Observation, execution and side names: compared as ``saved_sensing``
     # reads them, so directories made before the entry (or its ``sides``) was always written
     # resume under the settings they were made with, and only under those.
     "sensing",
-    # The episode protocol (issue 35): compared as ``saved_protocol`` reads the two keys
+    # The episode protocol: compared as ``saved_protocol`` reads the two keys
     # together (absent: buffer), with its own one-line refusal (``check_resumable``).
     "protocol",
     "lookahead",
@@ -125,8 +125,8 @@ def sensing_identity(config: RunConfig) -> dict[str, str]:
 
 def saved_sensing(entry: object) -> dict[str, str]:
     """A config.json ``sensing`` entry as this version writes it, from any version's: left out
-    (runs made before issue 15, or exact runs made before side names were always recorded) it
-    was both modes exact; ``sides`` left out was the catalogue's in exact observation
+    (runs made before the modes existed, or exact runs made before side names were always
+    recorded) it was both modes exact; ``sides`` left out was the catalogue's in exact observation
     (:data:`UNRECORDED_SIDES`) and longer first in perceived observation (perception always
     named them so). ``noise`` is dropped where both modes are exact: nothing used it."""
     out = {str(k): str(v) for k, v in entry.items()} if isinstance(entry, dict) else {}

@@ -182,7 +182,7 @@ class RunConfig:
     max_transport_failures: int = DEFAULT_MAX_TRANSPORT_FAILURES
     #: Wall-clock limit of this invocation (None: none): no new work after it, workers stopped.
     deadline_s: float | None = None
-    #: What policies observe (issue 15): the exact state, or what the simulated depth cameras
+    #: What policies observe: the exact state, or what the simulated depth cameras
     #: perceive under the ``noise`` preset. Part of the identity when not exact.
     observation: ObservationMode = "exact"
     #: How placements are executed: exactly, or with the ``noise`` preset's robot noise (mujoco
@@ -201,7 +201,7 @@ class RunConfig:
     #: Whether observations carry ``remaining`` (``core.choices.RemainingMode``): part of the
     #: identity when hidden.
     remaining: RemainingMode = DEFAULT_REMAINING
-    #: The episode protocol (issue 35, ``packlab.core.packing_protocol``): packlab's ``buffer``
+    #: The episode protocol (``packlab.core.packing_protocol``): packlab's ``buffer``
     #: or the field's ``online`` (see ``lookahead`` boxes in arrival order, place the first).
     #: Always part of the identity; a run directory without it used ``buffer``.
     protocol: EpisodeProtocol = DEFAULT_PROTOCOL
@@ -283,7 +283,7 @@ def policy_names() -> list[str]:
 
 
 def _check_sensing(config: RunConfig) -> None:
-    """The issue-15 modes: known names, noise only where a mode uses it, noisy on mujoco."""
+    """The sensing modes: known names, noise only where a mode uses it, noisy on mujoco."""
     require_choice(config.observation, ObservationMode, "observation")
     require_choice(config.execution, ExecutionMode, "execution")
     require_choice(config.noise, NoisePreset, "noise")

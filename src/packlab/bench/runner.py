@@ -94,7 +94,7 @@ class EpisodeWork:
     physics: Any
     policy_kwargs: dict[str, dict[str, Any]]
     timeout_s: float | None
-    modes: EpisodeModes = EXACT_MODES  # issue 15's observation / execution (exact: empty)
+    modes: EpisodeModes = EXACT_MODES  # the observation / execution modes (exact: empty)
 
     def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
         # ctx.deadline is set in this process and on Ray: there the episode's alarm is the only
@@ -338,6 +338,20 @@ def run_bench(
         return _run_locked(run, on_record, figures, deadline, html)
 
 
+def _box_progress(
+    run: ResolvedRun, planned: dict[RecordKey, Task], done_keys: set[RecordKey]
+) -> tuple[dict[RecordKey, int], Any]:
+    """Boxes per planned episode and a progress bar that counts boxes placed.
+
+    The largest cases run first (:func:`longest_first`), so a bar counting episodes would make
+    its first estimate of the time left several times too long; counted in boxes it holds.
+    """
+    boxes = {k: len(run.cases[t.case_index].objects) for k, t in planned.items()}
+    done = sum(boxes[k] for k in done_keys if k in boxes)
+    label = f"bench {run.source.label}"
+    return boxes, progress_bar(sum(boxes.values()), done, label, run.config.progress, unit="box")
+
+
 def _run_locked(
     run: ResolvedRun,
     on_record: Callable[[EpisodeRecord], None] | None,
@@ -357,8 +371,7 @@ def _run_locked(
     started_wall, started = time.time(), time.perf_counter()
     if pending:
         results = execute(run, pending, deadline)  # workers start (fork) before the bar's thread
-        label = f"bench {run.source.label}"
-        bar = progress_bar(len(planned), len(done_keys), label, config.progress)
+        boxes, bar = _box_progress(run, planned, done_keys)
         breaker = TransportBreaker(config.max_transport_failures)
         try:
             with RecordWriter(run.out / EPISODES_FILE) as writer:
@@ -369,7 +382,7 @@ def _run_locked(
                     if isinstance(record, EpisodeError):
                         failed += 1
                         bar.set_postfix_str(f"{failed} failed", refresh=False)
-                    bar.update(1)
+                    bar.update(boxes.get(record_key(record), 0))
                     if on_record is not None:
                         on_record(record)
                     if breaker.observe(record):

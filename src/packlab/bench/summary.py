@@ -15,7 +15,7 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
 * Failed episodes (``status: "error"``) are left out of the means and counted in ``counts`` and
   ``errors``; the table flags a method with failures, since its mean covers fewer episodes.
 
-* Space utilization (issue 35, ``packlab.metrics.space_utilization``): per episode, packed
+* Space utilization (``packlab.metrics.space_utilization``): per episode, packed
   volume / container volume; an online-protocol record carries it (counted up to the first
   box that fits nowhere), a buffer-protocol record is scored from its inside volume and its
   case's container (``container_mm3``; without the cases, buffer runs have no utilization).
@@ -137,7 +137,9 @@ def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> Poli
         episodes=len(mine),
         errors=n_errors,
         steps=len(steps),
-        invalid_steps=sum(1 for s in steps if not s.valid),
+        # A deliberate set-aside (Action.set_aside, reason "set_aside") is a decision, not a
+        # mistake: it shows under "set aside", never as an invalid action.
+        invalid_steps=sum(1 for s in steps if not s.valid and s.reason != "set_aside"),
         set_aside=sum(r.metrics.n_set_aside for r in mine),
         unsettled_steps=sum(r.metrics.unsettled_steps for r in mine),
         not_at_rest=sum(1 for r in mine if r.metrics.at_rest is False),
@@ -155,7 +157,7 @@ def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> Poli
 
 
 class _SkillCounts(TypedDict, total=False):
-    """The ``PolicyCounts`` field of noisy-execution runs (issue 34)."""
+    """The ``PolicyCounts`` field of noisy-execution runs."""
 
     skill_per_episode: dict[str, float]
 
@@ -179,7 +181,7 @@ def _skill_counts(mine: list[EpisodeOk]) -> _SkillCounts:
 
 
 class _DecisionCounts(TypedDict, total=False):
-    """The ``PolicyCounts`` field of runs whose records time each decision (issue 38)."""
+    """The ``PolicyCounts`` field of runs whose records time each decision."""
 
     decision_times: dict[str, DecisionTimes]
 
@@ -190,7 +192,7 @@ def _decision_counts(mine: list[EpisodeOk], levels: Sequence[str]) -> _DecisionC
 
 
 class _PerceptionCounts(TypedDict, total=False):
-    """The ``PolicyCounts`` fields of perceived runs (issue 15)."""
+    """The ``PolicyCounts`` fields of perceived runs."""
 
     replans_per_episode: float
     missed_per_episode: float
@@ -213,7 +215,7 @@ class _RunFields(TypedDict, total=False):
 
 
 def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
-    """Perceived runs' counters (issue 15); none for exact runs: their summary is unchanged."""
+    """Perceived runs' counters; none for exact runs: their summary is unchanged."""
     replans = [r.metrics.replans for r in mine if r.metrics.replans is not UNSET]
     if not replans:
         return {}

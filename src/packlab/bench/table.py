@@ -100,7 +100,7 @@ def interval_note(summary: RunSummary, intervals: RunIntervals) -> str:
 
 
 def utilization_table(summary: RunSummary, intervals: RunIntervals) -> str:
-    """Per method, the space utilization (packed volume / container volume; issue 35) per level
+    """Per method, the space utilization (packed volume / container volume) per level
     and on average, each ``mean [95 % interval]``; empty when no method has it."""
     rows = [
         p
@@ -136,7 +136,11 @@ UTILIZATION_TITLE = (
 
 
 def details_table(summary: RunSummary) -> str:
-    """Per method: episodes, failures, invalid steps, objects set aside, settling, time per step.
+    """Per method: episodes, failures, invalid actions, objects set aside, settling, time per step.
+
+    ``invalid actions``: steps the episode refused (bad id, footprint outside, unparsable
+    answer); a deliberate set-aside is not one. ``set aside``: boxes left unpacked for any
+    reason (deliberate, after an invalid action, or not found by perception).
 
     ``unsettled steps``: placements whose settle hit the per-placement cap; ``not at rest``:
     episodes scored while boxes still moved (the final settle hit its cap). Summaries written
@@ -147,7 +151,7 @@ def details_table(summary: RunSummary) -> str:
         "Method",
         "episodes",
         "errors",
-        "invalid steps",
+        "invalid actions",
         "set aside",
         "unsettled steps",
         "not at rest",

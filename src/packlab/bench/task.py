@@ -162,7 +162,7 @@ def run_task(
     A fresh policy per episode (``make_policy(policy, **policy_kwargs)``), so no state leaks
     between episodes; policies that hold heavy models cache them per process themselves.
     ``timeout_s`` limits this episode; ``deadline`` (``time.monotonic()``) is the run's end:
-    reaching it raises DeadlineReached instead of producing a record. ``modes`` are issue 15's
+    reaching it raises DeadlineReached instead of producing a record. ``modes`` are the
     observation and execution modes (exact by default).
     """
     started, started_cpu = time.perf_counter(), time.process_time()

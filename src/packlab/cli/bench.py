@@ -51,8 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-html",
         action="store_true",
-        help="skip report.html, the interactive report (written by default; needs plotly, "
-        "the report extra)",
+        help="skip report.html, the interactive report (written by default)",
     )
     p.set_defaults(func=run)
     _add_subcommands(p)
@@ -117,7 +116,7 @@ def policies_help() -> str:
 
 
 def _add_sensing_options(p: argparse.ArgumentParser) -> None:
-    """Issue 15's modes: perceived observations and noisy execution (part of the identity)."""
+    """The robot-cell modes: perceived observations and noisy execution (part of the identity)."""
     add_field(
         p,
         RunConfig,
@@ -171,7 +170,7 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_protocol_options(p: argparse.ArgumentParser) -> None:
-    """Issue 35: packlab's buffered protocol or the field's online one (part of the identity)."""
+    """The episode protocol: packlab's buffered one or the field's online one (in the identity)."""
     add_field(
         p,
         RunConfig,
@@ -309,7 +308,7 @@ def _add_report_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--html",
         action="store_true",
-        help="also write DIR/report.html, the interactive report (needs plotly, the report extra)",
+        help="also write DIR/report.html, the interactive report",
     )
     r.set_defaults(func=run_report)
 
@@ -337,7 +336,7 @@ def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
         const="",
         metavar="FILE",
         help=f"also write the interactive report over the runs to FILE (default: --out with "
-        f".html, else {COMPARE_HTML}; needs plotly, the report extra)",
+        f".html, else {COMPARE_HTML})",
     )
     c.set_defaults(func=run_compare)
 

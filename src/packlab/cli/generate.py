@@ -232,8 +232,8 @@ def config_from_args(args: argparse.Namespace) -> DatasetConfig:
 
 
 def _something_to_do(config: DatasetConfig) -> DatasetConfig:
-    """A dataset of zero episodes is a typo (it used to exit 0 with an empty directory); a
-    count of 0 for one difficulty among others stays allowed."""
+    """A dataset of zero episodes is a typo (refused rather than exiting 0 with an empty
+    directory); a count of 0 for one difficulty among others stays allowed."""
     if config.total_episodes == 0:
         counts = ",".join(map(str, config.episodes))
         raise ConfigError(f"episodes = {counts!r}: nothing to generate; give at least one episode")

@@ -29,6 +29,7 @@ from packlab.core.stop import (
 #: The subcommands in help order: name -> (module in ``packlab.cli``, its line in ``--help``).
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "run PackLab-Bench (or any case file) and print a Table-2-style table"),
+    "policies": ("policies", "list the policies a bench can run, with their options and defaults"),
     "cases": ("cases", "validate case files, or export them to the reference layout or JSONL"),
     "generate": ("generate", "generate a PackData dataset"),
     "inspect-data": ("inspect_data", "summarise a PackData dataset directory"),

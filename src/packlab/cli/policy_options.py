@@ -3,7 +3,7 @@ engine or model is imported.
 
 A policy's factory checks its own options, but it lives beside the policy's stack (the planner
 loads scipy, the RL agents ONNX Runtime) and a model directory is only opened on an episode's
-first ``reset``: a misspelt key or a model path that does not exist used to surface after
+first ``reset``: a misspelt key or a model path that does not exist would surface only after
 seconds of imports, or as a failed record for every episode. Here each built-in policy's
 option names are listed once more, with the checks that need nothing but the standard library
 (choices, numbers, the model directory's marker files); ``tests/test_cli_errors.py`` compares

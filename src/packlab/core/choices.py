@@ -90,7 +90,7 @@ RLAgent = Literal["irbpp", "tapnet"]
 #: How a TAP-Net-style agent's chosen box is placed: DBLF's rule, or the proposer's first listing
 #: of that box (its lowest placement that leaves its level best, ``policies.candidates``). With
 #: sides named longer first DBLF's rotation-0 preference no longer follows the layouts: placed by
-#: DBLF, even the planner's own choice of box scores below the proposer (docs/rl.md, issue 36).
+#: DBLF, even the planner's own choice of box scores below the proposer (docs/rl.md).
 TapnetPlacement = Literal["dblf", "proposer"]
 DEFAULT_TAPNET_PLACEMENT: TapnetPlacement = "proposer"
 #: What an agent card written before the field existed used.
@@ -102,7 +102,7 @@ RLReward = Literal["overall", "overall-terminal", "success"]
 #: How an RL trainer runs its environment copies: one process each (``subproc``) or in-process.
 VecKind = Literal["subproc", "dummy"]
 
-#: What a policy observes (issue 15): the exact heightmap and box sizes, or those perceived by
+#: What a policy observes: the exact heightmap and box sizes, or those perceived by
 #: the simulated depth cameras (``packlab.sim.sensing``).
 ObservationMode = Literal["exact", "perceived"]
 #: How a chosen placement is executed: exactly, or with the robot noise of the ``NoisePreset``
@@ -154,7 +154,8 @@ def named_size(size: tuple[int, int, int], sides: SideNames) -> tuple[int, int, 
     return (max(l, w), min(l, w), h) if sides == "longer-first" else (l, w, h)
 
 
-#: The noise preset when none is named: the structured-light camera the issue targets.
+#: The noise preset when none is named: an industrial structured-light camera, the usual
+#: sensor of a bin-packing cell.
 DEFAULT_NOISE: NoisePreset = "structured-light"
 #: How perceived mode tells the buffer's boxes apart unless told: from depth, as a robot must.
 DEFAULT_SEGMENTATION: Segmentation = "depth"

@@ -1,4 +1,4 @@
-"""The episode's protocol (issue 35): packlab's buffered one, or the field's online one.
+"""The episode's protocol: packlab's buffered one, or the field's online one.
 
 * ``buffer`` (packlab's, DESIGN.md section 4): the first ``buffer_size`` unprocessed boxes of
   the case are shown in a seeded shuffled order, the policy may place any of them, and every box
@@ -8,8 +8,9 @@
   BPP-k above); an action naming another shown box is invalid (``not_first``). The episode ends
   at the first box that fits nowhere (:func:`packlab.core.feasibility.fits_somewhere`), and space
   utilization counts the volume packed up to it. The case's ``buffer_size`` is not used.
-* ``offline`` (issue 35's reference): every unprocessed box is shown (in the buffer protocol's
-  seeded shuffled order) and any may be placed; every box is processed. The same cases with
+* ``offline`` (the reference the other two are measured against): every unprocessed box is
+  shown (in the buffer protocol's seeded shuffled order) and any may be placed; every box is
+  processed. The same cases with
   the whole sequence in view measure what the buffer or the online protocol costs a policy
   (the online gap), including on cases without a perfect packing.
 
@@ -78,7 +79,7 @@ class PackingProtocol:
         return {"protocol": self.name, "lookahead": self.lookahead}
 
 
-#: packlab's own protocol, what every run used before issue 35.
+#: packlab's own protocol, the default (and what a run that records no protocol used).
 BUFFER = PackingProtocol()
 
 

@@ -52,13 +52,13 @@ from packlab.core.types import Action, Unparsable
 # -- versions ----------------------------------------------------------------------------------
 
 #: Version of the bench run directory (config.json) and of each of its episode records.
-#: 2 (issue 10): error records carry ``error_kind``, episode records say whether the boxes were at
+#: 2: error records carry ``error_kind``, episode records say whether the boxes were at
 #: rest when scored, and heuristics break ties by the larger object unless told otherwise. A
 #: run-1 directory therefore cannot be resumed (its heuristic episodes were played under the old
 #: tie rule); the identity check refuses it by this field. Reports still read run-1 records.
-#: Episode records carry this value in their ``format`` field (issue 11; an added key, which
-#: every earlier reader ignores, so the version stays 2). Steps carry their boxes' pose changes
-#: in ``poses`` since issue 16 (an added key likewise; see ``StepRecord.poses``).
+#: Episode records carry this value in their ``format`` field (an added key, which every
+#: earlier reader ignores, so the version stays 2). Steps carry their boxes' pose changes in
+#: ``poses`` (an added key likewise; see ``StepRecord.poses``).
 RUN_FORMAT = "packlab-bench-run-2"
 RUN_FORMAT_1 = "packlab-bench-run-1"
 #: Run-directory formats a report reads (the records of run-1 migrate; see ``migrate_episode``).
@@ -164,25 +164,25 @@ class StepRecord(Struct, frozen=True):
     #: The boxes placed or moved at this step (``packlab.sim.pose_log``): ``(object index into
     #: the case's objects, x, y, z centre mm to 0.1, qw, qx, qy, qz to 1e-4)`` for each box whose
     #: settled pose differs from the last one written for it by more than 0.5 mm or 1e-3; the
-    #: poses after a step are the latest written. Added in issue 16 (an added key: the version
-    #: stays run-2); absent from older records (a replay then rebuilds them from ``drop_mm`` on
+    #: poses after a step are the latest written. An added key (the version stays run-2);
+    #: absent from older records (a replay then rebuilds them from ``drop_mm`` on
     #: the geometric backend, or shows final poses only; ``packlab.viz.report_data``).
     poses: tuple[PoseEntry, ...] | UnsetType = UNSET
-    #: Issue 15, perceived observation only (added keys, the version stays): the perceived
+    #: Perceived observation only (added keys, the version stays): the perceived
     #: heightmap after this step departed from its Eq. 2 prediction (a re-plan event).
     replan: bool | UnsetType = UNSET
-    #: Issue 15, noisy execution only: the executed drop's deviation from the planned one,
+    #: Noisy execution only: the executed drop's deviation from the planned one,
     #: (dx mm, dy mm, extra yaw degrees, release height mm).
     executed: tuple[float, float, float, float] | UnsetType = UNSET
-    #: Issue 15, perceived observation only: errors of the perception this step decided on.
+    #: Perceived observation only: errors of the perception this step decided on.
     perception: PerceptionErrors | UnsetType = UNSET
-    #: Issue 38: the policy's ``act`` for this step, wall seconds and CPU seconds of the whole
+    #: The policy's ``act`` for this step, wall seconds and CPU seconds of the whole
     #: process (every thread of a model runtime counts). Written by ``run_episode`` (the bench,
     #: the data engine's teachers); absent from older records and from steps driven by other
     #: loops (the Gymnasium env), which time no decision.
     decision_s: float | UnsetType = UNSET
     decision_cpu_s: float | UnsetType = UNSET
-    #: Issue 34, noisy execution only: what the place skill had to do for this placement, the
+    #: Noisy execution only: what the place skill had to do for this placement, the
     #: nonzero counts by kind (``packlab.sim.physics.place_skill.SkillReport``); absent from
     #: older records and from steps placed exactly.
     skill: dict[str, int] | UnsetType = UNSET
@@ -208,17 +208,17 @@ class MetricsRecord(Struct, frozen=True):
     residual_linear_mps: float
     residual_angular_radps: float
     wall_time_s: float
-    #: Issue 15, perceived observation only: steps with a re-plan event.
+    #: Perceived observation only: steps with a re-plan event.
     replans: int | UnsetType = UNSET
     #: Perceived observation only: objects perception did not find (set aside, not packed).
     missed: int | UnsetType = UNSET
     #: Perceived observation only, where it happened: times an object was not found and left in
     #: the buffer for another look at the next observation (``sim.episode.LOOKS_BEFORE_SET_ASIDE``).
     looked_again: int | UnsetType = UNSET
-    #: Issue 34, noisy execution only: the place skill's counts summed over the episode's
+    #: Noisy execution only: the place skill's counts summed over the episode's
     #: steps, by kind; absent from older records.
     skill: dict[str, int] | UnsetType = UNSET
-    #: Issue 35, online protocol only (``packlab.sim.episode_results.OnlineOutcome``): packed
+    #: Online protocol only (``packlab.sim.episode_results.OnlineOutcome``): packed
     #: volume / container volume when the episode ended, the box that fitted nowhere (None:
     #: every box was processed) and the boxes never processed. Absent from buffer records.
     space_utilization: float | UnsetType = UNSET
@@ -299,8 +299,8 @@ class Cell(Struct, frozen=True):
 
 
 class MetricCells(Struct, frozen=True):
-    """The three metrics of one (method, group) of the table, and (issue 35) the space
-    utilization where it is known (absent from older summaries)."""
+    """The three metrics of one (method, group) of the table, and the space utilization
+    where it is known (absent from older summaries)."""
 
     success_ratio: Cell
     compactness: Cell
@@ -321,7 +321,7 @@ class CaseCells(Struct, frozen=True):
     success_ratio: Cell
     compactness: Cell
     overall: Cell
-    space_utilization: Cell | UnsetType = UNSET  # issue 35; as in MetricCells
+    space_utilization: Cell | UnsetType = UNSET  # as in MetricCells
 
 
 class DecisionTimes(Struct, frozen=True):
@@ -355,7 +355,7 @@ class PolicyCounts(Struct, frozen=True):
     decision_ms: float | None  # None: no decisions
     step_ms: float | None
     episode_s: float | None  # None: no finished episode
-    #: Issue 15, perceived runs only (absent otherwise): re-plan events per episode, and the
+    #: Perceived runs only (absent otherwise): re-plan events per episode, and the
     #: mean perception errors over every shown object of every step (dims mm, yaw degrees)
     #: and over every step (heightmap mean absolute error, mm).
     replans_per_episode: float | UnsetType = UNSET
@@ -364,10 +364,10 @@ class PolicyCounts(Struct, frozen=True):
     dims_error_mm: float | None | UnsetType = UNSET
     yaw_error_deg: float | None | UnsetType = UNSET
     heightmap_mae_mm: float | None | UnsetType = UNSET
-    #: Issue 38: per-decision time by level and over ``all`` levels; absent when no record of
-    #: the method has per-step decision times (records written before issue 38).
+    #: Per-decision time by level and over ``all`` levels; absent when no record of the method
+    #: has per-step decision times (records written before steps were timed).
     decision_times: dict[str, DecisionTimes] | UnsetType = UNSET
-    #: Issue 34, noisy-execution runs only: the place skill's counts per episode, by kind (what
+    #: Noisy-execution runs only: the place skill's counts per episode, by kind (what
     #: it had to do to recover and how; ``packlab.sim.physics.place_skill.SkillReport``), and
     #: its placements per episode under ``placements``. Absent for other runs and runs written
     #: before the counts existed.
@@ -385,7 +385,7 @@ class ErrorEntry(Struct, frozen=True):
 
 
 class SensingModes(Struct, frozen=True):
-    """A run's issue-15 modes (config.json ``sensing``; ``packlab.bench.config``)."""
+    """A run's observation and execution modes (config.json ``sensing``; ``bench.config``)."""
 
     observation: str  # core.choices.ObservationMode
     execution: str  # core.choices.ExecutionMode
@@ -416,10 +416,10 @@ class RunSummary(Struct, frozen=True, kw_only=True):
     per_case: dict[str, dict[str, CaseCells]] = {}
     counts: dict[str, PolicyCounts]
     errors: tuple[ErrorEntry, ...] = ()
-    #: Issue 15: the run's observation / execution / noise (config.json ``sensing``); absent
+    #: The run's observation / execution / noise (config.json ``sensing``); absent
     #: when both modes are exact.
     sensing: SensingModes | None | UnsetType = UNSET
-    #: Issue 35: the run's protocol (``buffer`` or ``online``) and, online, its lookahead;
+    #: The run's protocol (``buffer`` or ``online``) and, online, its lookahead;
     #: absent in summaries of runs made before the choice (they read as ``buffer``).
     protocol: str | UnsetType = UNSET
     lookahead: int | UnsetType = UNSET
@@ -437,7 +437,7 @@ class RunConfigHead(Struct, frozen=True, kw_only=True):
     seeds: tuple[int, ...]
     difficulties: tuple[str, ...]
     sensing: SensingModes | None = None
-    protocol: str | None = None  # issue 35; absent: buffer
+    protocol: str | None = None  # absent: buffer
     lookahead: int | None = None  # online runs only
 
 

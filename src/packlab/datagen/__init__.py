@@ -1,5 +1,5 @@
 """The layout-first data engine: scenario sampling, layout partition, reverse removal, replay
-validation and dataset curation (issue 3; DESIGN.md sections 3, 4 and 6).
+validation and dataset curation (DESIGN.md sections 3, 4 and 6).
 
 Entry points: :func:`generate_cases` (frozen suites for the bench), :func:`build_case` (one case
 from a case seed) and ``packlab.datagen.engine.generate_dataset`` (PackData on disk).

@@ -11,7 +11,7 @@ bundled suite case or of the public reference's benchmark is refused, whatever i
 origin: renamed, reseeded, exported (JSONL or the reference layout) or with its sides named the
 other way round, it is still that case. The known fingerprints ship with the package (read once
 per process); the check is one sha256 and one set lookup per case (20 000 hard cases: 0.74 s,
-``benchmarks/guard_speed.py``).
+``benchmarks/maintainers/guard_speed.py``).
 
 **Seed**: the case's seed domain, a second line of defence for cases that are bench cases by
 construction but were edited (e.g. one box changed):

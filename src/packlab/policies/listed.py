@@ -12,7 +12,7 @@ model is shown. Teachers (``TEACHERS``):
   half (:class:`TeacherLabel`);
 - ``plan-lookahead``: rolls out each listed placement as the first placement (the planner's
   search with the listed set instead of its own proposals, default budget) and picks the
-  cheapest (the teacher before the completion stage);
+  cheapest (the planner's teacher without the completion stage);
 - ``sdf``, ``mta``: rank the listed placements by their own keys, then the shared tie-break
   (larger object first, then scan order);
 - ``oracle``: the case's own plan (hidden layout); its action is often not listed, then -1;

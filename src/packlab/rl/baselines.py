@@ -43,7 +43,7 @@ def _make(agent: RLAgent, options: dict) -> RandomRowPolicy:
     unknown = sorted(set(options) - ({"k"} if agent == "irbpp" else set()))
     if unknown:
         raise ConfigError(f"policy-arg {agent}-random:{unknown[0]}: unknown option")
-    return RandomRowPolicy(agent, int(options.get("k", 8)))
+    return RandomRowPolicy(agent, int(options.get("k", STUDENT_K)))
 
 
 def make_irbpp_random(**options) -> RandomRowPolicy:

@@ -44,7 +44,7 @@ class AgentCard:
     #: What its item rows hold (:data:`packlab.rl.features.FEATURES_VERSION`); a card written
     #: before the field existed is version 1.
     features: int = FEATURES_VERSION
-    # How the model was made (packlab.policies.provenance; issue 36). Cards written before these
+    # How the model was made (packlab.policies.provenance). Cards written before these
     # fields read with them empty. Paths are relative to the run directory or names only.
     seed: int | None = None
     commit: str | None = None  # git rev-parse HEAD of the packlab checkout; None outside one

@@ -6,8 +6,8 @@ import importlib
 from types import ModuleType
 
 RL_EXTRA_HINT = (
-    "the rl extra is not installed: pip install torch==2.13.0 (CPU wheel, first), "
-    "then pip install -e '.[rl]'"
+    "the rl extra is not installed: pip install torch==2.13.0 --extra-index-url "
+    "https://download.pytorch.org/whl/cpu (the CPU wheel, first), then pip install -e '.[rl]'"
 )
 #: Top-level packages of the rl extra (a ModuleNotFoundError naming one means "install it").
 EXTRA_PACKAGES = frozenset({"torch", "stable_baselines3", "sb3_contrib"})

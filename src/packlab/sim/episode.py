@@ -83,11 +83,11 @@ DEFAULT_REPLAN = ReplanRule()
 class Episode:
     """One closed-loop packing episode over a case on a transition backend.
 
-    Opt-in (issue 15): a ``perceiver`` makes the observation the perceived one and logs re-plan
+    Opt-in: a ``perceiver`` makes the observation the perceived one and logs re-plan
     events by ``replan``; ``execution`` noise executes each drop off-plan (mujoco only). Without
     them the episode is exactly the exact-mode loop.
 
-    ``protocol`` (issue 35, ``packlab.core.packing_protocol``): the buffered loop of DESIGN.md
+    ``protocol`` (``packlab.core.packing_protocol``): the buffered loop of DESIGN.md
     section 4 by default; ``online`` shows the next ``lookahead`` boxes in arrival order, lets
     only the first be placed and ends the episode at the first box that fits nowhere.
     """

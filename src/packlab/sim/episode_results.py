@@ -136,7 +136,7 @@ def _executed_record(drop: ExecutedDrop) -> list[float]:
 
 @dataclass(frozen=True, slots=True)
 class OnlineOutcome:
-    """What an online-protocol episode adds to its record's metrics (issue 35)."""
+    """What an online-protocol episode adds to its record's metrics."""
 
     #: Packed volume / container volume (``packlab.metrics.space_utilization``), counting the
     #: boxes inside when the episode ended: at the first box that fits nowhere, or the last.

@@ -1,4 +1,4 @@
-"""Execution noise (issue 15): a chosen placement as a robot would really execute it.
+"""Execution noise: a chosen placement as a robot would really execute it.
 
 The policy chooses a drop (footprint minimum corner in mm, rotation 0/1); a robot puts the box
 down with an error: the gripper's xy offset and a yaw error (the arm's repeatability, Gaussian,
@@ -67,7 +67,7 @@ class ExecutionNoise:
 #: (``comply_mm``, ``seat_mm``) are the robot's, not noise: the skill does not know its error,
 #: so its slides and pushes must reach past the largest errors the arm and the grasp estimate
 #: make (their tails reach 10-15 mm with structured light, more with stereo); chosen on
-#: generated training cases (issue 34), never on a bench suite.
+#: generated training cases, never on a bench suite.
 EXECUTION_PRESETS: dict[str, ExecutionNoise] = {
     "none": ExecutionNoise(),
     "structured-light": ExecutionNoise(

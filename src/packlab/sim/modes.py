@@ -1,4 +1,4 @@
-"""The episode's observation and execution modes (issue 15) by name, as the bench selects them.
+"""The episode's observation and execution modes by name, as the bench selects them.
 
 ``observation``: ``exact`` (the true heightmap and sizes) or ``perceived`` (what the simulated
 depth cameras and perception of ``packlab.sim.sensing`` recover under the ``noise`` preset's
@@ -78,7 +78,7 @@ class EpisodeModes:
     sides: SideNames = DEFAULT_SIDES
     #: Observations carry ``remaining`` (``core.choices.RemainingMode``).
     show_remaining: bool = True
-    #: The episode protocol (issue 35): packlab's buffered one unless the run asks otherwise.
+    #: The episode protocol: packlab's buffered one unless the run asks otherwise.
     protocol: PackingProtocol = BUFFER
 
 

@@ -1,4 +1,4 @@
-"""Perceived mode in the episode loop (issue 15): what the robot sees and how it reads it.
+"""Perceived mode in the episode loop: what the robot sees and how it reads it.
 
 The perceiver (``packlab.sim.replan.Perceiver``) looks at the true scene; from its
 ``Perception`` this module builds the buffer the policy is shown (perceived sizes under fresh

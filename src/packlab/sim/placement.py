@@ -1,5 +1,5 @@
 """Carrying out a chosen placement in the episode loop: exactly as planned, or as a robot
-executes it (noisy execution, issue 15).
+executes it (noisy execution).
 
 The noise itself and the place skill's command are ``packlab.sim.execution``; the skill is
 ``packlab.sim.physics.place_skill``. This module holds what the loop decides between them: the

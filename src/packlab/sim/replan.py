@@ -1,4 +1,4 @@
-"""Perceived observations and re-planning events (issue 15).
+"""Perceived observations and re-planning events.
 
 In ``perceived`` mode the episode shows the policy what a perceiver (the depth cameras and
 perception of ``packlab.sim.sensing``) recovers from the scene, not the exact state. After

@@ -6,7 +6,7 @@ Two sources give the same frames:
   decision time measured around ``act``), so a viewer can follow a running episode.
 * ``replay_frames``: a bench record's episode, step by step, from what the record holds:
 
-  - records that carry each step's pose changes (``StepRecord.poses``, issue 16) give the
+  - records that carry each step's pose changes (``StepRecord.poses``) give the
     boxes' poses after every step as recorded (to the records' 0.5 mm / 1e-3 tolerance), and
     the heightmaps rasterised from those poses; no engine runs, so a MuJoCo record shows what
     was scored whatever engine version reads it;
@@ -123,7 +123,7 @@ def _pose_error_mm(case: Case, record: EpisodeOk, last: StepResult) -> float:
 
 
 def has_step_poses(record: EpisodeOk) -> bool:
-    """Whether every step of the record carries its pose changes (records since issue 16)."""
+    """Whether every step of the record carries its pose changes (older records lack them)."""
     return bool(record.steps) and all(getattr(s, "poses", UNSET) is not UNSET for s in record.steps)
 
 

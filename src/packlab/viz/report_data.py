@@ -7,7 +7,7 @@ dict, and the page the same bytes.
 
 An episode's replay is its steps as arrays (layout in ``STEP_FIELDS``), each step carrying the
 poses of the boxes placed or moved at it. Where those come from depends on the record
-(``POSE_SOURCES``): records since issue 16 log them (``StepRecord.poses``); older records of the
+(``POSE_SOURCES``): current records log them (``StepRecord.poses``); older records of the
 geometric backend get them exactly from each step's drop position (that backend never moves a
 box once placed); older MuJoCo records have only the final poses, so each box is shown where it
 finally settled from the step it was placed at, and the page says so.
@@ -200,7 +200,7 @@ def episode_entry(
         "inside": m.n_inside,
         "objects": m.n_objects,
         "set_aside": m.n_set_aside,
-        "invalid": sum(1 for s in record.steps if not s.valid),
+        "invalid": sum(1 for s in record.steps if not s.valid and s.reason != "set_aside"),
         "at_rest": m.at_rest,
         "max_height_mm": m.max_height_mm,
         "policy_s": _r(record.policy_time_s),

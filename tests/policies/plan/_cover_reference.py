@@ -1,9 +1,9 @@
-"""Frozen copy of the exact-cover search as it was before the bitmask rewrite (commit de6572d).
+"""Frozen copy of the numpy exact-cover search, the reference for the bitmask search.
 
-The property test (test_plan_cover_equivalence.py) and benchmarks/cover_speed.py compare
-:func:`packlab.policies.plan.cover.exact_cover` with this one: node budgets decide results, so
-the fast search must take the same nodes and answer the same slots. Do not edit: it is the
-reference. The result types come from packlab so results compare equal.
+The property test (test_plan_cover_equivalence.py) and benchmarks/maintainers/cover_speed.py
+compare :func:`packlab.policies.plan.cover.exact_cover` with this one: node budgets decide
+results, so the fast search must take the same nodes and answer the same slots. Do not edit: it
+is the reference. The result types come from packlab so results compare equal.
 """
 
 from __future__ import annotations

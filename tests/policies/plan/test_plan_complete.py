@@ -100,8 +100,8 @@ def test_completion_lifts_the_planner_above_its_lookahead_alone():
         return float(np.mean([r.metrics.overall for r in scores]))
 
     # Against the lookahead it was built on (SDF-Pack's and the flush ranking's first
-    # placements): a clear lift. The students' listed placements (plan-fast's default since
-    # session 49) make the lookahead alone nearly perfect on cases this small (six pieces, a
+    # placements): a clear lift. The students' listed placements (in plan-fast's default)
+    # make the lookahead alone nearly perfect on cases this small (six pieces, a
     # buffer of four), so against it the completion can only tie or lead.
     with_completion = mean()
     plain_lookahead = mean(complete=False, listed=0)

@@ -1,4 +1,4 @@
-"""The lookahead's outlook: the episode's volumes and the final-height shortfall (issue 35)."""
+"""The lookahead's outlook: the episode's volumes and the final-height shortfall."""
 
 from __future__ import annotations
 

@@ -50,8 +50,9 @@ class CompletionConfig:
     #: Node budget of all the searches of one decision together: a decision runs up to one
     #: search per stage, component and height, and a few that each ran out of ``max_nodes``
     #: made the planner's rare slow steps (27 s once on a medium case under stereo noise).
-    #: At about 4 us per node (benchmarks/cover_speed.py) this caps a decision's completion
-    #: near 1 s on one core; the searches it cuts short are those that were failing anyway.
+    #: At about 4 us per node (benchmarks/maintainers/cover_speed.py) this caps a decision's
+    #: completion near 1 s on one core; the searches it cuts short are those that were failing
+    #: anyway.
     decision_nodes: int = 250_000
     #: A guess with jokers needs at least this many boxes of the height seen so far (history
     #: included): a height seen once says nothing about a layer of that height (boxes of
@@ -65,8 +66,8 @@ class CompletionConfig:
     max_jokers: int = 3
     #: Tilings a guess looks at before keeping the one whose narrowest rectangle is widest.
     guesses: int = 32
-    #: Which box of a guess to place now (:func:`commit_of`): ``enclosed`` (the default since
-    #: session 55) or ``first`` (its first real box in scan order, the rule before).
+    #: Which box of a guess to place now (:func:`commit_of`): ``enclosed`` (the default) or
+    #: ``first`` (its first real box in scan order).
     commit: CommitRule = "enclosed"
     #: Last stage: tile a lowest component with shown boxes of any heights (and jokers), for
     #: perfect packings not built in flat layers (cut layouts: the floor is tiled by boxes of
@@ -77,15 +78,15 @@ class CompletionConfig:
     #: a height seen ``joker_min_seen`` times) a mixed-height guess asks for no evidence, and on
     #: boxes of independent sizes ten shown boxes plus rectangles "tile" almost any floor:
     #: there 0 scored higher (+0.012 to +0.016 on generated random-box cases), on cut layouts
-    #: the guesses win and lose by turns (docs/planner.md, "The mixed stage's guesses",
-    #: session 57), so the default keeps them.
+    #: the guesses win and lose by turns (docs/history/planner.md, "The mixed-height stage"),
+    #: so the default keeps them.
     mixed_jokers: int = 3
     #: A mixed-height tiling may leave rectangles for unseen boxes only when at least this
     #: share of the boxes seen so far (each once) repeats the exact height of another seen box
     #: (:func:`repeated_height_share`); exact mixed tilings are always tried. Boxes cut from
     #: one perfect layout repeat heights (a cut leaves two pieces of one height); boxes drawn
     #: independently rarely do, and there a guess that unseen boxes will fill the rest of the
-    #: floor is usually wrong. 0: no evidence asked (the behaviour before session 58).
+    #: floor is usually wrong. 0: no evidence asked.
     mixed_evidence: float = 0.0
 
     @property
@@ -135,7 +136,7 @@ def commit_of(result: CoverResult, region: np.ndarray, rule: CommitRule = "enclo
     one closed in by what is already there does not. On generated layered training cases a
     guess's commit was fatal (the layer no longer closable by the boxes really to come, a
     diagnostic that read the cases) for 1 % of commits closed in on three sides, 7 % on two
-    and 16 % on one (docs/planner.md, session 55)."""
+    and 16 % on one (docs/history/planner.md, "The commit of a guess")."""
     assert result.slots is not None
     first = next(s for s in result.slots if s.key != JOKER)
     guess = any(s.key == JOKER for s in result.slots)

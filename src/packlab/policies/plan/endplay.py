@@ -14,7 +14,7 @@ continues the play that was just scored.
 Why the planner and not a cheaper player: the planner's endgame, completion and finale close
 the last boxes better than any greedy play, so a first action judged by a weaker continuation
 is judged wrongly (a beam of greedy continuations, tried first, overrode the planner where its
-own play would have ended higher; docs/planner.md, session 61).
+own play would have ended higher; docs/history/planner.md, "The endplay").
 
 The other first actions come from a small beam over the shown boxes' placements and set-asides
 (:func:`beam_firsts`): partial plays ranked by the lookahead's own state cost

@@ -26,12 +26,12 @@ model of the planner's last few placements, not of a long future. With every box
 in view from the start (``--protocol offline``) the rule would otherwise decide from the first
 step: on 60 generated random-box training cases it set boxes aside early on such estimates,
 and `plan-fast` scored 0.600 there against 0.626 shown three to ten boxes at a time
-(docs/planner.md, session 56).
+(docs/history/planner.md, "The finale").
 
 It belongs to the planner (``plan``'s option ``finale``) and follows its ``overflow`` rule:
 ``score`` only. The learned policies and the proposer do not take it: measured for IR-BPP on
 generated training cases it added +0.0006 [-0.0026, +0.0037] on 420 fresh ones and nearly
-doubled its mean decision time on the hard level (docs/planner.md, session 55).
+doubled its mean decision time on the hard level (docs/history/planner.md, "The finale").
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ def best_end(pile: Pile, items: Sequence[ShownItem]) -> float:
 
 
 #: The most boxes in view for which the rule decides (module docstring). Chosen on generated
-#: training cases of five families (docs/planner.md, session 56): 8 against 3, 5 and no limit.
+#: training cases of five families (docs/history/planner.md): 8 against 3, 5 and no limit.
 FINALE_BOXES = 8
 
 

@@ -1,9 +1,9 @@
-"""A trained agent proposing first placements to the planner's lookahead (``guide``, issue 35).
+"""A trained agent proposing first placements to the planner's lookahead (``guide``).
 
 The lookahead rolls out a few first placements (:mod:`.proposer`: SDF-Pack's, a flush ranking's
 and the students' proposer's) and commits the cheapest. Its rankings are rules, and on boxes of
 independent sizes, where no exact tiling exists and the lookahead decides most steps, a trained
-agent's first pick was as good as the whole lookahead (issue 35: IR-BPP above ``plan`` on
+agent's first pick was as good as the whole lookahead (IR-BPP scored above ``plan`` on
 random boxes). With ``guide=irbpp`` the agent's ``guide_first`` preferred placements are rolled
 out too, and the end-state cost decides between them and the rules' (a rollout over a base
 policy's proposals, as policy improvement by rollout does).

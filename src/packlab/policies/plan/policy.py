@@ -395,11 +395,11 @@ def make_plan(**options: Any) -> PlanPolicy:
 
 
 #: ``plan-fast``'s budget: the sweep's point that keeps the default ``packlab bench`` (which runs
-#: it) under five minutes on two cores (docs/planner.md). Two of the students' listed placements
-#: (session 49): with the final-height shortfall scoring the rollouts they gained +0.006
-#: [+0.003, +0.009] over none on 588 generated training cases (four gained +0.004 [-0.000, +0.008]
-#: and cost more time); before that term they changed no family's score. No endplay (session
-#: 61): it was measured for ``plan`` only, and it multiplies the last steps' time.
+#: it) under five minutes on two cores (docs/planner.md). Two of the students' listed placements:
+#: with the final-height shortfall scoring the rollouts they gained +0.006 [+0.003, +0.009] over
+#: none on 588 generated training cases (four gained +0.004 [-0.000, +0.008] and cost more
+#: time); without that term they change no family's score. No endplay: it was measured for
+#: ``plan`` only, and it multiplies the last steps' time.
 FAST_BUDGET = {"first": 2, "depth": 4, "listed": 2, "endplay": 0}
 
 
@@ -411,8 +411,8 @@ def make_plan_fast(**options: Any) -> PlanPolicy:
 
 
 def make_plan_lookahead(**options: Any) -> PlanPolicy:
-    """``plan`` without the completion stage: the lookahead alone (the planner before the
-    completion search, kept as an ablation row)."""
+    """``plan`` without the completion stage: the lookahead alone (an ablation row: what the
+    completion search adds)."""
     policy = make_plan(**{"complete": False, **options})
     policy.name = "plan-lookahead"
     return policy

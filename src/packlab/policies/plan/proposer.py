@@ -15,7 +15,7 @@ heuristics). The proposer keeps the union, in this order and without duplicates,
    flush ranking both favour the box that fills most, so without it every proposal may be the
    same one or two boxes; on boxes of independent sizes, where no exact tiling exists and the
    lookahead decides most steps, the proposer's own first pick did as well as the planner
-   (issue 35; docs/planner.md, "How the defaults were chosen").
+   (docs/planner.md, "How the defaults were chosen").
 
 None of them reads anything but the candidate set, so the proposer sees only what the policy
 observes.

@@ -1,4 +1,4 @@
-"""The robot's place skill: compliant guarded descent, seating, release (issue 34).
+"""The robot's place skill: compliant guarded descent, seating, release.
 
 The skill decides only from what the robot knows: the command in its own belief
 (``PlaceCommand``: the target centre from the perceived footprint, the chosen rotation, the
@@ -45,10 +45,9 @@ gripper, its weight carried (gravity compensated), as a slow guarded move would 
 
    Nothing squares the yaw or moves the box to the planned pose: no code here knows either.
 2. **Seat** (``seat``). Pushes toward the sides the observed heightmap shows flush, guarded
-   moves that stop on contact force, turned flush by the contact's torque (the code of
-   issue 26, moved here from the backend). The reach is measured from the commanded pose plus
-   the skill's own moves (what the robot knows of where it holds the box), never from the
-   planned pose the noise moved it off.
+   moves that stop on contact force, turned flush by the contact's torque. The reach is
+   measured from the commanded pose plus the skill's own moves (what the robot knows of where
+   it holds the box), never from the planned pose the noise moved it off.
 3. **Release**: the caller (``MujocoBackend.execute``) lets go and settles.
 
 ``SkillReport`` counts what the skill had to do (recoveries) per placement; the episode puts
@@ -83,20 +82,20 @@ _SLIDE_STEP_MM = 0.5  # a compliant slide's step
 _EDGE_MARGIN_MM = 5.0
 #: How far (deg) the wrist's yaw compliance lets a contact's torque turn the held box, in the
 #: descent (in all, beyond arm errors) and in each seating turn (``flush_turn``): one limit of
-#: one wrist. Seating used 5 deg until session 52: under the stereo preset (3 deg arm yaw
-#: error) a box that landed more than 5 deg off square could not be turned flush against a
-#: whole face, stayed turned and narrowed its neighbours' slots (traced: a 375 mm box left at
-#: -5.8 deg took 19 mm of the next slot, and the two boxes planned there were set aside). With
-#: 10 deg, on 72 generated layered training cases (3 seeds, plan-fast): stereo +0.012 [+0.001,
+#: one wrist. With a 5 deg limit in seating, under the stereo preset (3 deg arm yaw error) a
+#: box that landed more than 5 deg off square could not be turned flush against a whole face,
+#: stayed turned and narrowed its neighbours' slots (traced: a 375 mm box left at -5.8 deg took
+#: 19 mm of the next slot, and the two boxes planned there were set aside). 10 deg against 5,
+#: on 72 generated layered training cases (3 seeds, plan-fast): stereo +0.012 [+0.001,
 #: +0.023]; structured light (1 deg) -0.001 [-0.003, +0.001]; 8 and 15 deg scored about the
 #: same as 10 on stereo (0.953 and 0.951 against 0.954, two seeds).
 WRIST_YAW_YIELD_DEG = 10.0
 _DESCENT_MAX_MOVES = 400  # a bound on the descent's loop
 #: The probe's turns (``_probe``): steps, and the lateral reach tried at each. A box that lands
 #: on two neighbours' edges at once, turned a degree or more, fits its slot only turned back
-#: *and* moved by its xy error (stereo: 5-12 mm); 12 mm, against 2 before, chosen on generated
-#: training cases (session 50: stereo +0.014 [+0.005, +0.025], structured light +0.008
-#: [+0.000, +0.018]; 6 mm +0.008, the whole slide budget +0.013).
+#: *and* moved by its xy error (stereo: 5-12 mm); 12 mm, chosen on generated training cases
+#: (against 2 mm: stereo +0.014 [+0.005, +0.025], structured light +0.008 [+0.000, +0.018];
+#: 6 mm +0.008, the whole slide budget +0.013).
 _PROBE_TURN_DEG = 0.25
 _PROBE_TURN_REACH_MM = 12.0
 
@@ -550,7 +549,7 @@ def _off_edge(offset_mm: np.ndarray, half_mm: np.ndarray, band_mm: float) -> np.
     return None if norm == 0 else direction / norm
 
 
-# -- seating (issue 26, moved from the backend) ------------------------------------------------
+# -- seating ------------------------------------------------------------------------------------
 
 
 def seat(held: HeldBox, command: PlaceCommand, moved_mm: np.ndarray, report: SkillReport) -> None:

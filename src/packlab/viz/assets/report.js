@@ -212,7 +212,7 @@
 
   function renderDetails() {
     var cols = [
-      ["episodes", "episodes", 0], ["errors", "errors", 0], ["invalid_steps", "invalid steps", 0],
+      ["episodes", "episodes", 0], ["errors", "errors", 0], ["invalid_steps", "invalid actions", 0],
       ["set_aside", "set aside", 0], ["unsettled_steps", "unsettled steps", 0],
       ["not_at_rest", "not at rest", 0], ["decision_ms", "ms / decision", 2],
       ["step_ms", "ms / env step", 2], ["episode_s", "s / episode", 3],
@@ -336,7 +336,7 @@
   function renderBrowser() {
     var table = document.getElementById("browser-table");
     table.innerHTML = "";
-    var names = ["#", "case", "level", "method", "seed", "Overall", "SR", "Compact.", "inside", "set aside", "invalid steps"];
+    var names = ["#", "case", "level", "method", "seed", "Overall", "SR", "Compact.", "inside", "set aside", "invalid actions"];
     var head = el("tr");
     names.forEach(function (n, i) {
       head.appendChild(el("th", { text: n, "data-col": String(i), cls: i > 0 && i < 4 ? "text" : "" }));
@@ -617,11 +617,18 @@
     var rev = this.id + "|" + replay.c + "|" + this.showBuffer.checked;
     return layoutFor(D.cases[replay.c], this.ep, rev, this.showBuffer.checked);
   };
+  // A deliberate set-aside (reason "set_aside") is a decision; every other reason is an
+  // invalid action after which the box is set aside.
+  function stepOutcome(code) {
+    var reason = D.reasons[code];
+    return reason === "set_aside" ? "set aside on purpose" : "invalid (" + reason + "), set aside";
+  }
+
   Pane.prototype.renderStrip = function () {
     var self = this;
     this.strip.innerHTML = "";
     this.ep.steps.forEach(function (st, t) {
-      var d = el("div", { title: "step " + (t + 1) + (st[2] ? ": invalid (" + D.reasons[st[2]] + "), set aside" : ""),
+      var d = el("div", { title: "step " + (t + 1) + (st[2] ? ": " + stepOutcome(st[2]) : ""),
         onclick: function () { self.setStep(t + 1, true); } });
       if (st[2] !== 0) d.className = "invalid";
       self.strip.appendChild(d);
@@ -632,7 +639,7 @@
     dl.innerHTML = "";
     [["Overall", fmt(x.overall)], ["Success ratio", fmt(x.success_ratio)], ["Compactness", fmt(x.compactness)],
      ["Inside", x.inside + " / " + x.objects], ["Set aside", String(x.set_aside)],
-     ["Invalid steps", String(x.invalid)], ["Max height", x.max_height_mm + " mm"],
+     ["Invalid actions", String(x.invalid)], ["Max height", x.max_height_mm + " mm"],
      ["At rest when scored", x.at_rest ? "yes" : "no"], ["Policy time", fmt(x.policy_s, 3) + " s"],
     ].forEach(function (p) {
       dl.appendChild(el("dt", { text: p[0] }));
@@ -662,7 +669,7 @@
       "object_id " + st[1][0] + ", rotation " + st[1][1] + ", cell (" + st[1][2] + ", " + st[1][3] + ")";
     this.status.className = "status" + (st[2] ? " invalid" : "");
     this.status.textContent = st[2] ?
-      "Step " + k + ": invalid (" + D.reasons[st[2]] + "), " + obj + " set aside; action " + act :
+      "Step " + k + ": " + stepOutcome(st[2]) + " (" + obj + "); action " + act :
       "Step " + k + ": placed " + obj + "; action " + act;
     var buf = this.buffer;
     buf.innerHTML = "";

@@ -8,7 +8,7 @@ proposer lists its K placements and the teacher labels the state with its pick a
 the data is always "what the teacher would do here", wherever "here" came from. Steps where
 nothing fits are not recorded (the policy falls back to SDF-Pack there).
 
-``RobotPath`` collects on the robot path instead (issue 36): MuJoCo, perceived observations and
+``RobotPath`` collects on the robot path instead: MuJoCo, perceived observations and
 noisy execution under a sensor preset. The teacher then labels what the robot is shown (perceived
 sizes, a noisy heightmap), so a student trained on those rows learns to act on what a robot cell
 sees, and the states follow from placements that landed off plan.

@@ -13,7 +13,7 @@ always one of the listed placements: nothing is decoded that could fail to parse
 The same model also plays as ONNX graphs without torch (:mod:`.onnx_graphs`).
 
 Why not train the index digit as a generated answer: from random weights, the loss on the digit
-alone stays at chance for hundreds of steps (issue 12's prototype), while the pointer loss reads
+alone stays at chance for hundreds of steps (measured on a prototype), while the pointer loss reads
 each placement's own hidden state and learns within minutes.
 Imports torch: only the vlm extra may import this module.
 """

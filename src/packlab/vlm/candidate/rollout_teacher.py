@@ -3,7 +3,7 @@ future (a training-time label source; no policy may read the future at play time
 
 Where the planner is a weak teacher its labels cannot lift a student above it. On boxes of
 independent sizes (the ``random`` family) `plan` restricted to the 16 listed lines scores below
-the proposer whose list it picks from (docs/vlm.md, session 53), so a student trained on its
+the proposer whose list it picks from (docs/history/vlm.md), so a student trained on its
 labels there learns to tie the proposer at best. This teacher instead measures each line: the
 episode is copied, the line is played, and a base policy (default: the proposer) plays every
 box still to come, the real ones of the case, to the end; the line's value is the Overall the
@@ -17,8 +17,8 @@ known: a clairvoyant teacher (on 24 generated random cases, seed 7351, geometric
 Monte-Carlo) so a model card says which states were labelled this way. Geometric backend only:
 the copies must be cheap and exact.
 
-Tried in session 54 for the pointer LM's random-box states and not shipped: the student trained
-on these labels scored *lower* on random boxes than the one trained on the planner's (docs/vlm.md).
+The shipped pointer LM is not trained on these labels: on random-box states, the student trained
+on them scored *lower* on random boxes than the one trained on the planner's (docs/history/vlm.md).
 A label that depends on boxes not yet shown is noise to a student that cannot see them.
 """
 

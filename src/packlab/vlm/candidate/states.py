@@ -16,7 +16,7 @@ before (empty ``soft``, nothing added). Format ``packlab-states-3`` added ``case
 content fingerprint of the state's case (:func:`packlab.cases.fingerprint.case_fingerprint`), so
 that a trainer can check a row against its case and against the bench suites by content, not
 by the case id alone (:mod:`packlab.vlm.candidate.states_guard`); older files read with it
-empty, and the trainers refuse them until it is added (``scripts/states_add_case_hash.py``).
+empty, and the trainers refuse them (collect such states again to give them the field).
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@ A states file names its cases by id, and ids are names: a file collected on othe
 selection set, a stale run) with the same ids would pass an id check. So every row carries its
 case's content fingerprint (``case_sha256``, format ``packlab-states-3``) and a trainer refuses:
 
-* a row without one (a file written before the field existed): add it with
-  ``scripts/states_add_case_hash.py`` against the cases the states were collected on;
+* a row without one (a file written before the field existed): collect the states again on
+  their cases (``packlab train candidate`` or ``scripts/collect_states.py`` write the field);
 * a row whose case is a bundled suite's or the reference benchmark's
   (:mod:`packlab.cases.known`);
 * with the cases given: a row whose case id is not among them, or whose fingerprint is not that
@@ -25,10 +25,10 @@ from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.vlm.candidate.states import LabelledState, read_states
 
-#: How to give an old states file its case hashes (appended to that refusal).
+#: What to do with a states file written without case hashes (appended to that refusal).
 ADD_HASH_HINT = (
-    "add them with: python scripts/states_add_case_hash.py --states FILE --cases CASES "
-    "--out NEW_FILE (CASES: the generated cases the states were collected on), or collect again"
+    "collect the states again on their cases (packlab train candidate, or python "
+    "scripts/collect_states.py CASES OUT.jsonl SOURCE): every row it writes carries its hash"
 )
 
 

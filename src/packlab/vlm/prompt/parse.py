@@ -31,7 +31,7 @@ explicit stack, no recursion) before the standard decoder sees a span, and the s
 object embedded in text retries from later braces within a budget (:data:`RETRY_BUDGET` times
 the text, :data:`RETRY_STEPS` scanner steps); past that it resumes where the failed candidate
 broke. With these limits the slowest answers an adversarial search found take about 10 ms on
-one CPU core (the tests assert the issue's 50 ms per parse).
+one CPU core (the tests assert the bound of 50 ms per parse).
 """
 
 from __future__ import annotations

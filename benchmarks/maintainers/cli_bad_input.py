@@ -1,9 +1,9 @@
-"""How fast and how plainly ``packlab`` refuses bad input (issue 37: one line, exit code 2,
+"""How fast and how plainly ``packlab`` refuses bad input (target: one line, exit code 2,
 nothing written, within 0.5 s on a quiet machine).
 
 Usage:
-    python benchmarks/cli_bad_input.py            # 5 runs of each, fresh interpreters
-    python benchmarks/cli_bad_input.py --runs 9
+    python benchmarks/maintainers/cli_bad_input.py            # 5 runs of each, fresh interpreters
+    python benchmarks/maintainers/cli_bad_input.py --runs 9
 
 Each bad command line runs in a fresh ``python -m packlab.cli.main`` subprocess inside an empty
 temporary directory (so a run directory or dataset it made would show), ``--runs`` times,
@@ -29,7 +29,7 @@ from pathlib import Path
 TARGET_S = 0.5
 #: Exit code of bad input (packlab.core.errors.EXIT_USAGE).
 EXIT_USAGE = 2
-#: (what is wrong, the command line). The first nine are issue 37's list.
+#: (what is wrong, the command line): the typical mistakes of each command.
 BAD_INPUTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("misspelt policy", ("bench", "--policies", "dblff")),
     ("bad policy-arg key", ("bench", "--policy-arg", "irbpp:modle=x")),

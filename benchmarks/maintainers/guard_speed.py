@@ -1,6 +1,6 @@
-"""How long the training guard takes (issue 36: under 1 s for 20 000 cases).
+"""How long the training guard takes (target: under 1 s for 20 000 cases).
 
-Usage: python benchmarks/guard_speed.py [--cases 20000]
+Usage: python benchmarks/maintainers/guard_speed.py [--cases 20000]
 
 Times the first load of the known fingerprints (once per process) and
 ``require_training_cases`` on generated training cases of each level (ids renamed so every case

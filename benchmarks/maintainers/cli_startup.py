@@ -1,8 +1,8 @@
 """Start-up time of ``packlab --help`` and of every ``packlab <command> --help``.
 
 Usage:
-    python benchmarks/cli_startup.py              # 7 runs of each, fresh interpreters
-    python benchmarks/cli_startup.py --runs 15
+    python benchmarks/maintainers/cli_startup.py              # 7 runs of each, fresh interpreters
+    python benchmarks/maintainers/cli_startup.py --runs 15
 
 Each command line runs in a fresh subprocess of the ``packlab`` console script beside this
 interpreter (``python -m packlab.cli.main`` when there is none; a pyenv shim in PATH would add

@@ -1,9 +1,9 @@
-"""How fast a stop signal to the main process ends every process of a run (issue 38: <= 5 s,
+"""How fast a stop signal to the main process ends every process of a run (target: <= 5 s,
 records intact, the same command resumes).
 
 Usage:
-    python benchmarks/stop_time.py               # every command, executor and signal, once
-    python benchmarks/stop_time.py --repeats 3
+    python benchmarks/maintainers/stop_time.py    # every command, executor and signal, once
+    python benchmarks/maintainers/stop_time.py --repeats 3
 
 Each row starts a real ``packlab`` command in a fresh temporary directory, waits until it has
 written its first result (a bench record, a generate shard) or started its environment

@@ -1,8 +1,8 @@
 """How often the ``plan`` policy's support test changes its choice, and what it does to the score.
 
 Usage:
-    python benchmarks/plan_stability.py                      # packlab-bench-v1, seed 0, mujoco
-    python benchmarks/plan_stability.py --cases DATASET_DIR --backend geometric
+    python benchmarks/maintainers/plan_stability.py    # packlab-bench-v1, seed 0, mujoco
+    python benchmarks/maintainers/plan_stability.py --cases DATASET_DIR --backend geometric
 
 Runs ``plan`` with ``stability=off`` and ``stability=support`` on every case (one process per
 core) and prints, per level: Overall for each, the share of decisions where the cheapest

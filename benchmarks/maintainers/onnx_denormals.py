@@ -1,6 +1,8 @@
 """What flushing denormals in ONNX runs saves the learned policies, measured in one process.
 
-Usage: python benchmarks/onnx_denormals.py [--cases 3] [--repeats 3] [--policies vlm,irbpp,tapnet]
+Usage:
+    python benchmarks/maintainers/onnx_denormals.py [--cases 3] [--repeats 3]
+        [--policies vlm,irbpp,tapnet]
 
 ``packlab.policies.onnx_model.Session.run`` flushes denormal floats to zero around each run (a
 masked softmax makes them; x86 handles them in microcode). Here each policy plays the same

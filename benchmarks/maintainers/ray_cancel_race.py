@@ -1,8 +1,8 @@
 """Does ``ray.cancel`` abort the driver? The reason packlab's Ray executor never cancels a task.
 
 Usage:
-    python benchmarks/ray_cancel_race.py                 # 400 rounds per mode
-    python benchmarks/ray_cancel_race.py --rounds 1000
+    python benchmarks/maintainers/ray_cancel_race.py                 # 400 rounds per mode
+    python benchmarks/maintainers/ray_cancel_race.py --rounds 1000
 
 Each mode runs in a fresh driver process with its own local Ray cluster (2 CPUs). A round
 submits 12 tasks of 0-4 ms, waits for the first, and then, after 0-4 ms, treats the rest as

@@ -1,9 +1,11 @@
 """A small MLP student over listed placements' line vectors: what the inputs can teach, fast.
 
 Usage:
-    python benchmarks/student_probe.py train OUT.pt STATES.jsonl [STATES.jsonl ...] [--no-level-fit]
-    python benchmarks/student_probe.py loop MODEL.pt --k 16 --per-level 10 --seed 7412
-    python benchmarks/student_probe.py dagger MODEL.pt OUT.jsonl --k 16 --per-level 150 --seed 4403
+    python benchmarks/maintainers/student_probe.py train OUT.pt STATES.jsonl [STATES.jsonl ...]
+        [--no-level-fit]
+    python benchmarks/maintainers/student_probe.py loop MODEL.pt --k 16 --per-level 10 --seed 7412
+    python benchmarks/maintainers/student_probe.py dagger MODEL.pt OUT.jsonl --k 16 --per-level 150
+        --seed 4403
 
 The model scores each listed line from its vector (:mod:`packlab.policies.line_vector`), the mean
 vector of the list and three globals (objects left, peak height, buffer size) with one shared

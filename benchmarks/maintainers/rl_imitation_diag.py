@@ -1,8 +1,8 @@
 """How well a behaviour-cloned agent predicts the teacher on states it was not fitted on.
 
 Usage:
-    python benchmarks/rl_imitation_diag.py --states STATES.jsonl [--agent irbpp] [--epochs 30]
-        [--width 64] [--work DIR]
+    python benchmarks/maintainers/rl_imitation_diag.py --states STATES.jsonl [--agent irbpp]
+        [--epochs 30] [--width 64] [--work DIR]
 
 Splits the labelled states by case (crc32 of the case id mod 5 == 0: held out, about 20 %),
 fits on the rest (``packlab train rl-imitate``'s code path) and prints, per level, the share of

@@ -1,8 +1,8 @@
 """Time and size of report.html (the interactive bench report) for existing run directories.
 
 Usage:
-    python benchmarks/report_build_time.py                      # runs/bench-packlab-bench-v1
-    python benchmarks/report_build_time.py RUN_DIR [RUN_DIR ...] --repeat 3
+    python benchmarks/maintainers/report_build_time.py     # runs/bench-packlab-bench-v1
+    python benchmarks/maintainers/report_build_time.py RUN_DIR [RUN_DIR ...] --repeat 3
 
 For each run it builds the page as ``packlab bench report DIR --html`` does, into a scratch
 file (the run directory is not touched), and prints one row: episodes, size of episodes.jsonl,

@@ -1,6 +1,6 @@
 """Exact rectangle cover speed: the bitmask search against the numpy one it replaced.
 
-Usage: python benchmarks/cover_speed.py [--states N] [--seed S] [--max-nodes M]
+Usage: python benchmarks/maintainers/cover_speed.py [--states N] [--seed S] [--max-nodes M]
 
 The workload is the planner's (``complete.find_completion``) on seeded guillotine layers: a
 layer of a medium (48 x 40 cells) or hard (64 x 48) container partly filled in scan order, the
@@ -26,7 +26,7 @@ import numpy as np
 from packlab.policies.plan.cover import CoverResult, CoverRules, Piece, exact_cover
 
 # The frozen reference lives with its equivalence test.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "policies" / "plan"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "policies" / "plan"))
 from _cover_reference import exact_cover as reference_cover
 
 #: (grid cells, boxes per layer, buffer) of the two container sizes.
