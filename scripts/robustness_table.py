@@ -155,6 +155,9 @@ def _errors(records: list[dict]) -> None:
 
 
 def main(argv: list[str]) -> int:
+    if argv in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     if len(argv) < 2 or any("=" not in a for a in argv[1:]):
         print(__doc__, file=sys.stderr)
         return 2

@@ -111,3 +111,20 @@ def test_the_cli_reference_is_read_from_the_parsers():
     for command in ("packlab bench", "packlab generate", "packlab train sft", "packlab policies"):
         assert f"`{command}`" in text, command
     assert "--policy-arg" in text
+
+
+def test_no_development_log_in_the_code_text():
+    """Comments, docstrings and help texts say what the code does and why, not when."""
+    words = {k: LOG_PATTERNS[k] for k in ("a session", "an issue number", "a turn")}
+    found = []
+    for folder in ("src", "scripts", "benchmarks", "examples", "configs"):
+        for path in sorted((ROOT / folder).rglob("*")):
+            if path.suffix not in (".py", ".sh", ".js", ".yaml", ".toml") or not path.is_file():
+                continue
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                found += [
+                    f"{path.relative_to(ROOT)}:{number}: {what}: {line.strip()[:100]}"
+                    for what, pattern in words.items()
+                    if pattern.search(line)
+                ]
+    assert not found, "\n".join(found)
