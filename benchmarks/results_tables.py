@@ -148,6 +148,7 @@ def run_table(table: Table, restart: bool) -> None:
             "date": date.today().isoformat(),
             "machine": f"{os.cpu_count()} CPU cores, {platform.system()} {platform.machine()}",
             "wall_s": 0.0,
+            "note": "",
         }
         stamp_path.write_text(json.dumps(stamp, indent=1) + "\n", encoding="utf-8")
     stamp = json.loads(stamp_path.read_text(encoding="utf-8"))
@@ -169,6 +170,8 @@ def stamp_line(table: Table, stamp: dict) -> str:
     minutes = stamp.get("wall_s", 0.0) / 60
     wall = f", {minutes:.1f} min wall time" if minutes else ""
     dirty = " plus uncommitted changes to src/" if stamp.get("dirty") else ""
+    if stamp.get("note"):  # e.g. the machine was shared, so the wall time is an upper bound
+        wall += f"; {stamp['note']}"
     return (
         f"Produced by `{THIS}` from the records of `{stamp['command']}` "
         f"at commit `{stamp['commit'][:12]}`{dirty} on {stamp['date']} "
@@ -227,8 +230,10 @@ records kept in the repository under `results/`; each says which command made it
 which commit, when and on what machine. Scores are the mean over 3 seeds with a 95 % bootstrap
 interval over cases in brackets; two rows differ only where their paired interval excludes zero.
 What the metrics mean: [Running the benchmark](../benchmark.md). Where packlab still falls
-short: [Known limits](../limits.md). Earlier tables and attempts that did not ship: the history
-pages.
+short: [Known limits](../limits.md). Earlier tables and the measured attempts that did not ship:
+the history of the [planner](../history/planner.md), the [RL agents](../history/rl.md), the
+[packing VLM](../history/vlm.md), the [robot path](../history/perception.md), the
+[benchmark tables](../history/bench.md) and the [protocols](../history/protocols.md).
 
 {chr(10).join(s + chr(10) for s in sections)}
 ## How to reproduce
