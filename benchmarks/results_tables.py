@@ -98,7 +98,9 @@ TABLES = (
         "packlab-bench-v1 as a robot cell sees and acts: depth cameras with a structured-light "
         "noise model, boxes segmented from depth (no simulator masks), noisy execution with the "
         "guarded place skill, missed boxes set aside. Every figure here is one a robot could "
-        "produce; the prior it is given is the container's size and the 2.5 cm action grid. The "
+        "produce, given the priors a cell has: box sizes on the size grid (lengths and widths in "
+        "25 mm steps, heights in 2 mm), the buffer's count, the count still to come, the "
+        "payload's weight and camera calibration ([the robot path](../perception.md)). The "
         "oracle needs the true layout and is left out.",
     ),
 )
