@@ -62,9 +62,8 @@ from packlab.policies.overflow import overflow_decision
 DEFAULT_K = 8
 #: Placements listed for a learned policy to choose from (the candidate-mode VLM, ``irbpp``):
 #: more than the proposer's own K because a student can only reach its teacher's pick when it
-#: is listed. On generated cases (train seed domain) the planner restricted to the list keeps
-#: 0.85 Overall at K = 8 and 0.90 at K = 16 (hard level 0.75 and 0.89); index 0, the proposer's
-#: own pick, does not depend on K.
+#: is listed; why 16 (measured on generated training cases): docs/candidates.md. Index 0, the
+#: proposer's own pick, does not depend on K.
 STUDENT_K = 16
 
 

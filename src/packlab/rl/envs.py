@@ -1,13 +1,14 @@
 """Gymnasium envs with action spaces a small network can learn (``packlab/Pack-v0``'s flat
-(object, rotation, x, y) space has up to 5616 actions; these have at most 10).
+(object, rotation, x, y) space has up to 5616 actions; these list K = 16 placements or one row per buffer slot).
 
 - ``packlab/PackCandidates-v0`` (:class:`CandidatePlacementEnv`): choose one of the K
   placements the shared proposer lists (IR-BPP-style).
-- ``packlab/PackObjects-v0`` (:class:`ObjectChoiceEnv`): choose which shown object to pack;
-  DBLF's rule places it (TAP-Net-style).
+- ``packlab/PackObjects-v0`` (:class:`ObjectChoiceEnv`): choose which shown object to pack, one
+  row per buffer slot; a rule places it, the proposer's pick for that box by default
+  (``placement``; TAP-Net-style).
 
 Observation: :mod:`packlab.rl.features` (``heightmap`` (1, 32, 32), ``globals`` (8,), ``items``
-(N, 16), float32). Action: ``Discrete(N)``, the item row. ``action_masks()`` (read by
+(N, N_ITEM_FEATURES), float32). Action: ``Discrete(N)``, the item row. ``action_masks()`` (read by
 sb3-contrib's ``MaskablePPO``) marks the real rows; every real row is an executable placement.
 A step whose state lists nothing (no shown box fits the floor) is taken by the env itself:
 the box is set aside (recorded invalid, as the heuristics do) and the next state is shown, so an
