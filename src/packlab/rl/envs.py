@@ -1,5 +1,6 @@
 """Gymnasium envs with action spaces a small network can learn (``packlab/Pack-v0``'s flat
-(object, rotation, x, y) space has up to 5616 actions; these list K = 16 placements or one row per buffer slot).
+(object, rotation, x, y) space has up to 5616 actions; these list K = 16 placements, or one row
+per buffer slot).
 
 - ``packlab/PackCandidates-v0`` (:class:`CandidatePlacementEnv`): choose one of the K
   placements the shared proposer lists (IR-BPP-style).
