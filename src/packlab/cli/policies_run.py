@@ -54,6 +54,8 @@ _TEXT_KEYS = (
     "image_size",
     "reuse_cache",
     "model_seed",
+    "prompt",
+    "reask",
 )
 
 
@@ -161,7 +163,14 @@ BUILTINS: dict[str, Builtin] = {
         "A packing VLM behind an OpenAI-compatible chat-completions server (vLLM, packlab serve)",
         needs=f"{CORE}; a running server at base_url",
         paths={"history": "options.history", "image": "options.image", "timeout_s": "deadline_s"},
-        notes={"timeout_s": "older name of deadline_s", "seed": "the server's choice"},
+        notes={
+            "timeout_s": "older name of deadline_s",
+            "seed": "the server's choice",
+            "prompt": "packlab | reference: the reference implementation's prompt and parsing "
+            "(docs/vlm.md)",
+            "max_tokens": "512 under prompt=reference",
+            "reask": "prompt=reference: ask once more after an answer that does not parse",
+        },
     ),
     "irbpp": Builtin(
         "A trained RL agent choosing among listed placements (IR-BPP's action space)",

@@ -252,8 +252,14 @@ _VLM_KEYS = (
     "blank_image",
     "runtime",
     "overflow",
+    "prompt",
+    "reask",
 )
+#: The prompt protocols of the text-answer policies (their modules' PROMPTS).
+_PROMPTS = _one_of(("packlab", "reference"))
 _VLM_CHECKS: dict[str, Check] = {
+    "prompt": _PROMPTS,
+    "reask": _switch,
     "overflow": _OVERFLOW,
     "history": _one_of(choices(HistoryMode)),
     "image": _one_of(choices(ImageMode)),
@@ -281,9 +287,13 @@ _ENDPOINT = PolicyOptions(
         "max_past_steps",
         "name",
         "timeout_s",
+        "prompt",
+        "reask",
     ),
     {
         "base_url": _http_url,
+        "prompt": _PROMPTS,
+        "reask": _switch,
         "history": _one_of(choices(HistoryMode)),
         "image": _one_of(choices(ImageMode)),
         "retries": _whole(0),

@@ -6,6 +6,9 @@ generation prompt (``<|im_start|>assistant\\n``), and each image placeholder is 
 model's processor (:mod:`packlab.vlm.train.sft`); a test checks that both encode a context to
 the same tokens.
 
+A context that ends with an assistant turn is a prefill: the template renders it open, without
+the generation prompt, and the model continues it (``continue_final_message``).
+
 Long histories: :func:`encode_fitting` drops the oldest past step (its user turn and its answer)
 until the sequence fits ``max_length``; the system prompt and the current turn are never cut.
 """
@@ -86,10 +89,16 @@ def encode(
     image_processor,
     config: ProcessingConfig = ProcessingConfig(),
 ) -> Encoded:
-    """Encode one context (ending with the user turn to answer) into model inputs."""
+    """Encode one context (ending with the user turn to answer, or with an assistant prefill to
+    continue) into model inputs."""
     images = [resolve_image(im, config) for im in message_images(messages)]
+    prefill = bool(messages) and messages[-1]["role"] == "assistant"
     text = tokenizer.apply_chat_template(
-        list(messages), tokenize=False, add_generation_prompt=True, **config.template_kwargs
+        list(messages),
+        tokenize=False,
+        add_generation_prompt=not prefill,
+        **({"continue_final_message": True} if prefill else {}),
+        **config.template_kwargs,
     )
     parts = text.split(IMAGE_PAD)
     if len(parts) - 1 != len(images):
@@ -128,8 +137,10 @@ def encode_fitting(
     """
     dropped = 0
     msgs: list[dict[str, Any]] | None = list(messages)
+    # A prefill is part of the current turn: kept, and kept out of the step dropping.
+    tail = [msgs.pop()] if msgs and msgs[-1]["role"] == "assistant" else []
     while True:
-        enc = encode(msgs, tokenizer, image_processor, config)  # type: ignore[arg-type]
+        enc = encode([*msgs, *tail], tokenizer, image_processor, config)  # type: ignore[misc]
         if config.max_length is None or enc.length <= config.max_length:
             return enc, dropped
         msgs = drop_oldest_step(msgs)  # type: ignore[arg-type]

@@ -15,6 +15,12 @@ are picklable and cheap to build in the parent process and each worker loads its
 
 Per-step diagnostics (token counts, prefix reuse, timings) are kept in the policy's
 ``step_log`` (a list of dicts, one per ``act`` of the current episode).
+
+``prompt=reference`` plays a model trained on the reference implementation's data with the
+reference's request and answer reading (:mod:`packlab.vlm.serve.reference_turns`, as the
+``endpoint`` policy does): its text, images and thinking prefill, which the model continues; the
+chat template gets ``enable_thinking`` true unless ``template_kwargs`` says otherwise. A
+re-ask (``reask``) keeps the same template switches (a server would use its defaults).
 """
 
 from __future__ import annotations
@@ -31,7 +37,12 @@ from packlab.vlm.candidate.policy import CandidateVLMPolicy
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.reference import EXTRA_BODY as REFERENCE_EXTRA_BODY
+from packlab.vlm.prompt.reference import SAMPLING as REFERENCE_SAMPLING
+from packlab.vlm.prompt.reference import with_prefill
+from packlab.vlm.prompt.reference_parse import parse_reference
 from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
+from packlab.vlm.serve.reference_turns import ReferenceTurns, local_image
 
 __all__ = ["SHIPPED_MODEL_DIR", "VLMPolicy", "make_vlm", "make_vlm_small"]
 
@@ -42,6 +53,9 @@ SHIPPED_MODEL_DIR = Path(__file__).resolve().parents[2] / "data" / "models" / "v
 RUNTIME_MODULE = "packlab.vlm.infer.runtime"
 #: The options of a candidate-mode checkpoint (:class:`CandidateVLMPolicy`).
 CANDIDATE_ARGS = ("model", "threads", "name", "blank_image", "runtime", "overflow")
+#: The prompt protocols and the answer budget each defaults to.
+PROMPTS = ("packlab", "reference")
+DEFAULT_MAX_NEW_TOKENS = {"packlab": 64, "reference": REFERENCE_SAMPLING["max_tokens"]}
 
 
 def _check_settings(
@@ -86,7 +100,7 @@ class VLMPolicy:
         model: str = "tiny:qwen3_5:tiny",
         history: str | None = None,
         image: str | None = None,
-        max_new_tokens: int = 64,
+        max_new_tokens: int | None = None,
         device: str = "auto",
         dtype: str = "auto",
         max_length: int | None = None,
@@ -95,10 +109,20 @@ class VLMPolicy:
         reuse_cache: bool = True,
         model_seed: int = 0,
         threads: int | None = None,
-        name: str = "vlm",
+        name: str | None = None,
+        prompt: str = "packlab",
+        reask: bool = False,
     ) -> None:
+        if prompt not in PROMPTS:
+            raise ConfigError(f"prompt = {prompt!r}: choose one of {', '.join(PROMPTS)}")
+        if not isinstance(reask, bool):
+            raise ConfigError(f"reask = {reask!r}: must be true or false")
+        if max_new_tokens is None:
+            max_new_tokens = DEFAULT_MAX_NEW_TOKENS[prompt]
         _check_settings(model, history, image, max_new_tokens, max_length, threads)
-        self.name = name
+        self.prompt, self.reask = prompt, reask
+        # The protocol is part of what a row measures, so a report can tell the two apart.
+        self.name = name or ("vlm (reference prompt)" if prompt == "reference" else "vlm")
         self.model_spec = model
         self.history, self.image = history, image
         self.max_new_tokens = max_new_tokens
@@ -112,6 +136,7 @@ class VLMPolicy:
         self.step_log: list[dict[str, Any]] = []
         self._generator: Any = None
         self._renderer: ContextRenderer | None = None
+        self._reference: ReferenceTurns | None = None
         self.resolved: dict[str, Any] = {}
 
     @classmethod
@@ -140,6 +165,7 @@ class VLMPolicy:
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
         state["_generator"], state["_renderer"], state["step_log"] = None, None, []
+        state["_reference"] = None
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -169,15 +195,18 @@ class VLMPolicy:
         require_choice(image, ImageMode, "image")
         options = PromptOptions(history=cast(HistoryMode, history), image=cast(ImageMode, image))
         max_length = self.max_length if self.max_length is not None else sft.get("max_length")
-        template_kwargs = (
-            self.template_kwargs
-            if self.template_kwargs is not None
-            else dict(sft.get("template_kwargs") or {})
-        )
+        if self.template_kwargs is not None:
+            template_kwargs = self.template_kwargs
+        elif self.prompt == "reference":  # what the reference's requests switch on
+            template_kwargs = dict(REFERENCE_EXTRA_BODY["chat_template_kwargs"])
+        else:
+            template_kwargs = dict(sft.get("template_kwargs") or {})
         self._generator = runtime.make_generator(
             vlm, self.max_new_tokens, self.reuse_cache, self.image_size, max_length, template_kwargs
         )
         self._renderer = ContextRenderer(options, self.image_size)
+        if self.prompt == "reference":
+            self._reference = ReferenceTurns(options.history, options.image, image_part=local_image)
         self.resolved = {
             "model": self.model_spec,
             "family": vlm.family,
@@ -217,6 +246,8 @@ class VLMPolicy:
             "image_size": self.image_size,
             "reuse_cache": self.reuse_cache,
             "model_seed": self.model_seed,
+            "prompt": self.prompt,
+            "reask": self.reask,
         }
         return {**requested, **self.resolved}
 
@@ -232,10 +263,14 @@ class VLMPolicy:
         self._generator.reset()
         self._renderer.reset()
         self.step_log = []
+        if self._reference is not None:
+            self._reference.reset(case)
 
     def act(self, observation: Observation) -> Action | Unparsable:
         if self._generator is None or self._renderer is None:
             raise RuntimeError(f"policy {self.name!r}: act() before reset()")
+        if self._reference is not None:
+            return self._act_reference(observation, self._reference)
         t0 = time.perf_counter()
         messages = self._renderer.messages(observation)
         render_s = time.perf_counter() - t0
@@ -257,6 +292,34 @@ class VLMPolicy:
             }
         )
         return action
+
+    def _act_reference(self, observation: Observation, turns: ReferenceTurns) -> Action:
+        """One step of the reference's protocol: the model continues the thinking prefill; an
+        answer it cannot use is asked for once more (``reask``), then set aside as the
+        reference's evaluation does."""
+        view = turns.view(observation)
+        gen = self._generator.generate(with_prefill(view))
+        text, parsed, reasked = gen.text, parse_reference(gen.text), False
+        if parsed.action is None and self.reask:
+            gen = self._generator.generate(ReferenceTurns.reask(view, text))
+            text, parsed, reasked = gen.text, parse_reference(gen.text), True
+        decision = turns.decide(observation, text, parsed)
+        self.step_log.append(
+            {
+                "step": observation.step_index,
+                "prompt_tokens": gen.prompt_tokens,
+                "reused_tokens": gen.reused_tokens,
+                "new_tokens": len(gen.token_ids),
+                "finished": gen.finished,
+                "dropped_steps": gen.dropped_steps,
+                "parsed": parsed.action is not None,
+                "format_event": decision.event,
+                "parse_error": decision.error,
+                "forced_set_aside": decision.forced,
+                "reasked": reasked,
+            }
+        )
+        return decision.action
 
 
 def make_vlm(**kwargs: Any) -> VLMPolicy | CandidateVLMPolicy:

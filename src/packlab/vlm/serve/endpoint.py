@@ -35,6 +35,13 @@ cannot be used is not):
 The API key is read at request time from the environment variable named by ``api_key_env``; it is
 never stored on the policy (which stays picklable and carries only its configuration).
 Concurrency across cases is the bench runner's job: each worker process builds its own policy.
+
+Prompt protocols (``prompt``): ``packlab`` (default) is packlab's own prompt and parser;
+``reference`` is the reference implementation's (:mod:`packlab.vlm.serve.reference_turns`):
+its system and user text, 224 px blue-to-red heightmaps, the thinking prefill and chat-template
+switches, 512 answer tokens unless ``max_tokens`` says otherwise, its lenient parser, an optional
+second request after an unusable answer (``reask``), and a seeded forced set-aside of a shown
+box in place of an answer it cannot use. Its step log labels each step's format event.
 """
 
 from __future__ import annotations
@@ -49,12 +56,16 @@ from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.reference import EXTRA_BODY as REFERENCE_EXTRA_BODY
+from packlab.vlm.prompt.reference import SAMPLING as REFERENCE_SAMPLING
+from packlab.vlm.prompt.reference_parse import parse_reference
 from packlab.vlm.prompt.render import BLANK_IMAGE, PromptOptions, keep_last_steps
 from packlab.vlm.serve.openai_messages import (
     blank_png_data_url,
     png_data_url,
     to_openai_messages,
 )
+from packlab.vlm.serve.reference_turns import ReferenceTurns
 from packlab.vlm.serve.transport import MAX_RESPONSE_BYTES, HTTPReply, TransportError, http_post
 
 #: Defaults of :class:`EndpointPolicy` (seconds; tries = 1 + retries).
@@ -67,6 +78,9 @@ DEFAULT_MAX_BACKOFF_S = 4.0
 BUSY_STATUS = frozenset({408, 429})
 #: 4xx that mean the configuration is wrong (key, URL, model name).
 FATAL_STATUS = frozenset({401, 403, 404})
+#: The prompt protocols (module docstring) and the answer budget each defaults to.
+PROMPTS = ("packlab", "reference")
+DEFAULT_MAX_TOKENS = {"packlab": 64, "reference": REFERENCE_SAMPLING["max_tokens"]}
 
 
 class EndpointError(EndpointUnavailable):
@@ -215,18 +229,26 @@ class EndpointPolicy:
         image: ImageMode = "heightmap",
         image_size: int = DEFAULT_IMAGE_SIZE,
         temperature: float = 0.0,
-        max_tokens: int = 64,
+        max_tokens: int | None = None,
         seed: int | None = None,
         extra_body: dict[str, Any] | None = None,
         max_past_steps: int | None = None,
-        name: str = "endpoint",
+        name: str | None = None,
         timeout_s: float | None = None,
+        prompt: str = "packlab",
+        reask: bool = False,
     ) -> None:
         if not isinstance(base_url, str) or not base_url.startswith(("http://", "https://")):
             raise ConfigError(
                 f"base_url = {base_url!r}: expected an http(s) URL such as http://127.0.0.1:8000/v1"
             )
         deadline, deadline_field = _deadline(deadline_s, timeout_s)
+        if prompt not in PROMPTS:
+            raise ConfigError(f"prompt = {prompt!r}: choose one of {', '.join(PROMPTS)}")
+        if not isinstance(reask, bool):
+            raise ConfigError(f"reask = {reask!r}: must be true or false")
+        if max_tokens is None:
+            max_tokens = DEFAULT_MAX_TOKENS[prompt]
         _check_numbers(
             (deadline_field, deadline),
             retries,
@@ -237,7 +259,9 @@ class EndpointPolicy:
             max_past_steps,
         )
         self.options = PromptOptions(history, image)  # which checks the names
-        self.name = name
+        self.prompt, self.reask = prompt, reask
+        # The protocol is part of what a row measures, so a report can tell the two apart.
+        self.name = name or ("endpoint (reference prompt)" if prompt == "reference" else "endpoint")
         self.base_url, self.url = base_url, chat_completions_url(base_url)
         self.model = model
         self.api_key_env = api_key_env
@@ -253,6 +277,7 @@ class EndpointPolicy:
         self._renderer: ContextRenderer | None = None
         self._urls: dict[int, tuple[Any, str]] = {}  # id(image) -> (image, data URL)
         self._blank_url: str | None = None
+        self._reference: ReferenceTurns | None = None
 
     @property
     def tries(self) -> int:
@@ -272,6 +297,7 @@ class EndpointPolicy:
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
         state["_renderer"], state["_urls"], state["step_log"] = None, {}, []
+        state["_reference"] = None
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -293,6 +319,8 @@ class EndpointPolicy:
             "image_size": self.image_size,
             "extra_body": self.extra_body,
             "max_past_steps": self.max_past_steps,
+            "prompt": self.prompt,
+            "reask": self.reask,
         }
 
     # -- request building ----------------------------------------------------------------------
@@ -309,22 +337,43 @@ class EndpointPolicy:
             self._urls[id(image)] = hit
         return hit[1]
 
+    def _body(self, messages: list[dict[str, Any]], protocol: dict[str, Any]) -> dict[str, Any]:
+        """A request body: the messages, sampling, the protocol's extras, then ``extra_body``
+        (the user's word wins)."""
+        body: dict[str, Any] = {
+            "model": self.model,
+            "messages": messages,
+            "temperature": self.temperature,
+            "max_tokens": self.max_tokens,
+            **({"seed": self.seed} if self.seed is not None else {}),
+            **protocol,
+        }
+        body.update(self.extra_body)
+        return body
+
+    def _turns(self) -> ReferenceTurns:
+        if self._reference is None:
+            self._reference = ReferenceTurns(self.options.history, self.options.image)
+        return self._reference
+
+    def _reference_view(self, observation: Observation) -> list[dict[str, Any]]:
+        view = self._turns().view(observation)
+        if self.max_past_steps is not None:
+            view = keep_last_steps(view, self.max_past_steps)
+        return view
+
     def payload(self, observation: Observation) -> dict[str, Any]:
         """The chat-completions request body for one observation."""
+        if self.prompt == "reference":
+            view = self._reference_view(observation)
+            extras = {"top_p": REFERENCE_SAMPLING["top_p"], **REFERENCE_EXTRA_BODY}
+            return self._body(ReferenceTurns.request(view), extras)
         if self._renderer is None:
             self._renderer = ContextRenderer(self.options, self.image_size)
         messages = self._renderer.messages(observation)
         if self.max_past_steps is not None:
             messages = keep_last_steps(messages, self.max_past_steps)
-        body: dict[str, Any] = {
-            "model": self.model,
-            "messages": to_openai_messages(messages, self._image_url),
-            "temperature": self.temperature,
-            "max_tokens": self.max_tokens,
-            **({"seed": self.seed} if self.seed is not None else {}),
-        }
-        body.update(self.extra_body)
-        return body
+        return self._body(to_openai_messages(messages, self._image_url), {})
 
     def _headers(self) -> dict[str, str]:
         key = os.environ.get(self.api_key_env) if self.api_key_env else None
@@ -336,6 +385,8 @@ class EndpointPolicy:
         self._renderer = ContextRenderer(self.options, self.image_size)
         self._urls = {}
         self.step_log = []
+        if self.prompt == "reference":
+            self._turns().reset(case)
 
     def _request(self, body: bytes, log: dict[str, Any]) -> HTTPReply:
         """The first answer that is not a transport failure or a 5xx, trying ``self.tries``
@@ -371,22 +422,24 @@ class EndpointPolicy:
             raise EndpointError(f"endpoint (model {self.model!r}) {what}")
         return Unparsable(text="", error=f"endpoint: {what}")
 
-    def act(self, observation: Observation) -> Action | Unparsable:
+    def _exchange(
+        self, payload: dict[str, Any], log: dict[str, Any]
+    ) -> tuple[str, dict[str, Any]] | Unparsable:
+        """(answer text, decoded reply) of one request, or the step's Unparsable."""
         t0 = time.perf_counter()
-        body = json.dumps(self.payload(observation)).encode("utf-8")
-        log: dict[str, Any] = {"step": observation.step_index, "attempts": 0, "errors": []}
-        self.step_log.append(log)
-        reply = self._request(body, log)
+        reply = self._request(json.dumps(payload).encode("utf-8"), log)
         log.update(latency_s=round(time.perf_counter() - t0, 6), status=reply.status, parsed=False)
         if not 200 <= reply.status <= 299:
             return self._refusal(reply)
         try:
             decoded = decode_reply(reply)
-            text = answer_text(decoded)
+            return answer_text(decoded), decoded
         except ValueError as e:
             # The model said nothing usable: an empty answer in the history, the body in the error.
             return Unparsable(text="", error=f"endpoint: {e}")
-        action = parse_or_unparsable(text)
+
+    @staticmethod
+    def _log_reply(log: dict[str, Any], decoded: dict[str, Any], parsed: bool) -> None:
         raw_usage = decoded.get("usage")
         usage = raw_usage if isinstance(raw_usage, dict) else {}
         choice = decoded["choices"][0]
@@ -394,9 +447,54 @@ class EndpointPolicy:
             prompt_tokens=usage.get("prompt_tokens"),
             completion_tokens=usage.get("completion_tokens"),
             finish_reason=choice.get("finish_reason") if isinstance(choice, dict) else None,
-            parsed=isinstance(action, Action),
+            parsed=parsed,
         )
+
+    def act(self, observation: Observation) -> Action | Unparsable:
+        log: dict[str, Any] = {"step": observation.step_index, "attempts": 0, "errors": []}
+        self.step_log.append(log)
+        if self.prompt == "reference":
+            return self._act_reference(observation, log)
+        got = self._exchange(self.payload(observation), log)
+        if isinstance(got, Unparsable):
+            return got
+        text, decoded = got
+        action = parse_or_unparsable(text)
+        self._log_reply(log, decoded, isinstance(action, Action))
         return action
+
+    def _act_reference(self, observation: Observation, log: dict[str, Any]) -> Action | Unparsable:
+        """One step of the reference's protocol: ask, read leniently, re-ask once if enabled,
+        and play a seeded forced set-aside where the answer cannot be used."""
+        turns = self._turns()
+        view = self._reference_view(observation)
+        top_p = {"top_p": REFERENCE_SAMPLING["top_p"]}
+        got = self._exchange(
+            self._body(ReferenceTurns.request(view), {**top_p, **REFERENCE_EXTRA_BODY}), log
+        )
+        if isinstance(got, Unparsable):
+            turns.record_failure(got.text)
+            return got
+        text, decoded = got
+        parsed = parse_reference(text)
+        log["reasked"] = False
+        if parsed.action is None and self.reask:
+            # The reference's second ask: no prefill and no chat-template switches.
+            again = self._exchange(self._body(ReferenceTurns.reask(view, text), top_p), log)
+            if isinstance(again, Unparsable):
+                turns.record_failure(text)
+                return again
+            text, decoded = again
+            parsed = parse_reference(text)
+            log["reasked"] = True
+        decision = turns.decide(observation, text, parsed)
+        self._log_reply(log, decoded, parsed.action is not None)
+        log.update(
+            format_event=decision.event,
+            parse_error=decision.error,
+            forced_set_aside=decision.forced,
+        )
+        return decision.action
 
 
 def make_endpoint(**kwargs: Any) -> EndpointPolicy:
