@@ -43,8 +43,10 @@ def test_every_table_is_measured_and_stamped():
     for table in tables.TABLES:
         kept = ROOT / "results" / table.name
         stamp = json.loads((kept / tables.STAMP).read_text(encoding="utf-8"))
-        assert len(stamp["commit"]) == 40 and stamp["date"] and stamp["command"].startswith(
-            "packlab bench"
+        assert (
+            len(stamp["commit"]) == 40
+            and stamp["date"]
+            and stamp["command"].startswith("packlab bench")
         )
         assert f"{{#{table.name}}}" in page
         assert f"`{stamp['command']}` at commit `{stamp['commit'][:12]}`" in page

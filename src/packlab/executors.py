@@ -25,6 +25,17 @@ Executors (``packlab.core.choices.Executor``):
   * ``ray``: one Ray task per item, on the cluster already initialised or a local
     ``ray.init(num_cpus=workers)`` (shut down at the end).
 
+Concurrency: with ``concurrency=N`` above 1 each pool worker runs up to N items at once, each in
+a thread of its own (``workers=1`` then means one pool worker, not this process, so that stopping
+stays a matter of ending processes). It pays where items mostly wait (a policy asking a model
+server over HTTP): while one thread waits on its answer another runs its physics, and the server
+sees up to ``workers x N`` requests at once to batch. On Ray each item stays a task of its own,
+``1/N`` of a CPU each, ``workers x N`` in flight. An item's time limit in a thread is the work's
+own (``packlab.bench.task`` raises in that thread); the hard kill past it ends the whole worker:
+its other running items are put back in the queue and run again elsewhere, and after a result
+for which ``recycle`` is true the worker gets no new items and is replaced once its running ones
+end (replacing it at once would throw their work away).
+
 An exception raised by ``work`` reaches the caller (the pool stops). A lost item becomes
 ``on_lost(item, lost)``'s result, or without ``on_lost`` raises ``WorkerLost``. After a result
 for which ``recycle(result)`` is true, its worker is replaced by a fresh process.
@@ -50,7 +61,9 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, Literal, Protocol, TypeVar
 
@@ -81,6 +94,8 @@ HARD_KILL_GRACE_S = 10.0
 _PREFETCH = 4
 #: How long a stopping worker gets to exit on SIGTERM before SIGKILL.
 _STOP_WAIT_S = 2.0
+#: Most items one worker runs at once (``concurrency``): threads share the worker's one core.
+MAX_CONCURRENCY = 64
 #: Kinds of the messages a worker sends its parent.
 _REPORT, _DONE, _RAISED = "report", "done", "raised"
 
@@ -163,26 +178,41 @@ def run_items(
     on_report: Callable[[Any], None] | None = None,
     on_lost: Callable[[T, Lost], R] | None = None,
     recycle: Callable[[R], bool] | None = None,
+    concurrency: int = 1,
 ) -> Results[R]:
     """The results of ``work`` on every item, in completion order (see the module docstring).
 
     Items are handed out in the given order (put long ones first for a balanced end).
     ``timeout_s`` is each item's own time limit, enforced by ``work`` (an alarm); the pool adds
-    the hard kill past it. ``workers`` counts processes, or Ray CPUs when it starts Ray.
+    the hard kill past it. ``workers`` counts processes, or Ray CPUs when it starts Ray;
+    ``concurrency`` is how many items each runs at once.
     """
     require_choice(executor, Executor, "executor")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers = {workers!r}: must be a whole number >= 1")
+    check_concurrency(concurrency)
     report = on_report or _ignore
     lose = on_lost or _raise_lost
     if executor == "ray":
         _import_ray()  # a missing extra is an error now, not at the first result
-        return Results(_run_ray(work, items, workers, deadline, report, lose))
-    if workers == 1 or not items:
+        return Results(_run_ray(work, items, workers, deadline, report, lose, concurrency))
+    if (workers == 1 and concurrency == 1) or not items:
         return Results(_run_here(work, items, deadline, report))
-    pool = _Pool(work, min(workers, len(items)))
+    pool = _Pool(work, min(workers, len(items)), concurrency)
     running = _drive(pool, deque(items), timeout_s, deadline, report, lose, recycle)
     return Results(running, pool.shutdown)
+
+
+def check_concurrency(concurrency: int) -> None:
+    """ConfigError unless ``concurrency`` is a whole number from 1 to MAX_CONCURRENCY."""
+    if (
+        isinstance(concurrency, bool)
+        or not isinstance(concurrency, int)
+        or not 1 <= concurrency <= MAX_CONCURRENCY
+    ):
+        raise ConfigError(
+            f"concurrency = {concurrency!r}: must be a whole number from 1 to {MAX_CONCURRENCY}"
+        )
 
 
 def progress_bar(
@@ -251,8 +281,12 @@ def _portable(exc: Exception) -> Exception:
         return plain
 
 
-def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
-    """A worker: receive an item, send back its reports and result, until orphaned or stopped."""
+def _worker_main(
+    conn: Connection, work: Work[Any, Any], workers: int, concurrency: int = 1
+) -> None:
+    """A worker: receive an item, send back its reports and result, until orphaned or stopped.
+    Messages carry the item's sequence number: with ``concurrency`` above 1 results come back
+    in the order the items end, not the order they were sent."""
     share_cores(workers)
     # Ctrl-C goes to the whole process group; only the parent should act on it (it stops the
     # workers and keeps every result so far). Workers dying mid-item would add noise.
@@ -263,27 +297,72 @@ def _worker_main(conn: Connection, work: Work[Any, Any], workers: int) -> None:
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
     parent = os.getppid()
     die_with_parent(parent)
-    ctx = Context(None, lambda payload: conn.send((_REPORT, payload)))
-    while True:
+    if concurrency > 1:
+        _serve_threads(conn, work, parent, concurrency)
+        return
+    while (received := _receive(conn, parent)) is not None:
+        seq, item = received
+        ctx = Context(None, partial(_send_report, conn, seq))
         try:
-            # Poll rather than block: a forked worker also holds copies of its siblings' pipe
-            # ends, so a parent killed alone would not always show up as end-of-file here.
-            while not conn.poll(1.0):
-                if os.getppid() != parent:
-                    return
-            item = conn.recv()
-        except (EOFError, OSError):  # the parent is gone
-            return
-        try:
-            message = (_DONE, work(item, ctx))
+            message = (_DONE, seq, work(item, ctx))
         except Exception as exc:  # noqa: BLE001 - the caller decides what an exception means
-            message = (_RAISED, _portable(exc))
+            message = (_RAISED, seq, _portable(exc))
         try:
             conn.send(message)
         except OSError:  # the parent is gone
             return
         except Exception as exc:  # noqa: BLE001 - the result cannot be pickled
-            conn.send((_RAISED, _portable(exc)))
+            conn.send((_RAISED, seq, _portable(exc)))
+
+
+def _receive(conn: Connection, parent: int) -> tuple[int, Any] | None:
+    """The next (sequence number, item) from the parent; None once the parent is gone."""
+    try:
+        # Poll rather than block: a forked worker also holds copies of its siblings' pipe
+        # ends, so a parent killed alone would not always show up as end-of-file here.
+        while not conn.poll(1.0):
+            if os.getppid() != parent:
+                return None
+        received: tuple[int, Any] = conn.recv()
+        return received
+    except (EOFError, OSError):  # the parent is gone
+        return None
+
+
+def _send_report(conn: Any, seq: int, payload: Any) -> None:
+    """A progress report of item ``seq`` to the parent (each item's own sender)."""
+    conn.send((_REPORT, seq, payload))
+
+
+def _serve_threads(conn: Connection, work: Work[Any, Any], parent: int, concurrency: int) -> None:
+    """Run up to ``concurrency`` items at once, one thread each, in the order received; the
+    main thread only receives. One lock keeps the threads' messages whole on the pipe."""
+    lock = threading.Lock()
+
+    def send(message: tuple[str, int, Any]) -> None:
+        with lock:
+            try:
+                conn.send(message)
+            except OSError:  # the parent is gone: nobody wants the other items either
+                os._exit(0)
+            except Exception as exc:  # noqa: BLE001 - the result cannot be pickled
+                conn.send((_RAISED, message[1], _portable(exc)))
+
+    def run(seq: int, item: Any) -> None:
+        ctx = Context(None, lambda payload: send((_REPORT, seq, payload)))
+        try:
+            message = (_DONE, seq, work(item, ctx))
+        except BaseException as exc:  # noqa: BLE001 - a thread's exception would vanish
+            plain = exc if isinstance(exc, Exception) else RuntimeError(repr(exc))
+            message = (_RAISED, seq, _portable(plain))
+        send(message)
+
+    threads = ThreadPoolExecutor(concurrency, thread_name_prefix="packlab-item")
+    while (received := _receive(conn, parent)) is not None:
+        threads.submit(run, *received)
+    # The parent is gone: end now rather than wait for the running items (their results have
+    # nowhere to go), which a normal return would, joining the threads.
+    os._exit(0)
 
 
 #: Linux's prctl option that delivers a signal to a process when its parent dies.
@@ -332,9 +411,13 @@ def _context() -> mp.context.ForkContext | mp.context.SpawnContext:
 class _Worker:
     proc: Any  # multiprocessing.Process
     conn: Connection
-    #: Items sent and not yet answered, in order; the first is the one running.
-    items: deque[Any] = field(default_factory=deque)
-    started: float = 0.0  # time.monotonic() when the running item started (as far as we know)
+    #: Items sent and not yet answered, by sequence number in the order sent; the worker runs
+    #: the first ``concurrency`` of them and starts the next one as one ends.
+    items: dict[int, Any] = field(default_factory=dict)
+    #: time.monotonic() when each running item started (as far as the parent knows).
+    started: dict[int, float] = field(default_factory=dict)
+    #: Gets no new items and is replaced once its items are done (``recycle``, concurrency > 1).
+    retiring: bool = False
 
 
 def _describe_exit(code: int | None) -> str:
@@ -349,16 +432,21 @@ def _describe_exit(code: int | None) -> str:
 
 
 class _Pool:
-    """``n`` worker processes, each with its own pipe and a short list of items sent to it."""
+    """``n`` worker processes, each with its own pipe and a short list of items sent to it,
+    each running up to ``concurrency`` of them at once."""
 
-    def __init__(self, work: Work[Any, Any], n: int) -> None:
+    def __init__(self, work: Work[Any, Any], n: int, concurrency: int = 1) -> None:
         self._ctx, self._work, self._n = _context(), work, n
+        self.concurrency = concurrency
+        self._seq = itertools.count()
         self.workers = [self._spawn() for _ in range(n)]
 
     def _spawn(self) -> _Worker:
         parent_end, child_end = self._ctx.Pipe(duplex=True)
         proc = self._ctx.Process(
-            target=_worker_main, args=(child_end, self._work, self._n), daemon=True
+            target=_worker_main,
+            args=(child_end, self._work, self._n, self.concurrency),
+            daemon=True,
         )
         # SIGTERM stays blocked across the fork until the child has reset its handler: a
         # handler inherited from this process (Ray installs one) would otherwise swallow a
@@ -376,23 +464,34 @@ class _Pool:
         without waiting for the parent to take the last result (on a busy machine the parent
         may wait milliseconds for a core); fewer near the end, so no short item waits behind a
         long one while another worker idles."""
+        n = self.concurrency
         for i in range(len(self.workers)):
             w = self.workers[i]
-            depth = max(1, min(_PREFETCH, len(queue) // len(self.workers)))
+            if w.retiring:
+                continue
+            depth = max(n, min(n + _PREFETCH - 1, len(queue) // len(self.workers)))
             while len(w.items) < depth and queue:
                 item = queue.popleft()
+                seq = next(self._seq)
                 try:
-                    w.conn.send(item)
+                    w.conn.send((seq, item))
                 except OSError:  # the worker died since we last looked
                     queue.appendleft(item)
                     if not w.items:  # died idle: nothing lost, just replace it
                         self.replace(i, queue)
-                    break  # else _finish reports its running item when it sees the death
-                w.items.append(item)
-                if len(w.items) == 1:
-                    w.started = time.monotonic()
+                    break  # else _finish reports its running items when it sees the death
+                w.items[seq] = item
+                self.start_next(w)
 
-    def messages(self, worker: _Worker) -> Iterator[tuple[str, Any]]:
+    def start_next(self, worker: _Worker) -> None:
+        """Mark the items the worker runs now as started: the first ``concurrency`` sent."""
+        now = time.monotonic()
+        for seq in worker.items:
+            if len(worker.started) >= self.concurrency:
+                return
+            worker.started.setdefault(seq, now)
+
+    def messages(self, worker: _Worker) -> Iterator[tuple[str, int, Any]]:
         """The messages waiting on the worker's pipe (none once it is closed by a death)."""
         try:
             while worker.conn.poll():
@@ -401,11 +500,11 @@ class _Pool:
             return
 
     def replace(self, index: int, queue: deque[Any]) -> None:
-        """Kill worker ``index`` (stuck, dead, or to be recycled), put the items it had not
-        started back at the front of the queue, and start a fresh worker."""
+        """Kill worker ``index`` (stuck, dead, or to be recycled), put the items it still had
+        back at the front of the queue, and start a fresh worker."""
         w = self.workers[index]
         _stop([w])
-        queue.extendleft(reversed(w.items))
+        queue.extendleft(reversed(list(w.items.values())))
         self.workers[index] = self._spawn()
 
     def shutdown(self) -> None:
@@ -426,10 +525,11 @@ def _stop(workers: list[_Worker]) -> None:
 
 
 def _wake_time(pool: _Pool, timeout_s: float | None, deadline: float | None) -> float | None:
-    """Seconds until the next thing to check: the deadline or a busy worker's kill time."""
+    """Seconds until the next thing to check: the deadline or a running item's kill time."""
     times = [] if deadline is None else [deadline]
     if timeout_s is not None:
-        times += [w.started + timeout_s + HARD_KILL_GRACE_S for w in pool.workers if w.items]
+        limit = timeout_s + HARD_KILL_GRACE_S
+        times += [t + limit for w in pool.workers for t in w.started.values()]
     return None if not times else max(0.0, min(times) - time.monotonic())
 
 
@@ -472,27 +572,42 @@ def _finish(
 ) -> Iterator[R]:
     """The results of worker ``index`` (ready to read, or dead)."""
     w = pool.workers[index]
-    for kind, payload in pool.messages(w):
+    for kind, seq, payload in pool.messages(w):
         if kind == _REPORT:
             report(payload)
             continue
         if kind == _RAISED:
             raise payload
-        w.items.popleft()
-        w.started = time.monotonic()  # the next one starts now
+        del w.items[seq]
+        w.started.pop(seq, None)
+        pool.start_next(w)  # the next one starts now
         if recycle is not None and recycle(payload):
             # E.g. an alarm interrupted the item at an arbitrary point; a fresh process leaves
             # no half-updated state (a cached model, a socket mid-message) to the next item.
-            pool.replace(index, queue)
-            yield payload
-            return
+            if pool.concurrency == 1:
+                pool.replace(index, queue)
+                yield payload
+                return
+            w.retiring = True  # its other running items end first (module docstring)
         yield payload
-    if w.items and not w.proc.is_alive():
-        w.proc.join()
-        elapsed = time.monotonic() - w.started
-        item = w.items.popleft()
-        detail = _describe_exit(w.proc.exitcode)
+    if w.retiring and not w.items:
         pool.replace(index, queue)
+    elif w.items and not w.proc.is_alive():
+        yield from _lose_dead(pool, index, queue, lose)
+
+
+def _lose_dead(
+    pool: _Pool, index: int, queue: deque[T], lose: Callable[[T, Lost], R]
+) -> Iterator[R]:
+    """The items a dead worker was running, each lost; the ones it had not started go back to
+    the queue. Which of several running items killed it cannot be told, so all are lost."""
+    w = pool.workers[index]
+    w.proc.join()
+    now = time.monotonic()
+    running = [(w.items.pop(seq), now - started) for seq, started in w.started.items()]
+    detail = _describe_exit(w.proc.exitcode)
+    pool.replace(index, queue)
+    for item, elapsed in running:
         yield lose(item, Lost("died", detail, elapsed, "process"))
 
 
@@ -503,9 +618,14 @@ def _kill_overdue(
         return
     now = time.monotonic()
     for i, w in enumerate(pool.workers):
-        if w.items and now - w.started > timeout_s + HARD_KILL_GRACE_S:
-            item, elapsed = w.items.popleft(), now - w.started
-            pool.replace(i, queue)
+        limit = timeout_s + HARD_KILL_GRACE_S
+        overdue = [(seq, now - t) for seq, t in w.started.items() if now - t > limit]
+        if not overdue:
+            continue
+        # The whole worker goes; its other items (running or not) are put back in the queue.
+        lost = [(w.items.pop(seq), elapsed) for seq, elapsed in overdue]
+        pool.replace(i, queue)
+        for item, elapsed in lost:
             detail = f"no result {elapsed:.0f} s after the start"
             yield lose(item, Lost("overdue", detail, elapsed, "process"))
 
@@ -541,10 +661,11 @@ def _run_ray(
     deadline: float | None,
     report: Callable[[Any], None],
     lose: Callable[[T, Lost], R],
+    concurrency: int = 1,
 ) -> Iterator[R]:
-    """Items as Ray tasks, at most ``workers`` submitted at a time. Time limits inside an item
-    work as in a pool (Ray runs a task in its worker's main thread), and so does the deadline,
-    which each task gets as ``ctx.deadline``.
+    """Items as Ray tasks, at most ``workers x concurrency`` submitted at a time. Time limits
+    inside an item work as in a pool (Ray runs a task in its worker's main thread), and so does
+    the deadline, which each task gets as ``ctx.deadline``.
 
     No task is ever cancelled: in Ray 2.60 ``ray.cancel`` racing a task's completion aborts
     the driver ("Tried to complete task that was not pending", exit 1), forced or not
@@ -573,7 +694,7 @@ def _run_ray(
     pending: dict[Any, T] = {}
     try:
         work_ref = ray.put(work)  # once, not once per item (the bench's cases, a dataset config)
-        remote = ray.remote(num_cpus=1)(_on_ray)
+        remote = ray.remote(num_cpus=1 / concurrency)(_on_ray)
         deadline_wall = None if deadline is None else time.time() + deadline - time.monotonic()
         waiting = iter(items)
 
@@ -583,9 +704,9 @@ def _run_ray(
             for item in itertools.islice(waiting, n):
                 pending[remote.remote(work_ref, item, deadline_wall)] = item
 
-        # A window of `workers` tasks: what is still in flight when the run stops is bounded
-        # by the workers, never the whole run (nothing is cancelled, see above).
-        submit(workers)
+        # A window of `workers x concurrency` tasks: what is still in flight when the run
+        # stops is bounded by them, never the whole run (nothing is cancelled, see above).
+        submit(workers * concurrency)
         while pending:
             wait_s = None if deadline is None else max(0.0, deadline - time.monotonic())
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=wait_s)
@@ -655,12 +776,14 @@ def _ray_session_dir(ray: Any) -> str | None:
 
 __all__ = [
     "HARD_KILL_GRACE_S",
+    "MAX_CONCURRENCY",
     "Context",
     "DeadlineReached",
     "Lost",
     "Results",
     "Work",
     "WorkerLost",
+    "check_concurrency",
     "die_with_parent",
     "progress_bar",
     "run_items",

@@ -47,6 +47,19 @@ class Sleeper:
         return Action(0, 0, 0, 0)
 
 
+class Spinner:
+    """Stuck in a Python loop of short waits (polling for something that never comes)."""
+
+    name = "test-spin"
+
+    def reset(self, case: Case, seed: int) -> None:
+        pass
+
+    def act(self, observation: Observation) -> Action:
+        while True:
+            time.sleep(0.01)
+
+
 class SocketReader:
     """Stuck reading a socket whose peer never writes (a hung server)."""
 
@@ -87,7 +100,7 @@ class Suicide:
         return Action(0, 0, 0, 0)
 
 
-POLICIES = (Unreachable, Sleeper, SocketReader, Deaf, Suicide)
+POLICIES = (Unreachable, Sleeper, Spinner, SocketReader, Deaf, Suicide)
 
 
 def register_all() -> None:

@@ -199,6 +199,7 @@ class ResolvedRun:
             "execution": {
                 "workers": self.workers,
                 "executor": self.config.executor,
+                "concurrency": self.config.concurrency,
                 "episode_timeout_s": self.config.episode_timeout_s,
                 "max_transport_failures": self.config.max_transport_failures,
                 "deadline_s": self.config.deadline_s,

@@ -37,6 +37,7 @@ from packlab.core.choices import (
 )
 from packlab.core.errors import ConfigError
 from packlab.core.packing_protocol import DEFAULT_LOOKAHEAD, PackingProtocol
+from packlab.executors import check_concurrency
 
 #: The suite a bench run plays unless ``--cases`` names another (``packlab.bench.suites``).
 DEFAULT_SUITE = "packlab-bench-v1"
@@ -167,6 +168,10 @@ class RunConfig:
     #: Where episodes run (packlab.executors): "process" (a local pool; in this process with
     #: one worker) or "ray". Not part of the identity: the records are the same on either.
     executor: Executor = "process"
+    #: Episodes each worker runs at once, one thread each (1: one after another). Pays where
+    #: episodes wait on a model server, which then sees up to workers x concurrency requests
+    #: to batch. Not part of the identity: each episode's record is the same at any value.
+    concurrency: int = 1
     progress: bool = True
     retry_errors: bool = False  # rerun episodes recorded as failed (the new record supersedes)
     #: PhysicsConfig fields to change from the engine's defaults (mujoco only), e.g.
@@ -226,6 +231,7 @@ class RunConfig:
             )
         if self.workers > MAX_WORKERS:
             raise ConfigError(f"workers = {self.workers}: at most {MAX_WORKERS}")
+        check_concurrency(self.concurrency)
         _check_time_limit("episode-timeout", self.episode_timeout_s)
         _check_time_limit("deadline", self.deadline_s)
         n = self.max_transport_failures

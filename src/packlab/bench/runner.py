@@ -167,6 +167,7 @@ def execute(
         deadline=deadline,
         on_lost=work.lost,
         recycle=is_timeout,
+        concurrency=config.concurrency,
     )
 
 
@@ -232,6 +233,7 @@ def _log_invocation(
         "failed": failed,
         "workers": run.workers,
         "executor": run.config.executor,
+        "concurrency": run.config.concurrency,
     }
     if aborted:
         entry["aborted"] = aborted

@@ -10,15 +10,19 @@ Error kinds (``error_kind``):
   * ``"transport"``: a remote policy could not reach its server (``EndpointUnavailable``);
     says nothing about the policy, and the runner's circuit breaker counts these.
 
-Time limits use ``SIGALRM`` (``signal.setitimer``) in the thread that runs the episode, which
-must be the process's main thread: the handler raises inside whatever the policy is doing,
-including a blocking ``time.sleep`` or socket read. Code that never returns to the
-interpreter (a C loop) cannot be interrupted this way; the process pool backs the alarm up by
-killing a worker that stays silent past the limit (see ``packlab.executors``).
+Time limits use ``SIGALRM`` (``signal.setitimer``) in the thread that runs the episode, when
+that is the process's main thread: the handler raises inside whatever the policy is doing,
+including a blocking ``time.sleep`` or socket read. An episode in another thread (a worker
+running several at once, ``--concurrency``) gets the exception from a timer thread instead,
+delivered at its next Python instruction: not inside a blocking call, which ends first (an
+HTTP request at its own deadline). Code that never returns to the interpreter (a C loop)
+cannot be interrupted either way; the process pool backs the limit up by killing a worker that
+stays silent past it (see ``packlab.executors``).
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import threading
@@ -69,13 +73,71 @@ def _alarm_usable() -> bool:
     return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
 
 
+def _timeout_message(seconds: float | None) -> str:
+    return f"episode ran past the {seconds:g} s limit (--episode-timeout)"
+
+
+def _raise_in(thread_id: int, exc: type[BaseException] | None) -> None:
+    """Have ``exc`` raised in thread ``thread_id`` at its next instruction (None: cancel one
+    not yet raised)."""
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(
+        ctypes.c_ulong(thread_id), None if exc is None else ctypes.py_object(exc)
+    )
+
+
+@contextmanager
+def thread_time_limit(seconds: float) -> Iterator[None]:
+    """Raise EpisodeTimeout in this thread after ``seconds`` (any thread; see the module
+    docstring for what it cannot interrupt)."""
+    target, lock = threading.get_ident(), threading.Lock()
+    state = {"inside": True, "fired": False}
+
+    def fire() -> None:
+        with lock:  # never into the thread once it has left the block
+            if state["inside"]:
+                state["fired"] = True
+                _raise_in(target, EpisodeTimeout)
+
+    timer = threading.Timer(seconds, fire)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    except EpisodeTimeout as exc:
+        exc.args = exc.args or (_timeout_message(seconds),)  # keeps where it was stuck
+        _disarm(timer, lock, state, target)
+        raise
+    except BaseException:
+        _disarm(timer, lock, state, target)
+        raise
+    if _disarm(timer, lock, state, target):  # fired as the block ended: not delivered yet
+        raise EpisodeTimeout(_timeout_message(seconds))
+
+
+def _disarm(
+    timer: threading.Timer, lock: threading.Lock, state: dict[str, bool], target: int
+) -> bool:
+    """Stop the timer; whether it had fired (an exception not yet raised is cancelled)."""
+    timer.cancel()
+    with lock:
+        state["inside"] = False
+        if state["fired"]:
+            _raise_in(target, None)
+    return state["fired"]
+
+
 @contextmanager
 def time_limit(seconds: float | None, deadline: float | None = None) -> Iterator[None]:
     """Raise EpisodeTimeout after ``seconds``, or _DeadlineAlarm at ``deadline`` (a
-    ``time.monotonic()`` value), whichever comes first; no limit where neither is set or where
-    alarms cannot be used (not the main thread, no SIGALRM)."""
+    ``time.monotonic()`` value), whichever comes first; no limit where neither is set. Outside
+    the main thread (no alarm there) only ``seconds`` is enforced, by :func:`thread_time_limit`:
+    a run's deadline stops such a thread's process instead (``packlab.executors``)."""
     until_deadline = None if deadline is None else deadline - time.monotonic()
     limits = [x for x in (seconds, until_deadline) if x is not None]
+    if seconds is not None and threading.current_thread() is not threading.main_thread():
+        with thread_time_limit(seconds):
+            yield
+        return
     if not limits or not _alarm_usable():
         yield
         return
@@ -85,7 +147,7 @@ def time_limit(seconds: float | None, deadline: float | None = None) -> Iterator
     def on_alarm(signum: int, frame: Any) -> None:
         if deadline_first:
             raise _DeadlineAlarm()
-        raise EpisodeTimeout(f"episode ran past the {seconds:g} s limit (--episode-timeout)")
+        raise EpisodeTimeout(_timeout_message(seconds))
 
     previous = signal.signal(signal.SIGALRM, on_alarm)
     signal.setitimer(signal.ITIMER_REAL, fire_in)

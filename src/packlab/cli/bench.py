@@ -220,6 +220,15 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     add_field(
         p,
         RunConfig,
+        "concurrency",
+        "--concurrency",
+        metavar="N",
+        help="episodes each worker runs at once, one thread each: a served model then sees up "
+        "to workers x N requests to batch (not part of the run's identity); default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
         "policy_args",
         "--policy-arg",
         parse=parse_policy_args,

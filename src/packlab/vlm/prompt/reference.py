@@ -122,7 +122,7 @@ def heightmap_image(heightmap: np.ndarray, container: Container) -> Image.Image:
     img = np.zeros((*h.shape, 3), dtype=np.uint8)
     img[..., 0] = np.where(occupied, (norm * 255).astype(np.uint8), 0)
     img[..., 2] = np.where(occupied, ((1.0 - norm) * 255).astype(np.uint8), 255)
-    return Image.fromarray(img).resize((IMAGE_SIZE, IMAGE_SIZE), Image.NEAREST)
+    return Image.fromarray(img).resize((IMAGE_SIZE, IMAGE_SIZE), Image.Resampling.NEAREST)
 
 
 def derived_seed(material: str) -> int:
