@@ -26,7 +26,7 @@ from typing import Any
 
 import packlab
 from packlab.bench.options import DEFAULT_POLICIES
-from packlab.cli.policy_options import POLICY_OPTIONS
+from packlab.cli.policy_options import POLICY_OPTIONS, TEXT_ANSWER_KEYS
 from packlab.core.choices import HEURISTICS, did_you_mean
 from packlab.core.errors import ConfigError
 from packlab.policies.registry import ENTRY_POINT_GROUP, available_policies, policy_factory
@@ -43,20 +43,6 @@ NAME_COLUMN = 16
 #: A random-weight text-answer model: made (never loaded) to read the text-answer defaults.
 TINY_TEXT_MODEL = "tiny:qwen3_5:tiny"
 _TEXT_ONLY = "text-answer checkpoints only"
-_TEXT_KEYS = (
-    "history",
-    "image",
-    "max_new_tokens",
-    "device",
-    "dtype",
-    "max_length",
-    "template_kwargs",
-    "image_size",
-    "reuse_cache",
-    "model_seed",
-    "prompt",
-    "reask",
-)
 
 
 @dataclass(frozen=True)
@@ -108,7 +94,7 @@ _PLAN_NOTES = {
 }
 _RL_NEEDS = f"{CORE} (ONNX Runtime); runtime=torch needs the rl extra"
 _VLM_PATHS = {"model": "model_spec"}
-_VLM_NOTES = {k: _TEXT_ONLY for k in _TEXT_KEYS}
+_VLM_NOTES = {k: _TEXT_ONLY for k in TEXT_ANSWER_KEYS}
 _HEURISTICS = {
     "dblf": "Deepest-Bottom-Left-Fill heuristic: the lowest resting place, then the deepest, "
     "then the leftmost",
@@ -157,7 +143,7 @@ BUILTINS: dict[str, Builtin] = {
         extra="vlm",
         paths=_VLM_PATHS,
         notes={"model": "fixed: use policy vlm with model=DIR for another"},
-        refused=_TEXT_KEYS,  # a candidate-mode checkpoint takes none of them
+        refused=TEXT_ANSWER_KEYS,  # a candidate-mode checkpoint takes none of them
     ),
     "endpoint": Builtin(
         "A packing VLM behind an OpenAI-compatible chat-completions server (vLLM, packlab serve)",

@@ -234,9 +234,9 @@ _RL = PolicyOptions(
     },
     model=_rl_model,
 )
-#: ``vlm``: a text-answer checkpoint's options (VLMPolicy) and a candidate-mode one's.
-_VLM_KEYS = (
-    "model",
+#: Options only a text-answer ``vlm`` checkpoint (VLMPolicy) takes; a candidate-mode one refuses
+#: them (``packlab policies`` says so).
+TEXT_ANSWER_KEYS = (
     "history",
     "image",
     "max_new_tokens",
@@ -247,13 +247,18 @@ _VLM_KEYS = (
     "image_size",
     "reuse_cache",
     "model_seed",
+    "prompt",
+    "reask",
+)
+#: ``vlm``: a text-answer checkpoint's options and a candidate-mode one's.
+_VLM_KEYS = (
+    "model",
+    *TEXT_ANSWER_KEYS,
     "threads",
     "name",
     "blank_image",
     "runtime",
     "overflow",
-    "prompt",
-    "reask",
 )
 #: The prompt protocols of the text-answer policies (their modules' PROMPTS).
 _PROMPTS = _one_of(("packlab", "reference"))
@@ -351,4 +356,4 @@ def check_policy_args(policy_args: Iterable[tuple[str, str, Any]]) -> None:
                 spec.model(name, key, value, options)
 
 
-__all__ = ["POLICY_OPTIONS", "PolicyOptions", "check_policy_args"]
+__all__ = ["POLICY_OPTIONS", "TEXT_ANSWER_KEYS", "PolicyOptions", "check_policy_args"]

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.errors import ConfigError
@@ -43,6 +43,9 @@ from packlab.vlm.prompt.reference import with_prefill
 from packlab.vlm.prompt.reference_parse import parse_reference
 from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
 from packlab.vlm.serve.reference_turns import ReferenceTurns, local_image
+
+if TYPE_CHECKING:  # generate.py imports torch; only its type is needed here
+    from packlab.vlm.infer.generate import Generation
 
 __all__ = ["SHIPPED_MODEL_DIR", "VLMPolicy", "make_vlm", "make_vlm_small"]
 
@@ -83,6 +86,17 @@ def _check_settings(
         require_choice(history, HistoryMode, "history")
     if image is not None:
         require_choice(image, ImageMode, "image")
+
+
+def _generation_log(gen: Generation) -> dict[str, object]:
+    """The step log's fields about one generation (tokens, cache reuse, dropped steps)."""
+    return {
+        "prompt_tokens": gen.prompt_tokens,
+        "reused_tokens": gen.reused_tokens,
+        "new_tokens": len(gen.token_ids),
+        "finished": gen.finished,
+        "dropped_steps": gen.dropped_steps,
+    }
 
 
 class VLMPolicy:
@@ -279,11 +293,7 @@ class VLMPolicy:
         self.step_log.append(
             {
                 "step": observation.step_index,
-                "prompt_tokens": gen.prompt_tokens,
-                "reused_tokens": gen.reused_tokens,
-                "new_tokens": len(gen.token_ids),
-                "finished": gen.finished,
-                "dropped_steps": gen.dropped_steps,
+                **_generation_log(gen),
                 "render_s": round(render_s, 6),
                 "encode_s": round(gen.encode_s, 6),
                 "prefill_s": round(gen.prefill_s, 6),
@@ -307,11 +317,7 @@ class VLMPolicy:
         self.step_log.append(
             {
                 "step": observation.step_index,
-                "prompt_tokens": gen.prompt_tokens,
-                "reused_tokens": gen.reused_tokens,
-                "new_tokens": len(gen.token_ids),
-                "finished": gen.finished,
-                "dropped_steps": gen.dropped_steps,
+                **_generation_log(gen),
                 "parsed": parsed.action is not None,
                 "format_event": decision.event,
                 "parse_error": decision.error,
