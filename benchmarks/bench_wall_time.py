@@ -4,6 +4,7 @@ Usage:
     python benchmarks/bench_wall_time.py                   # a quarter of the suite, extrapolated
     python benchmarks/bench_wall_time.py --fraction 1      # the whole default run, measured
     python benchmarks/bench_wall_time.py --records DIR     # only the tables, from an existing run
+    python benchmarks/bench_wall_time.py --reuse both --difficulty easy   # reuse against none
     python benchmarks/bench_wall_time.py --honest structured-light \
         --policies dblf,hm,mta,ffp,sdf,plan-fast,vlm,irbpp,tapnet,proposer,random  # the robot path
 
@@ -21,11 +22,18 @@ segmentation under the preset, as the README's honest table; ``--policies`` the 
 
 The machine is shared: other processes' load shows up in these numbers, so the load average
 at start and end is printed too.
+
+Episodes the bench copied instead of playing (``reused_from_seed``, ``packlab.bench.reuse``)
+carry the played episode's times; every sum and mean here counts played episodes only.
+``--reuse both`` runs the configuration twice, with and without reuse (``--no-reuse``), and
+prints per row the episodes played and copied, their summed episode wall and CPU seconds, the
+run's wall time and the load average around each run.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -33,6 +41,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 from msgspec import UNSET, UnsetType
@@ -42,9 +51,9 @@ from packlab.bench.describe import difficulty_order
 from packlab.bench.records import iter_ok, read_records
 from packlab.bench.runner import run_bench
 from packlab.bench.suites import DEFAULT_SUITE, load_suite
-from packlab.bench.table import display_name
 from packlab.cases import save_cases
 from packlab.core.records import EpisodeOk, EpisodeRecord
+from packlab.viz.labels import display_name
 
 
 def subset(fraction: float) -> tuple[list, dict[str, int]]:
@@ -70,13 +79,18 @@ def _cpu_s(r: EpisodeOk) -> float:
     return _seconds(r.timing.cpu_s, _seconds(r.timing.episode_s))
 
 
+def played(records: list[EpisodeRecord]) -> list[EpisodeOk]:
+    """The finished episodes that were played (copies carry their lead's times)."""
+    return [r for r in iter_ok(records) if r.reused_from_seed is UNSET]
+
+
 def timing_tables(
     records: list[EpisodeRecord],
     suite_counts: dict[str, int] | None,
     wall_s: float | None,
     workers: int,
 ) -> str:
-    ok = list(iter_ok(records))
+    ok = played(records)
     levels = difficulty_order([r.difficulty for r in ok])
     policies = list(dict.fromkeys(r.policy for r in ok))
     lines = []
@@ -151,6 +165,75 @@ def outcome_workers(cfg: RunConfig) -> int:
     return cfg.workers or local_cores()
 
 
+@dataclass(frozen=True, slots=True)
+class Measured:
+    """One run of the configuration: its records, wall time and the load around it."""
+
+    records: list[EpisodeRecord]
+    wall_s: float
+    load_before: float
+    load_after: float
+
+
+def measure(cfg: RunConfig) -> Measured:
+    """Run ``cfg`` (into its ``out``) and time it."""
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    outcome = run_bench(cfg, figures=False)
+    wall = time.perf_counter() - t0
+    records = read_records(outcome.run_dir / "episodes.jsonl")
+    return Measured(records, wall, load, os.getloadavg()[0])
+
+
+def _row_times(records: list[EpisodeRecord], policy: str) -> tuple[int, int, float, float]:
+    """(played, copied, summed episode wall s, summed episode CPU s) of one row."""
+    mine = [r for r in iter_ok(records) if r.policy == policy]
+    ran = [r for r in mine if r.reused_from_seed is UNSET]
+    wall = sum(_seconds(r.timing.episode_s) for r in ran)
+    return len(ran), len(mine) - len(ran), wall, sum(_cpu_s(r) for r in ran)
+
+
+def reuse_table(reused: Measured, full: Measured) -> str:
+    """Per row and in total: what the run with reuse played and copied and what its played
+    episodes cost, beside the run that plays every seed."""
+    policies = list(dict.fromkeys(r.policy for r in full.records))
+    w = max([len("method"), *(len(display_name(p)) for p in policies)]) + 2
+    head = (
+        f"{'method':<{w}}{'played':>8}{'copied':>8}{'wall s':>9}{'CPU s':>9}"
+        f"{'| all: wall s':>14}{'CPU s':>9}{'CPU saved':>11}"
+    )
+    lines = ["per row, summed over episodes: with reuse | with --no-reuse", head, "-" * len(head)]
+    totals = [0.0, 0.0, 0.0, 0.0]
+    for p in policies:
+        n, copied, wall, cpu = _row_times(reused.records, p)
+        _, _, full_wall, full_cpu = _row_times(full.records, p)
+        totals = [a + b for a, b in zip(totals, (wall, cpu, full_wall, full_cpu))]
+        lines.append(
+            f"{display_name(p):<{w}}{n:>8}{copied:>8}{wall:>9.1f}{cpu:>9.1f}"
+            f"{full_wall:>14.1f}{full_cpu:>9.1f}{_saved(cpu, full_cpu):>11}"
+        )
+    wall, cpu, full_wall, full_cpu = totals
+    lines += [
+        "-" * len(head),
+        (
+            f"{'total':<{w + 16}}{wall:>9.1f}{cpu:>9.1f}{full_wall:>14.1f}{full_cpu:>9.1f}"
+            f"{_saved(cpu, full_cpu):>11}"
+        ),
+        "",
+        (
+            f"run wall time: {reused.wall_s:.1f} s with reuse (load average "
+            f"{reused.load_before:.2f} -> {reused.load_after:.2f}), {full.wall_s:.1f} s with "
+            f"--no-reuse (load average {full.load_before:.2f} -> {full.load_after:.2f})"
+        ),
+    ]
+    return "\n".join(lines)
+
+
+def _saved(cpu: float, full_cpu: float) -> str:
+    """The share of CPU time reuse saved, as a percentage ("-" without a baseline)."""
+    return f"{100 * (1 - cpu / full_cpu):.0f}%" if full_cpu else "-"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument(
@@ -178,6 +261,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--records", help="print the timing tables of an existing run directory and exit"
     )
+    p.add_argument(
+        "--reuse",
+        choices=("on", "off", "both"),
+        default="on",
+        help="copy seed-free episodes (the bench's default), play every seed (--no-reuse), or "
+        "run both and compare them",
+    )
+    p.add_argument(
+        "--difficulty", default="", help="comma-separated levels to run (default: every level)"
+    )
     args = p.parse_args(argv)
     print(
         f"python {platform.python_version()}, {platform.machine()}, {local_cores()} cores, "
@@ -198,37 +291,49 @@ def main(argv: list[str] | None = None) -> int:
         print("--fraction must be in (0, 1]", file=sys.stderr)
         return 2
     cases, counts = subset(args.fraction)
+    if args.difficulty:
+        levels = set(args.difficulty.split(","))
+        cases = [c for c in cases if c.difficulty in levels]
+        counts = {d: n for d, n in counts.items() if d in levels}
     with tempfile.TemporaryDirectory(prefix="packlab-bench-time-") as scratch:
         suite = Path(scratch) / f"{DEFAULT_SUITE}-subset.jsonl"
         save_cases(cases, suite)
+        base = args.keep or str(Path(scratch) / "run")
         cfg = RunConfig(
             cases=str(suite),
-            out=args.keep or str(Path(scratch) / "run"),
+            out=base,
             backend=args.backend,
             seeds=tuple(int(s) for s in args.seeds.split(",")),
             workers=args.workers,
             physics_overrides=parse_physics(args.physics),
             policies=tuple(p for p in args.policies.split(",") if p),
+            reuse=args.reuse != "off",
+            progress=False,
             **(
                 {"observation": "perceived", "execution": "noisy", "noise": args.honest}
                 if args.honest
                 else {}
             ),
         )
-        t0 = time.perf_counter()
-        outcome = run_bench(cfg, figures=False)
-        wall = time.perf_counter() - t0
-        records = read_records(outcome.run_dir / "episodes.jsonl")
+        if args.reuse == "both":
+            reused = measure(dataclasses.replace(cfg, out=f"{base}-reuse"))
+            full = measure(dataclasses.replace(cfg, out=f"{base}-no-reuse", reuse=False))
+        else:
+            full = measure(cfg)
     print(
         f"{len(cases)} of {sum(counts.values())} cases "
         f"({', '.join(f'{d} {n}' for d, n in counts.items())} "
         f"in the suite), seeds {args.seeds}, backend {args.backend}, "
-        f"{'honest ' + args.honest if args.honest else 'exact'}, {outcome.planned} episodes; "
+        f"{'honest ' + args.honest if args.honest else 'exact'}, {len(full.records)} episodes; "
         f"load average now {os.getloadavg()[0]:.2f}"
     )
-    print(timing_tables(records, counts if args.fraction < 1 else None, wall, outcome_workers(cfg)))
+    scale = counts if args.fraction < 1 else None
+    print(timing_tables(full.records, scale, full.wall_s, outcome_workers(cfg)))
+    if args.reuse == "both":
+        print()
+        print(reuse_table(reused, full))
     print()
-    print(json.dumps({"wall_s": round(wall, 2), "episodes": outcome.planned}))
+    print(json.dumps({"wall_s": round(full.wall_s, 2), "episodes": len(full.records)}))
     return 0
 
 

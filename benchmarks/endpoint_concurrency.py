@@ -6,10 +6,13 @@ Usage:
     python benchmarks/endpoint_concurrency.py --difficulty medium --seeds 0-3 --backend mujoco
 
 A scripted OpenAI-compatible server runs in this process (``packlab.vlm.serve.server``); it
-answers every request after ``--delay-ms`` (default 200) with a parsable action (the first box
-shown, unrotated, in the container's corner: valid for the first box, an invalid step that sets
-the box aside later; each step is one request either way) and counts the requests it holds at
-once. For each N it runs ``packlab bench --policies endpoint --workers W --concurrency N`` on
+answers every request after ``--delay-ms`` (default 200) and counts the requests it holds at
+once. ``--answers oracle`` (default) answers with the oracle's action for the step
+(:mod:`packlab.vlm.serve.oracle_answers`), so every step places a box and the worker simulates it
+as a played model's would; ``--answers corner`` answers the first box shown, unrotated, in the
+container's corner (valid for the first box, an invalid step that sets the box aside later:
+little physics per step, which isolates the client side). For each N it runs
+``packlab bench --policies endpoint --workers W --concurrency N`` on
 packlab-bench-v1 in a fresh scratch directory and prints:
 
 * episodes per minute, over the invocation's own wall time (invocations.jsonl: start to last
@@ -35,10 +38,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from packlab.bench.options import parse_seeds
+from packlab.bench.suites import load_suite
+from packlab.vlm.serve.oracle_answers import OracleModel, oracle_model
 from packlab.vlm.serve.server import serve
 
-#: The answer to every request: a parsable action (see the module docstring).
-ANSWER = json.dumps({"object_id": 0, "rotation": 0, "x": 0, "y": 0})
+#: The ``corner`` answer to every request: a parsable action (see the module docstring).
+CORNER = json.dumps({"object_id": 0, "rotation": 0, "x": 0, "y": 0})
+SUITE = "packlab-bench-v1"
 CLI = "import sys; from packlab.cli.main import main; sys.exit(main(sys.argv[1:]))"
 
 
@@ -46,8 +53,8 @@ class DelayedModel:
     """Answers after a fixed delay; tracks requests in flight (max, and their integral over
     time for the mean)."""
 
-    def __init__(self, delay_s: float) -> None:
-        self.delay_s = delay_s
+    def __init__(self, delay_s: float, oracle: OracleModel | None) -> None:
+        self.delay_s, self.oracle = delay_s, oracle
         self._lock = threading.Lock()
         self.now = self.most = self.requests = 0
         self._area = 0.0
@@ -68,7 +75,7 @@ class DelayedModel:
         self._change(+1)
         try:
             time.sleep(self.delay_s)
-            return ANSWER
+            return CORNER if self.oracle is None else self.oracle(body).content
         finally:
             self._change(-1)
 
@@ -91,15 +98,19 @@ class Row:
         return 60.0 * self.episodes / self.wall_s
 
 
-def run_one(args: argparse.Namespace, concurrency: int, scratch: Path) -> Row:
+def run_one(
+    args: argparse.Namespace, concurrency: int, scratch: Path, oracle: OracleModel | None
+) -> Row:
     """One bench invocation at ``concurrency`` against a fresh server."""
-    model = DelayedModel(args.delay_ms / 1000.0)
+    model = DelayedModel(args.delay_ms / 1000.0, oracle)
     out = scratch / f"n{concurrency}"
     with serve(model) as server:
         argv = ["bench", "--policies", "endpoint", "--backend", args.backend]
         argv += ["--seeds", args.seeds, "--workers", str(args.workers)]
         argv += ["--concurrency", str(concurrency), "--out", str(out)]
         argv += ["--policy-arg", f"endpoint:base_url={server.base_url}"]
+        argv += ["--policy-arg", f"endpoint:prompt={args.prompt}"]
+        argv += ["--policy-arg", "endpoint:tag_requests=true"]  # the oracle's key needs it
         argv += ["--no-progress", "--no-figures", "--no-html"]
         if args.difficulty:
             argv += ["--difficulty", args.difficulty]
@@ -145,20 +156,31 @@ def main() -> None:
     p.add_argument("--backend", choices=("geometric", "mujoco"), default="geometric")
     p.add_argument("--difficulty", default="", help="levels to run (default: all)")
     p.add_argument("--seeds", default="0")
+    p.add_argument("--answers", choices=("oracle", "corner"), default="oracle")
+    p.add_argument("--prompt", choices=("packlab", "reference"), default="packlab")
     args = p.parse_args()
     values = [int(v) for v in args.concurrency_values.split(",")]
     print(
-        f"packlab-bench-v1, levels {args.difficulty or 'all'}, seeds {args.seeds}, "
+        f"{SUITE}, levels {args.difficulty or 'all'}, seeds {args.seeds}, {args.answers} "
+        f"answers, prompt {args.prompt}, "
         f"backend {args.backend}, workers {args.workers}, server delay {args.delay_ms:g} ms, "
         f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}",
         flush=True,
     )
+    oracle = None
+    if args.answers == "oracle":
+        levels = set(args.difficulty.split(",")) if args.difficulty else None
+        cases = [c for c in load_suite(SUITE) if levels is None or c.difficulty in levels]
+        seeds = parse_seeds(args.seeds)
+        oracle = oracle_model(cases, seeds, {"prompt": args.prompt})
     rows: list[Row] = []
     with tempfile.TemporaryDirectory(prefix="packlab-concurrency-") as scratch:
         for n in values:
-            rows.append(run_one(args, n, Path(scratch)))
+            rows.append(run_one(args, n, Path(scratch), oracle))
             print(f"N={n}: {rows[-1].episodes} episodes in {rows[-1].wall_s:.1f} s", flush=True)
     print(table(rows))
+    if oracle is not None:
+        print(f"requests without a recorded answer: {oracle.unknown} of {oracle.requests}")
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 

@@ -34,6 +34,8 @@ MINIMAL_ARGV: dict[str, list[str]] = {
     "export onnx": ["export", "onnx", "runs/rl/best"],
     "export sft": ["export", "sft", "data/packdata"],
     "serve": ["serve"],
+    "cell serve": ["cell", "serve"],
+    "cell schema": ["cell", "schema"],
     "viz episode": [
         "viz",
         "episode",
@@ -66,7 +68,17 @@ CLI_ONLY: dict[str, set[str]] = {
     "train rl-imitate": {"--states", "--cases"},
     "export onnx": {"--check-states"},
     "export sft": {"--format", "--window", "--out"},
-    "serve": {"--model", "--served-name", "--host", "--port", "--max-new-tokens"},
+    "serve": {
+        "--engine",
+        "--model",
+        "--served-name",
+        "--host",
+        "--port",
+        "--max-new-tokens",
+        "--print-command",
+    },
+    "cell serve": set(),
+    "cell schema": {"--out"},
     "viz episode": {"--case", "--policy", "--seed", "--cases", "--out", "--max-steps"},
     # Live episodes take the bench's RunConfig; absent flags leave its defaults (stated there).
     "viz rerun": {

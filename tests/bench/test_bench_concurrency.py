@@ -8,13 +8,13 @@ server dying mid-run leaves every finished record for the rerun to build on.
 from __future__ import annotations
 
 import json
-import threading
 import time
 
 import fault_policies
 import pytest
 from bench_helpers import run_tiny
 from record_helpers import without_timing
+from scripted_server import Script, ScriptedServer
 
 from packlab import executors
 from packlab.bench.config import RunConfig
@@ -23,8 +23,6 @@ from packlab.bench.runner import run_bench
 from packlab.cli.main import main
 from packlab.core.errors import EXIT_ABORTED, EXIT_EPISODE_ERRORS, EXIT_OK, ConfigError
 from packlab.core.records import to_builtins
-from packlab.vlm.serve.protocol import RequestError
-from packlab.vlm.serve.server import serve
 
 #: A parsable answer: the first box shown, unrotated, in the container's corner.
 ANSWER = json.dumps({"object_id": 0, "rotation": 0, "x": 0, "y": 0})
@@ -88,30 +86,6 @@ def test_concurrency_is_checked():
             RunConfig(concurrency=bad)
 
 
-class InFlight:
-    """A scripted model: answers after ``delay_s`` and counts the requests it holds at once;
-    after ``serve_at_most`` answers it fails every request with a 500 (a dying server)."""
-
-    def __init__(self, delay_s: float, serve_at_most: int | None = None) -> None:
-        self.delay_s, self.serve_at_most = delay_s, serve_at_most
-        self.lock = threading.Lock()
-        self.now = self.most = self.answered = 0
-
-    def __call__(self, body: dict) -> str:
-        with self.lock:
-            if self.serve_at_most is not None and self.answered >= self.serve_at_most:
-                raise RequestError("the model server is going away", status=503)
-            self.now += 1
-            self.most = max(self.most, self.now)
-        try:
-            time.sleep(self.delay_s)
-            return ANSWER
-        finally:
-            with self.lock:
-                self.now -= 1
-                self.answered += 1
-
-
 def _endpoint_args(base_url: str) -> tuple[str, ...]:
     return (
         "--backend", "geometric", "--policies", "endpoint",
@@ -121,21 +95,22 @@ def _endpoint_args(base_url: str) -> tuple[str, ...]:
     )  # fmt: skip
 
 
+# The model servers below run in processes of their own (scripted_server): the bench forks its
+# pool worker, which must not happen while a server thread runs in this process.
 def test_a_served_model_sees_several_requests_at_once(tiny_suite, tmp_path, capsys):
-    model = InFlight(delay_s=0.1)
-    with serve(model) as server:
+    with ScriptedServer(Script(default=ANSWER, delay_s=0.1), tmp_path / "server") as server:
         args = _endpoint_args(server.base_url)
         code = _bench(tiny_suite, tmp_path / "run", *args, "--workers", "1", "--concurrency", "4")
     assert code == EXIT_OK, capsys.readouterr().err
-    assert 1 < model.most <= 4
+    assert 1 < server.stats()["most"] <= 4
     records = _records(tmp_path / "run")
     assert len(records) == 8 and all(r["status"] == "ok" for r in records.values())
 
 
 def test_a_server_dying_mid_run_keeps_the_finished_records(tiny_suite, tmp_path, capsys):
     out = tmp_path / "run"
-    model = InFlight(delay_s=0.02, serve_at_most=40)
-    with serve(model) as server:
+    dying = Script(default=ANSWER, delay_s=0.02, answer_at_most=40)
+    with ScriptedServer(dying, tmp_path / "server") as server:
         port, args = server.port, _endpoint_args(server.base_url)
         code = _bench(tiny_suite, out, *args, "--workers", "1", "--concurrency", "4")
     assert code == EXIT_ABORTED, capsys.readouterr().err
@@ -143,7 +118,7 @@ def test_a_server_dying_mid_run_keeps_the_finished_records(tiny_suite, tmp_path,
     finished = {record_key(r) for r in first if r.status == "ok"}
     assert finished and len(finished) < 8
     # The same URL (part of the run's identity) answers again: the rerun runs the rest only.
-    with serve(InFlight(delay_s=0.0), port=port):
+    with ScriptedServer(Script(default=ANSWER), tmp_path / "server", port=port):
         code = _bench(tiny_suite, out, *args, "--workers", "1", "--concurrency", "2")
     assert code == EXIT_OK, capsys.readouterr().err
     records = read_record_file(out / "episodes.jsonl").records

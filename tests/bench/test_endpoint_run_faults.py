@@ -3,7 +3,11 @@ real ones do: dead (nothing listening), hung (accepts, never answers), garbage (
 that is not an answer), 500 (always) and 404 (a wrong model name or URL). Each run must end
 within a bound this test asserts, with the exit code and records docs/robustness.md promises;
 without those bounds a dead or hung server would cost 5 steps x 3 tries x 60 s per episode, about
-45 hours for the default suite."""
+45 hours for the default suite.
+
+And a server that dies in the middle of a run with four episodes in flight (``--concurrency
+4``): what finished stays as it was, and the same command against the restarted server plays
+only what is missing and ends with the oracle's scores."""
 
 from __future__ import annotations
 
@@ -15,11 +19,16 @@ from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
+from record_helpers import without_timing
+from scripted_server import Script, ScriptedServer
 
 from packlab.bench.records import read_record_file
+from packlab.cases.load import load_cases
 from packlab.cli.main import main
 from packlab.core.errors import EXIT_ABORTED, EXIT_OK
+from packlab.core.records import to_builtins
 from packlab.sim.env import demo_cases_path
+from packlab.vlm.serve.oracle_answers import record_oracle_answers
 
 DEADLINE_S = 0.5  # per request
 BOUND_S = 30.0  # a whole faulty run; 3 failed episodes x 2 tries x 0.5 s plus start-up
@@ -137,3 +146,72 @@ def test_garbage_answers_are_invalid_steps_and_the_run_completes(tmp_path, capsy
     steps = [s for r in records for s in r.steps]
     assert steps and all(not s.valid and s.reason == "unparsable" for s in steps)
     assert all(r.metrics.overall == 0.0 for r in records)
+
+
+# -- a server that dies mid-run with several episodes in flight ------------------------------
+SEEDS = (0, 1)
+
+
+def _played(records) -> dict:
+    return {(r.case_id, r.seed): r for r in records}
+
+
+def _score(record) -> dict:
+    """An episode's metrics, less the wall-clock ones."""
+    return without_timing(to_builtins(record.metrics))
+
+
+def test_a_server_dying_with_episodes_in_flight_resumes_to_the_oracles_scores(
+    tiny_suite, tmp_path, capsys
+):
+    answers = record_oracle_answers(load_cases(str(tiny_suite)), SEEDS)
+    seeds = ",".join(map(str, SEEDS))
+    common = ["bench", "--cases", str(tiny_suite), "--backend", "geometric", "--seeds", seeds]
+    common += ["--workers", "1", "--no-progress", "--no-figures", "--no-html"]
+    assert main([*common, "--policies", "oracle", "--out", str(tmp_path / "oracle")]) == EXIT_OK
+    oracle = _played(read_record_file(tmp_path / "oracle" / "episodes.jsonl").records)
+    steps = {k: len(r.steps) for k, r in oracle.items()}
+    # The longest episodes run first, four at once: the server dies a little after the requests
+    # of those four, with the next ones under way.
+    die_after = sum(sorted(steps.values(), reverse=True)[:4]) + 2
+    out = tmp_path / "run"
+
+    def bench(base_url: str) -> int:
+        endpoint = [
+            f"endpoint:base_url={base_url}",
+            f"endpoint:deadline_s={DEADLINE_S}",
+            "endpoint:retries=1",
+            "endpoint:backoff_s=0.05",
+            "endpoint:tag_requests=true",  # the scripted oracle's key
+        ]
+        flags = [a for arg in endpoint for a in ("--policy-arg", arg)]
+        argv = [*common, "--policies", "endpoint", "--concurrency", "4", "--out", str(out)]
+        return main([*argv, *flags])
+
+    script = Script(answers=answers, default="no answer", die_after=die_after)
+    with ScriptedServer(script, tmp_path / "server") as server:
+        port = server.port
+        code = bench(server.base_url)
+        assert server.process.wait(timeout=10) == 0  # it did die
+    assert code == EXIT_ABORTED, capsys.readouterr().err
+    first = read_record_file(out / "episodes.jsonl").records
+    finished = {k: r for k, r in _played(first).items() if r.status == "ok"}
+    assert finished and len(finished) < len(oracle)
+    # What finished before the death is whole and scored as the oracle's; the rest failed to
+    # reach the server (or never started: the breaker stopped the run).
+    assert all(_score(r) == _score(oracle[k]) for k, r in finished.items())
+    assert all(r.error_kind == "transport" for r in first if r.status != "ok")
+
+    # The same URL (part of the run's identity) answers again: the rerun plays what is missing.
+    with ScriptedServer(
+        Script(answers=answers, default="no answer"), tmp_path / "server", port=port
+    ) as server:
+        code = bench(server.base_url)
+    assert code == EXIT_OK, capsys.readouterr().err
+    records = read_record_file(out / "episodes.jsonl").records
+    assert records[: len(first)] == first  # nothing written before was touched
+    assert {(r.case_id, r.seed) for r in records[len(first) :]}.isdisjoint(finished)
+    assert server.stats()["answered"] == sum(n for k, n in steps.items() if k not in finished)
+    latest = _played(records)
+    assert latest.keys() == oracle.keys() and all(r.status == "ok" for r in latest.values())
+    assert {k: _score(r) for k, r in latest.items()} == {k: _score(r) for k, r in oracle.items()}

@@ -8,7 +8,12 @@ The documented ablations of how a run senses and acts (:data:`ABLATIONS`: ``--si
 ``--segmentation``, ``--observation``, ``--execution``, ``--noise``) may differ: each run's rows
 are then labelled with its setting, e.g. ``paper (sides catalogue): DBLF`` (the reference
 paper's protocol) and ``ours (sides longer-first): DBLF``. Runs made before side names were
-always recorded read as the catalogue's (exact observation).
+always recorded read as the catalogue's (exact observation). Policy options label rows the same
+way: a method's options that differ between the runs holding it (``--policy-arg
+endpoint:image=blank`` in one run only: ``blank (image=blank)`` and ``full (image=default)``),
+beside those every label names (the prompt protocol and context ablations,
+``packlab.viz.labels.policy_label``). Options of how a policy runs (deadlines, threads, the
+server's URL) are never named.
 Each summary.json is read as a typed ``RunSummary`` with its version checked (older ones
 migrate; see ``packlab.core.records``).
 
@@ -25,14 +30,15 @@ the interval to a point), so such intervals are marked unreliable and never call
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import msgspec
 
 from packlab.bench.intervals import Difference, paired_difference, varies_over_seeds
-from packlab.bench.table import render_markdown
+from packlab.bench.table import policy_options, render_markdown
 from packlab.core.choices import UNRECORDED_SIDES
 from packlab.core.errors import PacklabError
 from packlab.core.packing_protocol import PackingProtocol, saved_protocol
@@ -46,7 +52,7 @@ from packlab.core.records import (
     summary_from_json,
 )
 from packlab.metrics import AVERAGE
-from packlab.viz.labels import display_name, group_title
+from packlab.viz.labels import display_name, group_title, option_settings, with_settings
 
 #: Summary fields that must agree for rows of different runs to share one table, with the words
 #: and flag a user knows them by.
@@ -157,9 +163,9 @@ def _check_comparable(summaries: Sequence[RunSummary], labels: Sequence[str]) ->
             )
 
 
-def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> list[str]:
-    """Each run's label, with the settings that differ between the runs appended, e.g.
-    ``"lf (sides longer-first)"``; unchanged when no setting differs."""
+def _ablation_settings(summaries: Sequence[RunSummary]) -> list[list[str]]:
+    """Per run, the sensing settings and protocol that differ between the runs, e.g.
+    ``["sides longer-first"]``; empty lists when none differs."""
     settings = [sensing_settings(s) for s in summaries]
     # The protocol too: the same cases under the buffer, online and offline
     # protocols are what measures the cost of seeing only part of the sequence.
@@ -167,18 +173,59 @@ def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> 
         st["protocol"] = summary_protocol(s).label
     names = [*ABLATIONS, "protocol"]
     varying = [name for name in names if len({str(st[name]) for st in settings}) > 1]
-    if not varying:
-        return list(labels)
-    out = []
-    for label, st in zip(labels, settings):
-        shown = [f"{name} {st[name]}" for name in varying if st[name] is not None]
-        out.append(f"{label} ({', '.join(shown)})" if shown else label)
-    return out
+    return [[f"{name} {st[name]}" for name in varying if st[name] is not None] for st in settings]
+
+
+def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> list[str]:
+    """Each run's label, with the settings that differ between the runs appended, e.g.
+    ``"lf (sides longer-first)"``; unchanged when no setting differs."""
+    return [with_settings(lb, st) for lb, st in zip(labels, _ablation_settings(summaries))]
+
+
+def _option_key(options: Mapping[str, object], key: str) -> str:
+    """An option's value, comparable across runs (absent differs from every value)."""
+    return json.dumps(options[key], sort_keys=True) if key in options else "<not set>"
+
+
+def differing_options(summaries: Sequence[RunSummary]) -> dict[str, list[str]]:
+    """Per method: the ``--policy-arg`` options whose values differ between the runs that
+    hold it (set in one and not in another counts), by name."""
+    held: dict[str, list[Mapping[str, object]]] = {}
+    for s in summaries:
+        for p in s.policies:
+            held.setdefault(p, []).append(policy_options(s, p) or {})
+    return {
+        p: [
+            key
+            for key in sorted({k for o in runs for k in o})
+            if len({_option_key(o, key) for o in runs}) > 1
+        ]
+        for p, runs in held.items()
+    }
+
+
+def row_names(summaries: Sequence[RunSummary], labels: Sequence[str]) -> list[str]:
+    """The rows of a comparison, run by run and method by method: ``"<run>: <method>"``, or the
+    run's label alone for a one-method run, each named with the sensing settings that differ
+    between the runs and the method's options (those every label names and those that differ
+    between the runs holding it): ``"blank (image=blank)"``."""
+    differing = differing_options(summaries)
+    rows = []
+    for label, sensing, s in zip(labels, _ablation_settings(summaries), summaries):
+        for p in s.policies:
+            options = option_settings(policy_options(s, p), differing[p])
+            if len(s.policies) == 1:
+                rows.append(with_settings(label, [*sensing, *options]))
+            else:
+                method = with_settings(display_name(p), options)
+                rows.append(f"{with_settings(label, sensing)}: {method}")
+    return rows
 
 
 def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> RunSummary:
     """One summary whose policies are ``"<label>: <method>"`` (or just the label for one-method
-    runs), in the order given; table, counts and errors are carried over per row."""
+    runs), in the order given and named by :func:`row_names`; table, counts and errors are
+    carried over per row."""
     if not summaries:
         raise PacklabError("bench compare: no runs given")
     if len(labels) != len(summaries):
@@ -187,6 +234,7 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
         raise PacklabError(f"bench compare: labels must differ, got {list(labels)}")
     first = summaries[0]
     _check_comparable(summaries, labels)
+    rows = iter(row_names(summaries, labels))
     labels = _ablation_labels(summaries, labels)
     same_sensing = len({repr(sensing_settings(s)) for s in summaries}) == 1
     same_protocol = len({summary_protocol(s) for s in summaries}) == 1
@@ -197,7 +245,7 @@ def merge_summaries(summaries: Sequence[RunSummary], labels: Sequence[str]) -> R
     errors = []
     for label, s in zip(labels, summaries):
         for p in s.policies:
-            row = label if len(s.policies) == 1 else f"{label}: {display_name(p)}"
+            row = next(rows)
             policies.append(row)
             table[row] = s.table[p]
             counts[row] = s.counts[p]

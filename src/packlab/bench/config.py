@@ -200,6 +200,7 @@ class ResolvedRun:
                 "workers": self.workers,
                 "executor": self.config.executor,
                 "concurrency": self.config.concurrency,
+                "reuse": self.config.reuse,
                 "episode_timeout_s": self.config.episode_timeout_s,
                 "max_transport_failures": self.config.max_transport_failures,
                 "deadline_s": self.config.deadline_s,

@@ -13,6 +13,11 @@ best method and its Average Overall with its interval (``headline_text``); its n
 for what needs the reader's attention (failed episodes, replays missing or approximate). A
 comparison adds the paired differences to the first row under its table. The replay opens on
 the best method against the best heuristic (``replay_pair``).
+
+Rows are labelled as in table.md and ``bench compare`` (``packlab.bench.table.row_name``,
+``packlab.bench.compare.row_names``). Methods that read a model's text answer carry their
+answer-format counts (``PolicyCounts.answer_formats``) in their row's ``counts``, and the page's
+details table shows them in the columns ``details_extra`` lists (``with_answer_formats``).
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ from collections.abc import Collection, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+from msgspec import UnsetType
 
 from packlab.bench.compare import (
     UNRELIABLE_MARK,
@@ -35,7 +42,7 @@ from packlab.bench.options import COMPARE_HTML, REPORT_HTML
 from packlab.bench.records import EPISODES_FILE
 from packlab.bench.report import RunFiles, config_head, load_run, pick_showcase_case, summary_of
 from packlab.bench.summary import RunIntervals, run_intervals
-from packlab.bench.table import headline
+from packlab.bench.table import ANSWER_FORMAT_COLUMNS, headline, row_name
 from packlab.bench.terminal import CEILING, ranked_policies
 from packlab.core.choices import SideNames
 from packlab.core.errors import ConfigError
@@ -43,8 +50,8 @@ from packlab.core.records import EpisodeRecord, RunConfigHead, RunSummary, to_bu
 from packlab.core.types import Case
 from packlab.metrics import AVERAGE, METRICS
 from packlab.policies.heuristics import SCORERS
-from packlab.viz.labels import display_name, group_title
-from packlab.viz.report_data import Method, ReportRun, method_name, report_data, row_colours
+from packlab.viz.labels import group_title
+from packlab.viz.report_data import Method, ReportRun, report_data, row_colours
 from packlab.viz.report_html import ReportUnavailable, render_report_html
 
 NO_CASES = "The run directory has no cases.jsonl: episodes are scored but cannot be replayed."
@@ -85,7 +92,7 @@ def headline_text(
         return ""
     bounds = intervals.bounds(best, last, "overall")
     shown = f"{mean:.3f}" if bounds is None else f"{mean:.3f} [{bounds[0]:.3f}, {bounds[1]:.3f}]"
-    return f"Best: {display_name(best)}, {group_title(last)} Overall {shown}."
+    return f"Best: {row_name(summary, best)}, {group_title(last)} Overall {shown}."
 
 
 def replay_pair(ranked: Sequence[int], policies: Sequence[str]) -> list[int]:
@@ -141,6 +148,23 @@ def with_intervals(
     return data
 
 
+def with_answer_formats(data: dict[str, Any], summaries: Sequence[RunSummary]) -> dict[str, Any]:
+    """``report_data``'s dict with each text-answer method's answer-format counts in its row's
+    ``counts`` (keys as in ``AnswerFormats``) and, when some row has them, their columns under
+    ``details_extra`` (``[key, title, decimals]``, as the page's details table lists columns)."""
+    found = False
+    for m in data["methods"]:
+        counts = summaries[m["run"]].counts.get(m["policy"])
+        formats = None if counts is None else counts.answer_formats
+        if formats is None or isinstance(formats, UnsetType):
+            continue
+        found = True
+        m["counts"].update({key: getattr(formats, key) for key, _ in ANSWER_FORMAT_COLUMNS})
+    if found:
+        data["details_extra"] = [[key, title, 0] for key, title in ANSWER_FORMAT_COLUMNS]
+    return data
+
+
 def head_sides(head: RunConfigHead) -> SideNames:
     """The side names a run showed, from its config head (``run_sides``)."""
     return run_sides({"sensing": to_builtins(head.sensing)} if head.sensing else {})
@@ -158,10 +182,7 @@ def run_html(
     summary = summary if summary is not None else summary_of(head, records, cases)
     policies = list(summary.policies)
     colours = row_colours(policies, distinct=False)
-    methods = [
-        Method(method_name("", p, len(policies)), 0, p, colour)
-        for p, colour in zip(policies, colours)
-    ]
+    methods = [Method(row_name(summary, p), 0, p, colour) for p, colour in zip(policies, colours)]
     intervals = run_intervals(summary)
     ranked = [policies.index(p) for p in ranked_policies(summary) if p != CEILING]
     data = report_data(
@@ -174,7 +195,7 @@ def run_html(
         replay=replay_pair(ranked, policies),
         notes=[] if cases else [NO_CASES],
     )
-    data = with_intervals(data, [summary], [intervals])
+    data = with_answer_formats(with_intervals(data, [summary], [intervals]), [summary])
     return render_report_html(data, generated or now_stamp())
 
 
@@ -212,11 +233,10 @@ def compare_html(
     merged = merge_summaries(summaries, names)  # checks labels and that the runs compare
     pairs = [(i, p) for i, s in enumerate(summaries) for p in s.policies]
     colours = row_colours([p for _, p in pairs], distinct=True)
+    # Named as the Markdown comparison names its rows (merge_summaries: the same order).
     methods = [
-        Method(method_name(names[i], p, len(summaries[i].policies)), i, p, colour)
-        for (i, p), colour in zip(pairs, colours)
+        Method(row, i, p, colour) for row, (i, p), colour in zip(merged.policies, pairs, colours)
     ]
-    assert [m.name for m in methods] == list(merged.policies)
     report_runs = [
         ReportRun(name, s, tuple(r.records), r.cases, head_sides(r.config))
         for name, s, r in zip(names, summaries, runs)
@@ -237,7 +257,7 @@ def compare_html(
         notes=[f"run {n}: {NO_CASES}" for n, r in zip(names, runs) if not r.cases],
         differences=difference_notes(merged),
     )
-    data = with_intervals(data, summaries, intervals)
+    data = with_answer_formats(with_intervals(data, summaries, intervals), summaries)
     return render_report_html(data, generated or now_stamp())
 
 

@@ -174,6 +174,10 @@ class RunConfig:
     concurrency: int = 1
     progress: bool = True
     retry_errors: bool = False  # rerun episodes recorded as failed (the new record supersedes)
+    #: Play a policy that is free of the run seed in this run's modes once per case (the lowest
+    #: seed) and copy that episode to the other seeds (``packlab.bench.reuse``); False plays
+    #: every seed. Not part of the identity: the records are the same either way, times aside.
+    reuse: bool = True
     #: PhysicsConfig fields to change from the engine's defaults (mujoco only), e.g.
     #: (("max_settle_steps", 1000),). Part of the run's identity: they change the scores.
     physics_overrides: tuple[tuple[str, Any], ...] = ()

@@ -12,6 +12,12 @@ error rather than a silent mix of two configurations in one table. Records of tr
 (the server was unreachable: no result about the policy) are rerun by any rerun; other failed
 records only with ``retry_errors``.
 
+Reusing episodes (``packlab.bench.reuse``): a policy that plays the same episode for every run
+seed in the run's modes is played for the lowest seed only; each other seed's record is a copy
+of that episode, written as soon as it is recorded (on resuming, from the record already
+there). When that episode failed, the other seeds are played after the rest. ``--no-reuse``
+plays every seed.
+
 Stopping early (``BenchOutcome.aborted``): after ``max_transport_failures`` consecutive
 transport-error episodes (the circuit breaker) or at the run's ``deadline_s``. The workers are
 stopped, every record written stays, and the summary and table are written for what finished.
@@ -42,11 +48,12 @@ from packlab.bench.records import (
     record_key,
 )
 from packlab.bench.report import write_outputs
+from packlab.bench.reuse import ReusePlan, copyable, reuse_plan, reused_record
 from packlab.bench.task import DeadlineReached, Task, error_record, run_task
 from packlab.cases import save_cases
 from packlab.core.choices import ErrorKind
 from packlab.core.errors import ConfigError, RunAborted
-from packlab.core.records import EpisodeError, EpisodeRecord, RunSummary, Timing
+from packlab.core.records import EpisodeError, EpisodeOk, EpisodeRecord, RunSummary, Timing
 from packlab.core.types import Case
 from packlab.executors import Context, Lost, Results, progress_bar, run_items
 from packlab.policies import make_policy
@@ -64,7 +71,7 @@ class BenchOutcome:
     table_md: str
     planned: int  # episodes in the configuration
     already_done: int  # found in the records at start (not rerun)
-    ran: int  # run by this invocation
+    ran: int  # recorded by this invocation (played, or copied: ``reused``)
     failed: int  # of those, recorded with status "error"
     wall_s: float  # this invocation, start to last record
     outputs: tuple[Path, ...]  # summary, table and figures written
@@ -72,6 +79,9 @@ class BenchOutcome:
     errors: int = 0  # of those, failed (this and earlier invocations)
     aborted: str = ""  # why the run stopped early (breaker, deadline); "" when it ran to the end
     notes: tuple[str, ...] = ()  # one line each for the user (an output skipped, and why)
+    #: Of ``ran``, the episodes copied from another seed's instead of played
+    #: (``packlab.bench.reuse``).
+    reused: int = 0
 
 
 def task_keys(run: ResolvedRun) -> dict[RecordKey, Task]:
@@ -224,9 +234,15 @@ def preflight_policies(
 
 
 def _log_invocation(
-    run: ResolvedRun, started: float, wall_s: float, ran: int, failed: int, aborted: str = ""
+    run: ResolvedRun,
+    started: float,
+    wall_s: float,
+    ran: int,
+    failed: int,
+    aborted: str = "",
+    reused: int = 0,
 ) -> None:
-    entry = {
+    entry: dict[str, object] = {
         "started": datetime.fromtimestamp(started, UTC).isoformat(timespec="seconds"),
         "wall_s": round(wall_s, 3),
         "ran": ran,
@@ -235,6 +251,8 @@ def _log_invocation(
         "executor": run.config.executor,
         "concurrency": run.config.concurrency,
     }
+    if reused:  # of ``ran``, the episodes copied from another seed's (packlab.bench.reuse)
+        entry["reused"] = reused
     if aborted:
         entry["aborted"] = aborted
     with open(run.out / INVOCATIONS_FILE, "a", encoding="utf-8") as fh:
@@ -354,6 +372,86 @@ def _box_progress(
     return boxes, progress_bar(sum(boxes.values()), done, label, run.config.progress, unit="box")
 
 
+class _Recorder:
+    """Writes one invocation's records and keeps its counts: played records as they arrive
+    (the progress bar, the circuit breaker, ``on_record``) and copies of seed-free episodes
+    (:mod:`packlab.bench.reuse`) as soon as their lead is recorded."""
+
+    def __init__(
+        self,
+        run: ResolvedRun,
+        writer: RecordWriter,
+        latest: dict[RecordKey, EpisodeRecord],
+        reuse: ReusePlan,
+        on_record: Callable[[EpisodeRecord], None] | None,
+    ) -> None:
+        self.run, self.writer, self.latest, self.reuse = run, writer, latest, reuse
+        self.on_record = on_record
+        self.breaker = TransportBreaker(run.config.max_transport_failures)
+        self.boxes: dict[RecordKey, int] = {}
+        self.bar: Any = None
+        self.ran = self.failed = self.reused = 0
+        #: Copies waiting for their lead, by the lead's key: (key, task) of each other seed.
+        self.waiting: dict[RecordKey, list[tuple[RecordKey, Task]]] = {}
+        #: Tasks whose lead could not be copied (it failed): played after the leads.
+        self.unmatched: list[Task] = []
+
+    def _write(self, record: EpisodeRecord) -> None:
+        self.writer.write(record)
+        self.latest[record_key(record)] = record
+        if self.bar is not None:
+            self.bar.update(self.boxes.get(record_key(record), 0))
+        if self.on_record is not None:
+            self.on_record(record)
+
+    def played(self, record: EpisodeRecord) -> bool:
+        """Write a played episode's record, then any copies of it; True when the circuit
+        breaker trips."""
+        self.ran += 1
+        if isinstance(record, EpisodeError):
+            self.failed += 1
+            if self.bar is not None:
+                self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
+        self._write(record)
+        self.follow(record)
+        return self.breaker.observe(record)
+
+    def follow(self, lead: EpisodeRecord) -> None:
+        """The other seeds waiting for ``lead``: copied where it can stand for them, else
+        played after the leads."""
+        followers = self.waiting.pop(record_key(lead), [])
+        mode = self.reuse.mode
+        if mode is None or not followers:
+            return
+        if not (isinstance(lead, EpisodeOk) and copyable(lead, mode)):
+            self.unmatched += [task for _, task in followers]
+            return
+        case = self.run.cases[followers[0][1].case_index]
+        for _, task in followers:
+            self.ran += 1
+            self.reused += 1
+            self._write(reused_record(lead, case, task.seed, mode))
+
+    def plan(self, todo: dict[RecordKey, Task]) -> list[Task]:
+        """The tasks to play now; the rest of ``todo`` waits for a lead being played, or is
+        copied at once from a lead already recorded (a resumed run)."""
+        play: list[Task] = []
+        ready: dict[RecordKey, EpisodeRecord] = {}
+        for key, task in todo.items():
+            if not self.reuse.reuses(task.policy, task.seed):
+                play.append(task)
+                continue
+            lead = (key[0], self.reuse.lead, key[2], key[3])
+            self.waiting.setdefault(lead, []).append((key, task))
+            if lead not in todo:
+                ready[lead] = self.latest[lead]
+        for record in ready.values():
+            self.follow(record)
+        play += self.unmatched
+        self.unmatched = []
+        return play
+
+
 def _run_locked(
     run: ResolvedRun,
     on_record: Callable[[EpisodeRecord], None] | None,
@@ -367,38 +465,32 @@ def _run_locked(
     latest = {record_key(r): r for r in prepare_run_dir(run)}
     done_keys = {k for k, r in latest.items() if not needs_rerun(r, config.retry_errors)}
     planned = task_keys(run)
-    pending = longest_first([t for k, t in planned.items() if k not in done_keys], run)
-    ran = failed = 0
+    todo = {k: t for k, t in planned.items() if k not in done_keys}
+    reuse = reuse_plan(config, run.policies, run.policy_kwargs())
     aborted = ""
     started_wall, started = time.time(), time.perf_counter()
-    if pending:
-        results = execute(run, pending, deadline)  # workers start (fork) before the bar's thread
-        boxes, bar = _box_progress(run, planned, done_keys)
-        breaker = TransportBreaker(config.max_transport_failures)
-        try:
-            with RecordWriter(run.out / EPISODES_FILE) as writer:
-                for record in results:
-                    writer.write(record)
-                    latest[record_key(record)] = record
-                    ran += 1
-                    if isinstance(record, EpisodeError):
-                        failed += 1
-                        bar.set_postfix_str(f"{failed} failed", refresh=False)
-                    bar.update(boxes.get(record_key(record), 0))
-                    if on_record is not None:
-                        on_record(record)
-                    if breaker.observe(record):
-                        aborted = breaker.reason()
-                        break
-        except DeadlineReached:
-            aborted = f"stopped at the run deadline (--deadline {config.deadline_s:g} s)"
-        except RunAborted as exc:
-            aborted = str(exc)
-        finally:
-            bar.close()
-            results.close()  # stops the workers now when we leave early (breaker, error, interrupt)
-            wall_s = time.perf_counter() - started
-            _log_invocation(run, started_wall, wall_s, ran, failed, aborted)
+    recorder: _Recorder | None = None
+    if todo:
+        with RecordWriter(run.out / EPISODES_FILE) as writer:
+            recorder = _Recorder(run, writer, latest, reuse, on_record)
+            try:
+                # Copies of leads already recorded first, then the leads and every other
+                # episode; the other seeds of a lead that failed are played last.
+                pending = recorder.plan(todo)
+                while pending and not aborted:
+                    aborted = _play(run, longest_first(pending, run), recorder, deadline, planned)
+                    pending, recorder.unmatched = recorder.unmatched, []
+            finally:
+                wall_s = time.perf_counter() - started
+                _log_invocation(
+                    run,
+                    started_wall,
+                    wall_s,
+                    recorder.ran,
+                    recorder.failed,
+                    aborted,
+                    recorder.reused,
+                )
     wall_s = time.perf_counter() - started
     records = list(latest.values())
     summary, table_md, outputs = write_outputs(
@@ -417,15 +509,53 @@ def _run_locked(
         table_md,
         len(planned),
         len(done_keys),
-        ran,
-        failed,
+        0 if recorder is None else recorder.ran,
+        0 if recorder is None else recorder.failed,
         wall_s,
         tuple(outputs),
         len(records),
         errors,
         aborted,
         tuple(notes),
+        0 if recorder is None else recorder.reused,
     )
+
+
+def _play(
+    run: ResolvedRun,
+    tasks: list[Task],
+    recorder: _Recorder,
+    deadline: float | None,
+    planned: dict[RecordKey, Task],
+) -> str:
+    """Play ``tasks`` on the run's workers, recording each result as it arrives; returns why
+    the run stopped early ("" when every task finished)."""
+    results = execute(run, tasks, deadline)  # workers start (fork) before the bar's thread
+    # Done: every planned episode neither played now nor waiting to be copied from one.
+    waiting = {key for followers in recorder.waiting.values() for key, _ in followers}
+    done = set(planned) - _keys(tasks, run) - waiting
+    recorder.boxes, recorder.bar = _box_progress(run, planned, done)
+    aborted = ""
+    try:
+        for record in results:
+            if recorder.played(record):
+                aborted = recorder.breaker.reason()
+                break
+    except DeadlineReached:
+        aborted = f"stopped at the run deadline (--deadline {run.config.deadline_s:g} s)"
+    except RunAborted as exc:
+        aborted = str(exc)
+    finally:
+        recorder.bar.close()
+        recorder.bar = None
+        results.close()  # stops the workers now when we leave early (breaker, error, interrupt)
+    return aborted
+
+
+def _keys(tasks: list[Task], run: ResolvedRun) -> set[RecordKey]:
+    """The record keys of ``tasks``."""
+    backend = run.config.backend
+    return {(run.cases[t.case_index].episode_id, t.seed, t.policy, backend) for t in tasks}
 
 
 __all__ = [

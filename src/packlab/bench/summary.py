@@ -12,6 +12,14 @@ Aggregation, chosen to match the paper's Table 2 and stated here once:
   per-placement cap (``unsettled_steps``), the episodes scored while boxes still moved because
   the final settle hit its cap (``not_at_rest``; such episodes stay in the means), and the
   largest residual speeds at scoring.
+* Answer formats (policies that read a model's text answer, whose steps carry
+  ``format_event``): ``counts[method].answer_formats`` counts the steps whose answer was the
+  JSON action (``strict_json``), held it among other text (``extra_text``) or held none
+  (``parse_fail``), the steps asked a second time (``reasked``) and those a forced set-aside
+  replaced (``forced``); absent for other methods.
+* Reused episodes (``reused_from_seed``: copies of a seed-free policy's episode,
+  ``packlab.bench.reuse``) count as any other in the means and counters, and in ``counts`` as
+  ``reused_episodes``; times (per decision, per step, per episode) count played episodes only.
 * Failed episodes (``status: "error"``) are left out of the means and counted in ``counts`` and
   ``errors``; the table flags a method with failures, since its mean covers fewer episodes.
 
@@ -38,7 +46,7 @@ missing mean (no finished episode) is None, written as null.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from typing import TypedDict
 
@@ -57,6 +65,7 @@ from packlab.bench.intervals import (
 )
 from packlab.core.records import (
     SUMMARY_FORMAT,
+    AnswerFormats,
     CaseCells,
     Cell,
     DecisionTimes,
@@ -64,11 +73,13 @@ from packlab.core.records import (
     EpisodeOk,
     EpisodeRecord,
     ErrorEntry,
+    JsonObject,
     MetricCells,
     PolicyCounts,
     RunConfigHead,
     RunSummary,
     SensingModes,
+    StepRecord,
     Timing,
 )
 from packlab.metrics import AVERAGE, METRICS, UTILIZATION
@@ -130,9 +141,12 @@ def _timing(t: Timing, name: str) -> float:
 
 def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> PolicyCounts:
     steps = [s for r in mine for s in r.steps]
-    decisions = sum(int(_timing(r.timing, "decisions")) for r in mine)
-    policy_s = math.fsum(_timing(r.timing, "policy_s") for r in mine)
-    env_s = math.fsum(_timing(r.timing, "env_s") for r in mine)
+    # Times count played episodes only: a copy (``reused_from_seed``) carries its lead's times.
+    played = [r for r in mine if r.reused_from_seed is UNSET]
+    decisions = sum(int(_timing(r.timing, "decisions")) for r in played)
+    policy_s = math.fsum(_timing(r.timing, "policy_s") for r in played)
+    env_s = math.fsum(_timing(r.timing, "env_s") for r in played)
+    reused = len(mine) - len(played)
     return PolicyCounts(
         episodes=len(mine),
         errors=n_errors,
@@ -149,11 +163,36 @@ def _counts(mine: list[EpisodeOk], n_errors: int, levels: Sequence[str]) -> Poli
         ),
         decision_ms=1000.0 * policy_s / decisions if decisions else None,
         step_ms=1000.0 * env_s / decisions if decisions else None,
-        episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in mine])),
+        episode_s=_number(_mean([_timing(r.timing, "episode_s") for r in played])),
         **_perception_counts(mine),
-        **_decision_counts(mine, levels),
+        **_answer_counts(steps),
+        **_decision_counts(played, levels),
         **_skill_counts(mine),
+        reused_episodes=reused if reused else UNSET,
     )
+
+
+class _AnswerCounts(TypedDict, total=False):
+    """The ``PolicyCounts`` field of methods that read a model's text answer."""
+
+    answer_formats: AnswerFormats
+
+
+def _answer_counts(steps: Sequence[StepRecord]) -> _AnswerCounts:
+    """How the method's answers were read, in steps; none when no step carries a format event
+    (the method reads no text answer, or its records predate the key)."""
+    events = Counter(s.format_event for s in steps if s.format_event is not UNSET)
+    if not events:
+        return {}
+    return {
+        "answer_formats": AnswerFormats(
+            strict_json=events["strict_json"],
+            extra_text=events["extra_text"],
+            parse_fail=events["parse_fail"],
+            reasked=sum(1 for s in steps if s.reasked is True),
+            forced=sum(1 for s in steps if s.forced is not UNSET),
+        )
+    }
 
 
 class _SkillCounts(TypedDict, total=False):
@@ -212,6 +251,30 @@ class _RunFields(TypedDict, total=False):
     sensing: SensingModes
     protocol: str
     lookahead: int
+    policy_args: dict[str, JsonObject]
+
+
+def _run_fields(meta: RunConfigHead, policies: Sequence[str]) -> _RunFields:
+    """The summary's fields taken from the run's config.json."""
+    run: _RunFields = {
+        "suite": meta.suite,
+        "backend": meta.backend,
+        "n_cases": meta.n_cases,
+        "cases_sha256": meta.cases_sha256,
+    }
+    # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
+    if meta.sensing is not None:
+        run["sensing"] = meta.sensing
+    if meta.protocol is not None:  # absent: a run made before the choice (buffer)
+        run["protocol"] = meta.protocol
+    if meta.lookahead is not None:
+        run["lookahead"] = meta.lookahead
+    # The options of the policies summarized (row labels); none: the summary is unchanged.
+    given = meta.policy_args or {}
+    options = {p: given[p] for p in policies if p in given}
+    if options:
+        run["policy_args"] = options
+    return run
 
 
 def _perception_counts(mine: list[EpisodeOk]) -> _PerceptionCounts:
@@ -330,21 +393,7 @@ def summarize(
         )
         for p in policies
     }
-    run: _RunFields = {}
-    if meta is not None:
-        run = {
-            "suite": meta.suite,
-            "backend": meta.backend,
-            "n_cases": meta.n_cases,
-            "cases_sha256": meta.cases_sha256,
-        }
-        # Only for runs with a perceived or noisy mode: exact summaries are unchanged.
-        if meta.sensing is not None:
-            run["sensing"] = meta.sensing
-        if meta.protocol is not None:  # absent: a run made before the choice (buffer)
-            run["protocol"] = meta.protocol
-        if meta.lookahead is not None:
-            run["lookahead"] = meta.lookahead
+    run = {} if meta is None else _run_fields(meta, policies)
     return RunSummary(
         format=SUMMARY_FORMAT,
         **run,

@@ -4,6 +4,10 @@ Each results cell is the mean over seeds with its 95 % bootstrap interval over c
 (``packlab.bench.summary.run_intervals``): ``0.961 [0.930, 0.987]``. The spread over run seeds
 is its own, labelled column (Average Overall), since for policies that play every seed alike it
 is 0 and says nothing about how sure the mean is.
+
+A row is labelled with its method and the options it ran with that change what it measures
+(:func:`row_name`: ``endpoint (reference prompt, image=blank)``). Methods that read a model's
+text answer get an "Answer format" table: how their answers were read, in steps.
 """
 
 from __future__ import annotations
@@ -12,9 +16,22 @@ from msgspec import UNSET, UnsetType
 
 from packlab.bench.decision_times import decision_time_table
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
-from packlab.core.records import Cell, RunSummary
+from packlab.core.records import AnswerFormats, Cell, JsonObject, RunSummary
 from packlab.metrics import AVERAGE, METRICS, UTILIZATION
-from packlab.viz.labels import METRIC_SHORT, display_name, group_title
+from packlab.viz.labels import METRIC_SHORT, group_title, policy_label
+
+
+def policy_options(summary: RunSummary, policy: str) -> JsonObject | None:
+    """The ``--policy-arg`` options ``policy`` ran with (None: none recorded)."""
+    args = summary.policy_args
+    return None if isinstance(args, UnsetType) else args.get(policy)
+
+
+def row_name(summary: RunSummary, policy: str) -> str:
+    """How a row of ``summary`` is labelled in table.md, report.html and comparisons: the
+    method's display name with the options that change what it measures, e.g.
+    ``endpoint (reference prompt)`` (``packlab.viz.labels.policy_label``)."""
+    return policy_label(policy, policy_options(summary, policy))
 
 
 def format_cell(
@@ -67,7 +84,7 @@ def results_table(
     lines = [_row(header), _row(["---"] + ["---:"] * (len(header) - 1))]
     for p in summary.policies:
         flag = " *" if summary.counts[p].errors else ""
-        cells = [f"{display_name(p)}{flag}"]
+        cells = [f"{row_name(summary, p)}{flag}"]
         cells += [
             format_cell(_cell(summary, p, g, m), digits, intervals.bounds(p, g, m))
             for g in groups
@@ -82,7 +99,7 @@ def results_table(
 def interval_note(summary: RunSummary, intervals: RunIntervals) -> str:
     """One paragraph under the results table: how the intervals were computed."""
     both = [
-        display_name(p)
+        row_name(summary, p)
         for p in summary.policies
         if p in intervals.policies and intervals.policies[p].resampled != RESAMPLED_CASES
     ]
@@ -124,7 +141,7 @@ def utilization_table(summary: RunSummary, intervals: RunIntervals) -> str:
             value = None if found is None else found.space_utilization
             cell = None if isinstance(value, UnsetType) else value
             cells.append(format_cell(cell, 3, intervals.bounds(p, g, UTILIZATION)))
-        lines.append(_row([display_name(p), *cells]))
+        lines.append(_row([row_name(summary, p), *cells]))
     return "\n".join(lines)
 
 
@@ -169,7 +186,7 @@ def details_table(summary: RunSummary) -> str:
         lines.append(
             _row(
                 [
-                    display_name(p),
+                    row_name(summary, p),
                     str(c.episodes),
                     str(c.errors),
                     str(c.invalid_steps),
@@ -218,8 +235,65 @@ def skill_table(summary: RunSummary) -> str:
     kinds = [k for k in SKILL_KINDS if k in seen] + sorted(seen - set(SKILL_KINDS))
     lines = [_row(["Method", *kinds]), _row(["---"] + ["---:"] * len(kinds))]
     for p, c in counts.items():
-        lines.append(_row([display_name(p), *(f"{c.get(k, 0.0):.2f}" for k in kinds)]))
+        lines.append(_row([row_name(summary, p), *(f"{c.get(k, 0.0):.2f}" for k in kinds)]))
     return "\n".join(lines)
+
+
+#: The answer-format table's columns: ``AnswerFormats`` field and heading.
+ANSWER_FORMAT_COLUMNS = (
+    ("strict_json", "strict JSON"),
+    ("extra_text", "extra text"),
+    ("parse_fail", "parse failures"),
+    ("reasked", "re-asks"),
+    ("forced", "forced set-asides"),
+)
+#: The answer-format section's title: what each column counts.
+ANSWER_FORMAT_TITLE = (
+    "### Answer format (steps: the answer was the JSON action, held it among other text, or "
+    "held none; asked a second time; replaced by a forced set-aside)"
+)
+
+
+def answer_formats(summary: RunSummary) -> dict[str, AnswerFormats]:
+    """The methods of ``summary`` that read a model's text answer, with their counts."""
+    return {
+        p: c
+        for p in summary.policies
+        if not isinstance(c := summary.counts[p].answer_formats, UnsetType)
+    }
+
+
+def answer_format_table(summary: RunSummary) -> str:
+    """Per method that reads a model's text answer: its steps by how the answer was read, the
+    re-asks and the forced set-asides (``PolicyCounts.answer_formats``); empty when no method
+    has the counts."""
+    rows = answer_formats(summary)
+    if not rows:
+        return ""
+    lines = [_row(["Method", *(title for _, title in ANSWER_FORMAT_COLUMNS)])]
+    lines.append(_row(["---"] + ["---:"] * len(ANSWER_FORMAT_COLUMNS)))
+    for p, c in rows.items():
+        counts = [str(getattr(c, field)) for field, _ in ANSWER_FORMAT_COLUMNS]
+        lines.append(_row([row_name(summary, p), *counts]))
+    return "\n".join(lines)
+
+
+def reuse_note(summary: RunSummary) -> str:
+    """One line on the episodes copied instead of played (``packlab.bench.reuse``), per
+    method; "" when none was."""
+    reused = {
+        p: n for p in summary.policies if isinstance(n := summary.counts[p].reused_episodes, int)
+    }
+    if not reused:
+        return ""
+    total = sum(c.episodes for c in summary.counts.values())
+    rows = ", ".join(f"{row_name(summary, p)} {n}" for p, n in reused.items())
+    lead = min(summary.seeds) if summary.seeds else 0
+    return (
+        f"Reused: {sum(reused.values())} of {total} episodes ({rows}) are copies of seed "
+        f"{lead}'s episode of the same case, not played: these methods play the same episode "
+        "for every run seed. Times count played episodes only; --no-reuse plays every seed."
+    )
 
 
 def headline(summary: RunSummary) -> str:
@@ -260,6 +334,12 @@ def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) 
     if utilization:
         parts += [UTILIZATION_TITLE, "", utilization, ""]
     parts += ["### Run details", "", details_table(summary), ""]
+    reused = reuse_note(summary)
+    if reused:
+        parts += [reused, ""]
+    formats = answer_format_table(summary)
+    if formats:
+        parts += [ANSWER_FORMAT_TITLE, "", formats, ""]
     skill = skill_table(summary)
     if skill:
         parts += [
@@ -272,21 +352,27 @@ def render_markdown(summary: RunSummary, intervals: RunIntervals | None = None) 
         parts += [
             "### Decision time (ms per decision, wall; CPU: the process's)",
             "",
-            decision_time_table(summary, display_name),
+            decision_time_table(summary, lambda p: row_name(summary, p)),
             "",
         ]
     return "\n".join(parts)
 
 
 __all__ = [
+    "ANSWER_FORMAT_COLUMNS",
     "SPREAD_COLUMN",
+    "answer_format_table",
+    "answer_formats",
     "details_table",
     "format_cell",
     "format_spread",
     "headline",
     "interval_note",
+    "policy_options",
     "render_markdown",
     "results_table",
+    "reuse_note",
+    "row_name",
     "skill_table",
     "utilization_table",
 ]

@@ -15,7 +15,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from packlab.bench.summary import RunIntervals, run_intervals
-from packlab.bench.table import format_cell, format_spread, headline, interval_note
+from packlab.bench.table import (
+    format_cell,
+    format_spread,
+    headline,
+    interval_note,
+    reuse_note,
+)
 from packlab.core.records import Cell, RunSummary
 from packlab.metrics import AVERAGE
 from packlab.viz.labels import display_name, group_title
@@ -139,6 +145,9 @@ def terminal_text(
             f"* {len(summary.errors)} episode(s) failed and are left out of the means; "
             "see summary.json 'errors' and the tracebacks in episodes.jsonl."
         )
+    reused = reuse_note(summary)
+    if reused:
+        prose.append(reused)
     where = f"{table_file} (--wide prints it)" if table_file is not None else "--wide prints them"
     prose.append(f"SR, Compactness and intervals per level, and run details: {where}.")
     wrap = [textwrap.fill(p, width, break_on_hyphens=False, break_long_words=False) for p in prose]

@@ -254,6 +254,15 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
         "--retry-errors",
         help="rerun episodes recorded as failed (transport errors are rerun anyway)",
     )
+    add_field(
+        p,
+        RunConfig,
+        "reuse",
+        "--no-reuse",
+        help="play every seed: by default a policy that plays the same episode for every run "
+        "seed (exact modes; e.g. the heuristics and the oracle) is played for the lowest seed "
+        "and copied to the others",
+    )
 
 
 def _add_limit_options(p: argparse.ArgumentParser) -> None:

@@ -61,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"packlab bench: note: {note}", file=sys.stderr)
     resumed = f", {outcome.already_done} already done" if outcome.already_done else ""
     failed = f", {outcome.failed} failed" if outcome.failed else ""
+    # Copies of a seed-free policy's episode (packlab.bench.reuse), written instead of played.
+    reused = f" ({outcome.reused} copied from another seed)" if outcome.reused else ""
     print(
-        f"{outcome.run_dir}: {outcome.ran} episodes run in {outcome.wall_s:.1f} s"
+        f"{outcome.run_dir}: {outcome.ran} episodes run{reused} in {outcome.wall_s:.1f} s"
         f"{resumed}{failed}; "
         f"{len(outcome.outputs)} outputs written",
         file=sys.stderr,

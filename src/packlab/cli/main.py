@@ -35,7 +35,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "inspect-data": ("inspect_data", "summarise a PackData dataset directory"),
     "train": ("train", "train models (sft: supervised fine-tuning of the VLM)"),
     "export": ("export", "export SFT data for trainers, or a learned policy to ONNX"),
-    "serve": ("serve", "serve a packing VLM over an OpenAI-compatible API (test server)"),
+    "serve": ("serve", "serve a packing VLM over an OpenAI-compatible API (test server, vLLM)"),
+    "cell": ("cell", "serve packlab to a robot cell: depth images in, a placement out"),
     "viz": ("viz", "draw recorded episodes, or view them in Rerun"),
 }
 

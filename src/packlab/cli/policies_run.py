@@ -147,7 +147,8 @@ BUILTINS: dict[str, Builtin] = {
     ),
     "endpoint": Builtin(
         "A packing VLM behind an OpenAI-compatible chat-completions server (vLLM, packlab serve)",
-        needs=f"{CORE}; a running server at base_url",
+        needs=f"{CORE}; a running server at base_url (packlab serve --engine vllm serves a "
+        "checkpoint with vLLM: the vllm extra)",
         paths={"history": "options.history", "image": "options.image", "timeout_s": "deadline_s"},
         notes={
             "timeout_s": "older name of deadline_s",
@@ -156,6 +157,10 @@ BUILTINS: dict[str, Builtin] = {
             "(docs/vlm.md)",
             "max_tokens": "512 under prompt=reference",
             "reask": "prompt=reference: ask once more after an answer that does not parse",
+            "fallback": "prompt=reference, after an unreadable answer: set_aside a random "
+            "shown box | invalid: an invalid step (the reference's strict mode)",
+            "tag_requests": "send the OpenAI user field as <case id>/<run seed> (server logs, "
+            "scripted test servers); names the case, so never for a model under evaluation",
         },
     ),
     "irbpp": Builtin(

@@ -249,6 +249,9 @@ TEXT_ANSWER_KEYS = (
     "model_seed",
     "prompt",
     "reask",
+    "fallback",
+    "batch",
+    "max_batch",
 )
 #: ``vlm``: a text-answer checkpoint's options and a candidate-mode one's.
 _VLM_KEYS = (
@@ -262,9 +265,13 @@ _VLM_KEYS = (
 )
 #: The prompt protocols of the text-answer policies (their modules' PROMPTS).
 _PROMPTS = _one_of(("packlab", "reference"))
+#: What ``prompt=reference`` plays for an answer that does not parse (its modules' FALLBACKS:
+#: the reference's relaxed and strict modes).
+_FALLBACKS = _one_of(("set_aside", "invalid"))
 _VLM_CHECKS: dict[str, Check] = {
     "prompt": _PROMPTS,
     "reask": _switch,
+    "fallback": _FALLBACKS,
     "overflow": _OVERFLOW,
     "history": _one_of(choices(HistoryMode)),
     "image": _one_of(choices(ImageMode)),
@@ -272,6 +279,9 @@ _VLM_CHECKS: dict[str, Check] = {
     "max_length": _whole(64),
     "threads": _whole(1),
     "runtime": _one_of(RUNTIMES),
+    # The vlm policy's BATCH_MODES (packlab.vlm.infer.batching.MODES).
+    "batch": _one_of(("auto", "on", "off")),
+    "max_batch": _whole(1),
 }
 _ENDPOINT = PolicyOptions(
     (
@@ -294,11 +304,15 @@ _ENDPOINT = PolicyOptions(
         "timeout_s",
         "prompt",
         "reask",
+        "fallback",
+        "tag_requests",
     ),
     {
         "base_url": _http_url,
         "prompt": _PROMPTS,
         "reask": _switch,
+        "fallback": _FALLBACKS,
+        "tag_requests": _switch,
         "history": _one_of(choices(HistoryMode)),
         "image": _one_of(choices(ImageMode)),
         "retries": _whole(0),

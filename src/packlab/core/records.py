@@ -40,7 +40,8 @@ from __future__ import annotations
 
 import json
 import re
-from typing import ClassVar, TypeVar
+import threading
+from typing import ClassVar, Literal, TypeVar
 
 import msgspec
 from msgspec import UNSET, Struct, UnsetType
@@ -146,6 +147,13 @@ class PerceptionErrors(Struct, frozen=True):
     scans: int | UnsetType = UNSET  # looks at the buffer (2: one re-scan); absent in old runs
 
 
+#: How a step's text answer was read (``StepRecord.format_event``): the whole answer (after any
+#: reasoning) was the JSON action, the action was found inside other text (a code fence, words
+#: around it), or no action could be read.
+FormatEvent = Literal["strict_json", "extra_text", "parse_fail"]
+FORMAT_EVENTS: tuple[FormatEvent, ...] = ("strict_json", "extra_text", "parse_fail")
+
+
 class StepRecord(Struct, frozen=True):
     """One step of an episode (``packlab.sim.episode.StepResult.to_record``)."""
 
@@ -186,6 +194,16 @@ class StepRecord(Struct, frozen=True):
     #: nonzero counts by kind (``packlab.sim.physics.place_skill.SkillReport``); absent from
     #: older records and from steps placed exactly.
     skill: dict[str, int] | UnsetType = UNSET
+    #: Policies that read a model's text answer (the ``last_answer_format`` hook, DESIGN.md
+    #: section 7), added keys (the version stays run-2): how this step's answer was read;
+    #: ``reasked``, whether it was asked for a second time (present where the policy re-asks
+    #: an unusable answer); ``forced``, why a forced set-aside replaced the answer
+    #: (``parse_fail`` or ``invalid_object_id``; present only where one did). Absent from other
+    #: policies' steps, from steps whose request got no answer at all (a refused request) and
+    #: from older records.
+    format_event: FormatEvent | UnsetType = UNSET
+    reasked: bool | UnsetType = UNSET
+    forced: str | UnsetType = UNSET
 
 
 class MetricsRecord(Struct, frozen=True):
@@ -271,6 +289,12 @@ class EpisodeOk(_EpisodeHead, frozen=True, tag="ok"):
     steps: tuple[StepRecord, ...]
     final_poses: dict[str, FinalPose | None]  # by str(internal_id); None: never placed
     timing: Timing
+    #: Not played: copied from the episode of this run seed, whose policy plays the same
+    #: episode for every seed (``packlab.bench.reuse``). The copy holds what playing it would
+    #: have written (this seed's shown order, and the shown indices its actions name in it)
+    #: except the times, which are the played episode's. An added key (the version stays
+    #: run-2); absent from played episodes.
+    reused_from_seed: int | UnsetType = UNSET
 
 
 class EpisodeError(_EpisodeHead, frozen=True, tag="error"):
@@ -340,6 +364,18 @@ class DecisionTimes(Struct, frozen=True):
     worst_step: int
 
 
+class AnswerFormats(Struct, frozen=True):
+    """How a method's text answers were read, in steps (from ``StepRecord.format_event``,
+    ``reasked`` and ``forced``): the answer was the JSON action, held it among other text, or
+    held none; steps asked a second time; steps a forced set-aside replaced."""
+
+    strict_json: int
+    extra_text: int
+    parse_fail: int
+    reasked: int
+    forced: int
+
+
 class PolicyCounts(Struct, frozen=True):
     """A method's counters in a run (``packlab.bench.summary`` says what each counts)."""
 
@@ -364,6 +400,9 @@ class PolicyCounts(Struct, frozen=True):
     dims_error_mm: float | None | UnsetType = UNSET
     yaw_error_deg: float | None | UnsetType = UNSET
     heightmap_mae_mm: float | None | UnsetType = UNSET
+    #: Methods that read a model's text answer (steps carrying ``format_event``) only: how
+    #: their answers were read. Absent for other methods and summaries made before the count.
+    answer_formats: AnswerFormats | UnsetType = UNSET
     #: Per-decision time by level and over ``all`` levels; absent when no record of the method
     #: has per-step decision times (records written before steps were timed).
     decision_times: dict[str, DecisionTimes] | UnsetType = UNSET
@@ -372,6 +411,9 @@ class PolicyCounts(Struct, frozen=True):
     #: its placements per episode under ``placements``. Absent for other runs and runs written
     #: before the counts existed.
     skill_per_episode: dict[str, float] | UnsetType = UNSET
+    #: Episodes of ``episodes`` copied from another seed's, not played (``EpisodeOk
+    #: .reused_from_seed``); absent when none was.
+    reused_episodes: int | UnsetType = UNSET
 
 
 class ErrorEntry(Struct, frozen=True):
@@ -423,6 +465,11 @@ class RunSummary(Struct, frozen=True, kw_only=True):
     #: absent in summaries of runs made before the choice (they read as ``buffer``).
     protocol: str | UnsetType = UNSET
     lookahead: int | UnsetType = UNSET
+    #: The run's ``--policy-arg`` options by policy (config.json ``policy_args``), so a row can
+    #: be labelled with the prompt protocol and ablation options it ran with
+    #: (``packlab.viz.labels.policy_label``); absent when the run gave none, and in summaries
+    #: made before the key.
+    policy_args: dict[str, JsonObject] | UnsetType = UNSET
 
 
 class RunConfigHead(Struct, frozen=True, kw_only=True):
@@ -439,6 +486,7 @@ class RunConfigHead(Struct, frozen=True, kw_only=True):
     sensing: SensingModes | None = None
     protocol: str | None = None  # absent: buffer
     lookahead: int | None = None  # online runs only
+    policy_args: dict[str, JsonObject] | None = None  # --policy-arg options by policy
 
 
 # -- the dataset info (PackData meta/info.json) -----------------------------------------------
@@ -561,10 +609,23 @@ def loads(data: bytes | str, source: str, line: int | None = None) -> object:
         raise NotJSON(f"{where}: not JSON ({exc})") from None
 
 
+#: The record types msgspec has built its type information for in this process.
+_CONVERTED: set[type] = set()
+_FIRST_CONVERSION = threading.Lock()
+
+
 def convert(obj: object, kind: type[R], source: str, line: int | None = None) -> R:
     """Validate parsed JSON as ``kind``; RecordFormatError names what is wrong."""
     try:
-        return msgspec.convert(obj, kind)
+        if kind in _CONVERTED:
+            return msgspec.convert(obj, kind)
+        # msgspec builds a type's information on its first conversion, and two threads doing
+        # that at once (episodes finishing together under ``bench --concurrency``) crashed the
+        # process with SIGSEGV; later conversions only read it and need no lock.
+        with _FIRST_CONVERSION:
+            value = msgspec.convert(obj, kind)
+            _CONVERTED.add(kind)
+            return value
     except msgspec.ValidationError as exc:
         raise field_error(exc, obj, source, line) from None
 
@@ -745,12 +806,14 @@ def dumps_line(record: Struct) -> str:
 
 __all__ = [
     "ABSENT",
+    "FORMAT_EVENTS",
     "PACKDATA_FORMAT",
     "RUN_FORMAT",
     "RUN_FORMATS",
     "RUN_FORMAT_1",
     "SUMMARY_FORMAT",
     "ActionRecord",
+    "AnswerFormats",
     "CaseCells",
     "Cell",
     "DatasetCounts",
@@ -763,6 +826,7 @@ __all__ = [
     "ErrorEntry",
     "FilesInfo",
     "FinalPose",
+    "FormatEvent",
     "GeneratorInfo",
     "ImageInfo",
     "JsonObject",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Action, Case, InternalId, Observation, PlanStep
+from packlab.policies.registry import declare_seed_free, seed_free_always
 
 
 class OraclePolicy:
@@ -51,5 +52,8 @@ class OraclePolicy:
         return Action(object_id=item.shown_index, rotation=rotation, x=step.x, y=step.y)
 
 
+# Seed-free everywhere: it never reads the seed, and the shown box it takes is the earliest in
+# the plan, found by id whatever order the buffer is shown in.
+@declare_seed_free(seed_free_always)
 def make_oracle() -> OraclePolicy:
     return OraclePolicy()

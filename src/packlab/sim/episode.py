@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Mapping
 from typing import Any, cast
 
 import numpy as np
@@ -27,6 +28,7 @@ from packlab.core.choices import (
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import fits_somewhere, footprint_fits, placement_height
 from packlab.core.packing_protocol import BUFFER, PackingProtocol
+from packlab.core.records import FORMAT_EVENTS
 from packlab.core.types import (
     Action,
     Case,
@@ -529,6 +531,35 @@ class Episode:
         )
 
 
+def answer_format(policy: Any) -> dict[str, Any] | None:
+    """How ``policy`` read the answer its latest ``act`` returned, for the step's record: the
+    optional hook ``policy.last_answer_format()`` (DESIGN.md section 7) of policies that read a
+    model's text answer. It returns None (no answer was read: a refused request, or the policy
+    reads no text) or a mapping with ``format_event`` (``strict_json`` | ``extra_text`` |
+    ``parse_fail``) and, where they apply, ``reasked`` (bool) and ``forced`` (why a forced
+    set-aside replaced the answer). None for a policy without the hook; ValueError naming the
+    policy, key and value for anything else."""
+    hook = getattr(policy, "last_answer_format", None)
+    found = None if hook is None else hook()
+    if found is None:
+        return None
+    who = f"policy {getattr(policy, 'name', type(policy).__name__)!r}: last_answer_format()"
+    if not isinstance(found, Mapping):
+        raise ValueError(f"{who} = {found!r}: expected a mapping or None")  # noqa: TRY004
+    unknown = sorted(set(found) - {"format_event", "reasked", "forced"})
+    if unknown:
+        raise ValueError(f"{who}: unknown key(s) {', '.join(map(repr, unknown))}")
+    event, reasked, forced = found.get("format_event"), found.get("reasked"), found.get("forced")
+    if event not in FORMAT_EVENTS:
+        events = ", ".join(FORMAT_EVENTS)
+        raise ValueError(f"{who}: format_event = {event!r}: expected one of {events}")
+    if "reasked" in found and not isinstance(reasked, bool):
+        raise ValueError(f"{who}: reasked = {reasked!r}: expected true or false")
+    if "forced" in found and not (isinstance(forced, str) and forced):
+        raise ValueError(f"{who}: forced = {forced!r}: expected the reason, a non-empty string")
+    return {k: found[k] for k in ("format_event", "reasked", "forced") if k in found}
+
+
 def run_episode(
     case: Case,
     policy: Any,
@@ -560,11 +591,13 @@ def run_episode(
     policy.reset(case, seed)
     decision_wall: list[float] = []
     decision_cpu: list[float] = []
+    formats: list[dict[str, Any] | None] = []
     while not episode.done:
         t0, c0 = time.perf_counter(), time.process_time()
         action = policy.act(observation)
         decision_wall.append(time.perf_counter() - t0)
         decision_cpu.append(time.process_time() - c0)
+        formats.append(answer_format(policy))
         episode.step(action)
         if not episode.done:
             observation = episode.observe()
@@ -585,6 +618,7 @@ def run_episode(
         looked_again=None if perceiver is None else episode.looked_again,
         skill=None if execution is None else skill_totals(episode.steps),
         online=episode.online_outcome(metrics),
+        answer_formats=tuple(formats) if any(formats) else (),
     )
 
 
@@ -595,6 +629,7 @@ __all__ = [
     "EpisodeResult",
     "OnlineOutcome",
     "StepResult",
+    "answer_format",
     "run_episode",
     "skill_totals",
 ]

@@ -175,6 +175,10 @@ class EpisodeResult:
     skill: dict[str, int] | None = None
     #: Online protocol only (else None): utilization and where the episode stopped.
     online: OnlineOutcome | None = None
+    #: By step: how the policy read its text answer (the ``last_answer_format`` hook,
+    #: ``packlab.sim.episode.answer_format``), None where it reported nothing; empty for
+    #: policies without the hook.
+    answer_formats: tuple[dict[str, Any] | None, ...] = ()
 
     def to_record(self) -> dict[str, Any]:
         # Per-step poses go in as changes only (packlab.sim.pose_log): a replay shows the pile
@@ -185,6 +189,8 @@ class EpisodeResult:
                 {**rec, "decision_s": round(wall, 6), "decision_cpu_s": round(cpu, 6)}
                 for rec, wall, cpu in zip(steps, self.decision_s, self.decision_cpu_s)
             ]
+        if len(self.answer_formats) == len(steps):  # added keys, only where reported
+            steps = [{**rec, **(fmt or {})} for rec, fmt in zip(steps, self.answer_formats)]
         if all(s.positions_mm is not None for s in self.steps):
             moved = pose_updates(
                 [s.positions_mm for s in self.steps], [s.quaternions for s in self.steps]

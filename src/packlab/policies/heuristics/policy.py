@@ -16,6 +16,7 @@ Options (factory keywords, so ``packlab bench --policy-arg dblf:tie_break=shown_
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -34,6 +35,7 @@ from packlab.policies.heuristics.select import (
     to_action,
 )
 from packlab.policies.overflow import overflow_decision
+from packlab.policies.registry import SeedFreeMode, declare_seed_free
 
 #: Heuristic scorers by registered policy name.
 SCORERS: dict[str, Scorer] = {
@@ -105,22 +107,42 @@ def make_heuristic(name: str, **options: Any) -> HeuristicPolicy:
     return HeuristicPolicy(name=name, scorer=SCORERS[name], tie_break=tie_break, overflow=overflow)
 
 
+def heuristic_seed_free(options: Mapping[str, Any]) -> frozenset[SeedFreeMode]:
+    """Where a heuristic plays the same episode for every run seed (``registry.SeedFreeMode``).
+
+    It never reads the seed, so in arrival order always. Under a shuffled buffer only with the
+    default rules: ``larger_volume`` settles ties by size and id, never by the shown order, and
+    ``overflow=place`` is the rim rule; ``shown_order`` and rule ``score`` (first of equal
+    scores, set-aside of shown box 0 where nothing fits) read the shown order.
+    """
+    order_free = (
+        options.get("tie_break", DEFAULT_TIE_BREAK) == "larger_volume"
+        and options.get("overflow", "place") == "place"
+    )
+    return frozenset({"arrival", "shuffled"} if order_free else {"arrival"})
+
+
 # The entry-point factories (pyproject ``packlab.policies``): one per heuristic.
+@declare_seed_free(heuristic_seed_free)
 def make_dblf(**options: Any) -> HeuristicPolicy:
     return make_heuristic("dblf", **options)
 
 
+@declare_seed_free(heuristic_seed_free)
 def make_hm(**options: Any) -> HeuristicPolicy:
     return make_heuristic("hm", **options)
 
 
+@declare_seed_free(heuristic_seed_free)
 def make_mta(**options: Any) -> HeuristicPolicy:
     return make_heuristic("mta", **options)
 
 
+@declare_seed_free(heuristic_seed_free)
 def make_ffp(**options: Any) -> HeuristicPolicy:
     return make_heuristic("ffp", **options)
 
 
+@declare_seed_free(heuristic_seed_free)
 def make_sdf(**options: Any) -> HeuristicPolicy:
     return make_heuristic("sdf", **options)

@@ -33,6 +33,7 @@ with ``endplay_boxes`` (the most boxes in view for it) (:mod:`.endplay`).
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -57,6 +58,7 @@ from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
 from packlab.policies.plan.proposer import first_placements
 from packlab.policies.plan.search import Budget, Problem, search
+from packlab.policies.registry import SeedFreeMode, declare_seed_free
 
 
 def observation_problem(observation: Observation, weights: Weights) -> Problem:
@@ -324,6 +326,15 @@ def _switch(name: str, value: Any) -> bool:
     return value
 
 
+def plan_seed_free(options: Mapping[str, Any]) -> frozenset[SeedFreeMode]:
+    """Where the planner plays the same episode for every run seed (``registry.SeedFreeMode``):
+    in arrival order, where it reads nothing of the seed, unless ``time_s`` makes its search
+    depend on the machine's speed. Never under a shuffled buffer: its search settles equal
+    costs in the order the boxes are shown."""
+    return frozenset() if options.get("time_s") is not None else frozenset({"arrival"})
+
+
+@declare_seed_free(plan_seed_free)
 def make_plan(**options: Any) -> PlanPolicy:
     """The ``plan`` policy; keywords as in the module docstring."""
     guide = AgentGuide(
@@ -403,6 +414,7 @@ def make_plan(**options: Any) -> PlanPolicy:
 FAST_BUDGET = {"first": 2, "depth": 4, "listed": 2, "endplay": 0}
 
 
+@declare_seed_free(plan_seed_free)
 def make_plan_fast(**options: Any) -> PlanPolicy:
     """``plan`` at :data:`FAST_BUDGET` (keywords as for ``plan`` override it)."""
     policy = make_plan(**{**FAST_BUDGET, **options})
@@ -410,6 +422,7 @@ def make_plan_fast(**options: Any) -> PlanPolicy:
     return policy
 
 
+@declare_seed_free(plan_seed_free)
 def make_plan_lookahead(**options: Any) -> PlanPolicy:
     """``plan`` without the completion stage: the lookahead alone (an ablation row: what the
     completion search adds)."""

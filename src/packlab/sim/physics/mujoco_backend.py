@@ -7,14 +7,19 @@ Design choices (measured on a 2-core CPU; see benchmarks/physics_placement.py):
   asleep; placing one switches its collisions and gravity on and teleports it. This avoids
   recompiling the model at every placement.
 * Island sleeping (MuJoCo >= 3.3) puts settled stacks to sleep, so a placement costs about the
-  same whatever the number of boxes already packed.
+  same whatever the number of boxes already packed. A messy pile never sleeps (it is one
+  contact island and some box in it always moves). ``--physics freeze=true`` has a placement's
+  settle simulate only the settle region around the motion and freeze the rest of the pile in
+  place (``_SettleRegion``; off by default: it changes messy piles' outcomes, docs/physics.md).
 * Stiff contacts (``solref`` 5 ms time constant, ``solimp`` 0.95/0.99/1 mm) with 2 ms steps keep
   stacks still; friction 0.5 is a cardboard-on-cardboard value, on elliptic friction cones: on
   messy piles the pyramidal approximation kept more boxes vibrating in place and creeping.
 * Settling (``PhysicsConfig``): a placement settles until every box is still, capped at 2 s
   (``settled: false`` in the step record beyond); the final settle before scoring runs to
   rest under its own 10 s cap (``at_rest: false`` in the record beyond). "Still" is judged on
-  velocity or on net motion over 20 ms, so contact-solver vibration in place is not motion.
+  velocity or on net motion over 20 ms, so contact-solver vibration in place is not motion;
+  the test runs after every step by default (``rest_check_steps``; more lets the engine step
+  alone in between).
 * A box is never dropped inside another: Eq. 2 heights come from a heightmap sampled at cell
   centres, which can miss the edge of a tilted neighbour, so the drop is raised until clear.
 * Collision boxes are shrunk horizontally by ``collision_inset_mm`` per side so boxes placed flush
@@ -70,6 +75,15 @@ class PhysicsConfig:
     #: really moves (falling, sliding, toppling, rocking with more than a fraction of a
     #: millimetre) exceeds the thresholds by both measures.
     rest_motion_steps: int = 10
+    #: The rest test runs every this many steps, not after each one: between checks the
+    #: engine steps with no Python in the loop (the test cost about as much as the steps once
+    #: the settle region made them cheap). The settle stops at the first check where the
+    #: still checks in a row span the window: two checks 4 steps apart cover the 5-step
+    #: window (a drop onto a flat stack settles in 12 steps, 11 tested step by step), fourteen
+    #: the final 50-step one; the net motion is measured from the check ``rest_motion_steps``
+    #: or more steps before (12 steps). 1 (the default, the records every bundled result was
+    #: measured with) is the test after every step; 4 suits ``freeze``.
+    rest_check_steps: int = 1
     #: Cap on steps per placement (2 s of simulated time), so one placement's cost stays
     #: bounded; reaching it is recorded on the step (``settled: false`` with the residual
     #: speeds) and the next placement starts from a pile that may still move.
@@ -95,6 +109,28 @@ class PhysicsConfig:
     #: stay off by default; ``packlab bench --physics impratio=3`` trades speed for less creep.
     noslip_iterations: int = 0
     impratio: float = 1.0
+    #: The settle region (``_SettleRegion``). A messy pile is one contact island: one box
+    #: sliding kept every box in the container awake, and the solver paid for all of them at
+    #: every step (over three quarters of a random policy's time). With ``freeze`` on, a
+    #: placement's settle simulates only the boxes that moved in the last ``freeze_still_steps``
+    #: steps (faster than ``freeze_speed_fraction`` of the rest thresholds; the dropped box
+    #: from the start), the boxes within ``freeze_margin_mm`` of them (plus how far they can
+    #: travel before the next check) and every box resting on those; every other box is frozen
+    #: in place: a static copy of its collision box takes its place, the box stops colliding
+    #: and sleeps. It thaws, in place and at rest, when motion comes near, and every box thaws
+    #: when the settle ends, so the heightmap, the place skill and the next drop see the pile
+    #: as it is. The final settle before scoring simulates every box. Off by default: in messy
+    #: piles a frozen box is rigid and does not give under a drop, so outcomes differ from the
+    #: full settle more than the engine's own chaos does (docs/physics.md has the measurements).
+    freeze: bool = False
+    freeze_still_steps: int = 10
+    freeze_margin_mm: float = 10.0
+    #: "Still" for freezing is stricter than for the rest test: speeds (by velocity or net
+    #: motion) under this fraction of the rest thresholds, 3 mm/s and 0.015 rad/s. MuJoCo's
+    #: soft friction lets a messy pile slump at a few mm/s, under the rest thresholds; frozen
+    #: at the rest thresholds, such a pile was held up through the episode and slumped all at
+    #: once in the final settle (random policy: from a fifth to 60 % of its time).
+    freeze_speed_fraction: float = 0.3
 
     def __post_init__(self) -> None:
         positive = {
@@ -106,17 +142,25 @@ class PhysicsConfig:
             "settle_window_steps": self.settle_window_steps,
             "final_settle_window_steps": self.final_settle_window_steps,
             "rest_motion_steps": self.rest_motion_steps,
+            "rest_check_steps": self.rest_check_steps,
             "max_settle_steps": self.max_settle_steps,
             "final_max_settle_steps": self.final_max_settle_steps,
             "wall_thickness_mm": self.wall_thickness_mm,
             "solver_iterations": self.solver_iterations,
+            "freeze_still_steps": self.freeze_still_steps,
         }
         for name, value in positive.items():
             if not value > 0:
                 raise ConfigError(f"PhysicsConfig.{name} = {value!r}: must be positive")
-        if self.clearance_mm < 0 or self.collision_inset_mm < 0:
+        if not 0 < self.freeze_speed_fraction <= 1:
             raise ConfigError(
-                "PhysicsConfig.clearance_mm and collision_inset_mm must not be negative"
+                f"PhysicsConfig.freeze_speed_fraction = {self.freeze_speed_fraction!r}: must be "
+                "in (0, 1]"
+            )
+        if self.clearance_mm < 0 or self.collision_inset_mm < 0 or self.freeze_margin_mm < 0:
+            raise ConfigError(
+                "PhysicsConfig.clearance_mm, collision_inset_mm and freeze_margin_mm must not be "
+                "negative"
             )
 
 
@@ -129,16 +173,36 @@ def _squared_speeds(qvel: np.ndarray, dof_idx: np.ndarray) -> np.ndarray:
     return (v * v).reshape(-1, 2, 3).sum(axis=2)
 
 
+def _stillest(speed2: np.ndarray, net2: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """Per box, the squared speeds by the measure (velocity or net motion) under which it looks
+    stillest: the one the rest test accepts."""
+    net_is_stiller = (net2 / limits).max(axis=1) < (speed2 / limits).max(axis=1)
+    return np.where(net_is_stiller[:, None], net2, speed2)
+
+
 def _net_squared_speeds(before: np.ndarray, after: np.ndarray, span_s: float) -> np.ndarray:
     """(n, 2) squared mean linear and angular speeds of n free bodies between two poses.
 
     ``before`` and ``after`` are (n, 7) free-joint poses (position m, unit quaternion wxyz)
     ``span_s`` seconds apart; the angle is the one rotation that turns one into the other.
+    (Written out element by element: numpy's ``clip`` and ``stack`` cost more than the sums.)
     """
-    dist2 = ((after[:, :3] - before[:, :3]) ** 2).sum(axis=1)
-    cos_half = np.clip(np.abs((after[:, 3:] * before[:, 3:]).sum(axis=1)), 0.0, 1.0)
-    angle = 2.0 * np.arccos(cos_half)
-    return np.stack([dist2, angle**2], axis=1) / span_s**2
+    out = np.empty((len(before), 2))
+    out[:, 0] = ((after[:, :3] - before[:, :3]) ** 2).sum(axis=1)
+    cos_half = np.minimum(np.abs((after[:, 3:] * before[:, 3:]).sum(axis=1)), 1.0)
+    out[:, 1] = (2.0 * np.arccos(cos_half)) ** 2
+    out /= span_s**2
+    return out
+
+
+def _rotation_matrices(quats: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of n unit quaternions (n, 4, wxyz)."""
+    w, x, y, z = quats.T
+    rot = np.empty((len(quats), 3, 3))
+    rot[:, 0] = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], 1)
+    rot[:, 1] = np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], 1)
+    rot[:, 2] = np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1)
+    return rot
 
 
 def _yawed_quaternion(rotation: int, yaw_deg: float) -> np.ndarray:
@@ -192,11 +256,16 @@ def build_model_xml(container: Container, boxes: Sequence[Box], cfg: PhysicsConf
         for i, w in enumerate(walls)
     )
     inset = cfg.collision_inset_mm
-    body_xml = []
+    body_xml, frozen_xml = [], []
     for i, box in enumerate(boxes):
         l, w, h = box.size_mm
         half = ((l / 2 - inset) * _MM, (w / 2 - inset) * _MM, h / 2 * _MM)
         park = _park_position(i)
+        # The box's static stand-in while it is frozen (MujocoBackend._freeze), off until then.
+        frozen_xml.append(
+            f'    <geom name="f{i}" type="box" size="{_fmt(half)}" pos="{_fmt(park)}" '
+            'contype="0" conaffinity="0" group="4" rgba="0 0 0 0"/>'
+        )
         body_xml.append(
             f'    <body name="box{i}" pos="{_fmt(park)}" gravcomp="1">\n'
             f'      <freejoint name="j{i}"/>\n'
@@ -226,6 +295,7 @@ def build_model_xml(container: Container, boxes: Sequence[Box], cfg: PhysicsConf
   <worldbody>
     <geom name="floor" type="plane" size="0 0 1" rgba=".8 .8 .8 1"/>
 {wall_xml}
+{chr(10).join(frozen_xml)}
 {chr(10).join(body_xml)}
   </worldbody>
 </mujoco>
@@ -247,6 +317,8 @@ class MujocoBackend:
         self._placed = np.zeros(0, dtype=bool)
         self._body_ids = np.zeros(0, dtype=int)
         self._geom_ids = np.zeros(0, dtype=int)
+        self._frozen_geom_ids = np.zeros(0, dtype=int)
+        self._frozen = np.zeros(0, dtype=bool)
 
     def reset(self, container: Container, boxes: Sequence[Box]) -> np.ndarray:
         model = mujoco.MjModel.from_xml_string(build_model_xml(container, boxes, self.config))
@@ -257,6 +329,10 @@ class MujocoBackend:
         self._regions: dict[int, tuple[np.ndarray, np.ndarray, object]] = {}
         self._body_ids = np.array([model.body(f"box{i}").id for i in range(len(boxes))], dtype=int)
         self._geom_ids = np.array([model.geom(f"g{i}").id for i in range(len(boxes))], dtype=int)
+        self._frozen_geom_ids = np.array(
+            [model.geom(f"f{i}").id for i in range(len(boxes))], dtype=int
+        )
+        self._frozen = np.zeros(len(boxes), dtype=bool)
         mujoco.mj_forward(model, self._data)
         return np.zeros(container.cells, dtype=np.int32)
 
@@ -300,7 +376,7 @@ class MujocoBackend:
         data.qpos[self._qpos_slice(index)] = np.concatenate([centre, yaw_quaternion(rotation)])
         data.qvel[self._qvel_slice(index)] = 0.0
         self._lift_clear(index, rotation)
-        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps)
+        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps, dropped=index)
 
     def execute(
         self,
@@ -365,7 +441,7 @@ class MujocoBackend:
         self._lift_clear(index, 0, yaw)
         # Counted: the simulator's guard, not the robot's decision (see SkillReport.lifted).
         report.lifted = int(float(data.qpos[qpos.start + 2]) != z)
-        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps), report
+        return self._settle(cfg.settle_window_steps, cfg.max_settle_steps, dropped=index), report
 
     def _park(self, index: int) -> None:
         """Take box ``index`` back out (the place skill set it aside): parked as before it was
@@ -575,50 +651,78 @@ class MujocoBackend:
                 top = max(top, float(data.geom_xpos[g, 2] + half_z))
         return top
 
-    def _settle(self, window: int, cap: int) -> Transition:
+    def _settle(self, window: int, cap: int, dropped: int | None = None) -> Transition:
         """Step until every placed box stays still for ``window`` consecutive steps.
 
         A box is still when its speed is under the thresholds, measured either from its
         velocity now or from its net motion over the last ``rest_motion_steps`` steps (see
-        ``PhysicsConfig.rest_motion_steps``). Stops at ``cap`` steps with ``capped`` set; the
-        transition carries, when it stopped either way, the largest speeds of any box, each box
-        measured by whichever of the two is stiller.
+        ``PhysicsConfig.rest_motion_steps``). The test runs every ``rest_check_steps`` steps:
+        the settle stops at the first check where the still checks in a row span ``window``
+        steps (one check per step is the test step by step). Stops at ``cap`` steps with
+        ``capped`` set; the transition carries, when it stopped either way, the largest speeds
+        of any box, each box measured by whichever of the two is stiller.
+
+        With ``PhysicsConfig.freeze`` and a ``dropped`` box (the box just let go, moving from
+        the start) only the settle region is simulated: boxes away from the motion are frozen
+        while it lasts (``_SettleRegion``); a frozen box is still by construction. Without a
+        dropped box (the final settle, a box set aside) every box is simulated.
         """
         model, data, cfg = self._model, self._data, self.config
-        bodies = self._body_ids[self._placed]
+        placed = np.flatnonzero(self._placed)
+        bodies = self._body_ids[placed]
         dof = model.jnt_dofadr[model.body_jntadr[bodies]][:, None]
         qadr = model.jnt_qposadr[model.body_jntadr[bodies]][:, None]
         dof_idx, pose_idx = dof + np.arange(6), qadr + np.arange(7)
         limits = np.array([cfg.linear_speed_threshold, cfg.angular_speed_threshold]) ** 2
-        k = cfg.rest_motion_steps
-        span = k * cfg.timestep_s
-        history = np.empty((k + 1, len(bodies), 7))  # poses of the last k + 1 steps, a ring
-        still_for, steps, capped = 0, cap, True
-        for step in range(1, cap + 1):
-            mujoco.mj_step(model, data)
-            history[step % (k + 1)] = data.qpos[pose_idx]
-            speed2 = _squared_speeds(data.qvel, dof_idx)
-            moving = (speed2 >= limits).any(axis=1)
-            if moving.any() and step > k:  # only then is a net motion over k steps known
-                net2 = _net_squared_speeds(
-                    history[(step + 1) % (k + 1)], history[step % (k + 1)], span
-                )
-                moving &= (net2 >= limits).any(axis=1)
-            if moving.any():
-                still_for = 0
-            else:
-                still_for += 1
-                if still_for >= window:
-                    steps, capped = step, False
-                    break
+        every, k, dt = cfg.rest_check_steps, cfg.rest_motion_steps, cfg.timestep_s
+        lag = -(-k // every)  # checks back to the poses the net motion is measured from
+        # Poses at the last lag + 1 checks (a ring) and the step of each.
+        history = np.empty((lag + 1, len(bodies), 7))
+        history_step = np.zeros(lag + 1, dtype=int)
+        history[0] = data.qpos[pose_idx]
         speed2 = _squared_speeds(data.qvel, dof_idx)
+        calm = limits * cfg.freeze_speed_fraction**2  # under these a box may be frozen
+        region = self._region(placed, dropped, np.all(speed2 < calm, axis=1), every * dt)
+        step, check, still_checks, steps, capped = 0, 0, 0, cap, True
+        try:
+            while step < cap:
+                if region is not None:
+                    region.update(history[check % (lag + 1)], speed2[:, 0])
+                n = min(every, cap - step)
+                for _ in range(n):
+                    mujoco.mj_step(model, data)
+                step, check = step + n, check + 1
+                now, then = check % (lag + 1), (check + 1) % (lag + 1)
+                history[now], history_step[now] = data.qpos[pose_idx], step
+                speed2 = _squared_speeds(data.qvel, dof_idx)
+                moving = np.any(speed2 >= limits, axis=1)
+                # Moving by the rest test, or not calm enough to freeze (a superset).
+                restless = moving if region is None else np.any(speed2 >= calm, axis=1)
+                if step > k and restless.any():  # only then is a net motion over k steps known
+                    fast = np.flatnonzero(restless)  # the net motion of the others is moot
+                    net2 = _net_squared_speeds(
+                        history[then, fast], history[now, fast], (step - history_step[then]) * dt
+                    )
+                    moving[fast] &= (net2 >= limits).any(axis=1)
+                    if region is not None:
+                        restless[fast] = (net2 >= calm).any(axis=1)
+                if region is not None:
+                    region.moved(restless, n)
+                if moving.any():
+                    still_checks = 0
+                else:
+                    still_checks += 1
+                    if (still_checks - 1) * every + 1 >= window:
+                        steps, capped = step, False
+                        break
+        finally:
+            if region is not None:
+                region.thaw_all()
         if steps > k:
             net2 = _net_squared_speeds(
-                history[(steps + 1) % (k + 1)], history[steps % (k + 1)], span
+                history[then], history[now], (steps - history_step[then]) * dt
             )
-            # Per box, the measure by which it looks stillest (the one the rest test accepts).
-            net_is_stiller = (net2 / limits).max(axis=1) < (speed2 / limits).max(axis=1)
-            speed2 = np.where(net_is_stiller[:, None], net2, speed2)
+            speed2 = _stillest(speed2, net2, limits)
         residual = np.sqrt(speed2.max(axis=0))
         return Transition(
             self._rasterise(),
@@ -627,6 +731,72 @@ class MujocoBackend:
             max_linear_speed=float(residual[0]),
             max_angular_speed=float(residual[1]),
         )
+
+    def _region(
+        self, placed: np.ndarray, dropped: int | None, calm: np.ndarray, check_s: float
+    ) -> _SettleRegion | None:
+        """The settle region of a placement's settle (``PhysicsConfig.freeze``), the dropped box
+        moving from the start; None where every box is simulated."""
+        if not self.config.freeze or dropped is None or len(placed) < 2:
+            return None
+        region = _SettleRegion(self, placed, calm, check_s)
+        region.moved(placed == dropped, 0)
+        return region
+
+    def _freeze(self, indices: np.ndarray) -> None:
+        """Freeze boxes ``indices`` where they are: each one's static stand-in (a world geom of
+        its collision box, ``f{i}``) takes its pose and collides in its place, while the box
+        stops colliding, has its weight carried and its velocity zeroed, so it stays put and
+        falls asleep alone. Both the model's and the data's pose of the stand-in are set: with
+        sleeping on, MuJoCo does not recompute static geoms' poses at every step."""
+        model, data = self._model, self._data
+        geoms, stand_ins = self._geom_ids[indices], self._frozen_geom_ids[indices]
+        bodies = self._body_ids[indices]
+        joints = model.body_jntadr[bodies]
+        pose = data.qpos[model.jnt_qposadr[joints][:, None] + np.arange(7)]
+        quat = pose[:, 3:] / np.linalg.norm(pose[:, 3:], axis=1, keepdims=True)
+        model.geom_pos[stand_ins] = data.geom_xpos[stand_ins] = pose[:, :3]
+        model.geom_quat[stand_ins] = quat
+        data.geom_xmat[stand_ins] = _rotation_matrices(quat).reshape(-1, 9)
+        model.geom_contype[stand_ins] = model.geom_conaffinity[stand_ins] = 1
+        model.geom_contype[geoms] = model.geom_conaffinity[geoms] = 0
+        model.body_contype[bodies] = model.body_conaffinity[bodies] = 0
+        model.body_gravcomp[bodies] = 1.0
+        data.qvel[(model.jnt_dofadr[joints][:, None] + np.arange(6)).ravel()] = 0.0
+        self._frozen[indices] = True
+
+    def _thaw(self, indices: np.ndarray) -> None:
+        """Undo ``_freeze`` for boxes ``indices``: the box collides again, at the pose it was
+        frozen in, at rest, under its weight; its stand-in goes off. A box still asleep stays
+        asleep until an awake box touches it, as any sleeping box (see ``_regroup_sleep``)."""
+        model = self._model
+        geoms, stand_ins = self._geom_ids[indices], self._frozen_geom_ids[indices]
+        bodies = self._body_ids[indices]
+        model.geom_contype[stand_ins] = model.geom_conaffinity[stand_ins] = 0
+        model.geom_contype[geoms] = model.geom_conaffinity[geoms] = 1
+        model.body_contype[bodies] = model.body_conaffinity[bodies] = 1
+        model.body_gravcomp[bodies] = 0.0
+        self._frozen[indices] = False
+
+    def _regroup_sleep(self) -> None:
+        """Put the sleeping boxes in the sleep groups freezing and thawing need.
+
+        MuJoCo keeps each sleeping island in a cycle of its trees (``tree_asleep``) and counts
+        on a cycle holding every sleeping box its boxes touch: it wakes a touched cycle in one
+        pass, and a woken box touching a box still asleep is an error. A box frozen while
+        awake falls asleep alone, and thawed next to other sleeping boxes would break that. So
+        after every freeze or thaw each sleeping frozen box sleeps alone (it touches nothing)
+        and all the other sleeping placed boxes share one cycle: touching any wakes them all,
+        which is more than MuJoCo would wake but never less. Only the links between sleeping
+        trees change, so the engine's derived sleep state stays as it is."""
+        model, data = self._model, self._data
+        trees = model.body_treeid[self._body_ids]
+        asleep = data.tree_asleep[trees] >= 0
+        alone = trees[asleep & (self._frozen | ~self._placed)]
+        data.tree_asleep[alone] = alone
+        group = trees[asleep & self._placed & ~self._frozen]
+        if group.size:
+            data.tree_asleep[group] = np.roll(group, -1)
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         n = len(self._placed)
@@ -657,6 +827,88 @@ class MujocoBackend:
                 region = box_top_region(grid, cell, self._sizes_mm[i], positions[i], quats[i])
                 self._regions[i] = (positions[i].copy(), quats[i].copy(), region)
         return compose_regions(grid, (r[2] for r in self._regions.values()))
+
+
+class _SettleRegion:
+    """Which boxes one placement's settle simulates (``PhysicsConfig.freeze``); the others are
+    frozen (``MujocoBackend._freeze``).
+
+    Simulated: every box that moved in the last ``freeze_still_steps`` steps (faster than
+    ``freeze_speed_fraction`` of the rest thresholds, by velocity or net motion); every box whose
+    axis-aligned collision bounds lie within ``freeze_margin_mm`` of one of those, plus how far
+    that box can travel before the next check (its speed and a free fall over the check
+    interval), so a frozen box thaws before anything reaches it; and every box resting on a
+    simulated one, up to the top of the pile, so a frozen box never pins down or hangs above
+    a box that moves. Frozen: the rest. A box at rest when the settle starts counts as still,
+    so a drop onto a settled pile simulates the drop's neighbourhood only.
+    """
+
+    def __init__(
+        self, backend: MujocoBackend, placed: np.ndarray, still: np.ndarray, span_s: float
+    ) -> None:
+        cfg = backend.config
+        model = backend._model
+        self._backend = backend
+        self._placed = placed
+        self._geoms = backend._geom_ids[placed]
+        self._half = model.geom_size[self._geoms]
+        quats = backend._data.qpos[
+            model.jnt_qposadr[model.body_jntadr[backend._body_ids[placed]]][:, None]
+            + np.arange(3, 7)
+        ]
+        # World half extents, from the quaternions here (the engine has not turned the dropped
+        # box's yet), then refreshed from the engine's rotations for the boxes that move.
+        self._extent = (np.abs(_rotation_matrices(quats)) @ self._half[:, :, None])[:, :, 0]
+        self._window = cfg.freeze_still_steps
+        self._margin = cfg.freeze_margin_mm * _MM
+        # Until the next update a box falls, slides or is knocked this far beyond its speed now.
+        self._span = span_s
+        self._reach = 0.5 * abs(cfg.gravity) * span_s**2
+        # Steps each box has been still: a box at rest when the settle starts counts as still
+        # for the whole window, one moving then (a capped settle before) as just moved.
+        self._still_steps = np.where(still, self._window, 0)
+
+    def moved(self, moving: np.ndarray, steps: int) -> None:
+        """Count ``steps`` steps after which ``moving`` (per placed box) says which moved."""
+        self._still_steps = np.where(moving, 0, self._still_steps + steps)
+
+    def update(self, poses: np.ndarray, speeds: np.ndarray) -> None:
+        """Freeze the boxes outside the region, thaw the frozen ones inside it; ``poses``
+        (n, 7) are the placed boxes' free-joint poses now and ``speeds`` (n,) their linear
+        speeds (m/s)."""
+        active = self._still_steps < self._window
+        recent = np.flatnonzero(active)
+        if recent.size == 0:
+            return
+        backend = self._backend
+        extent, centre = self._extent, poses[:, :3]
+        xmat = backend._data.geom_xmat[self._geoms[recent]].reshape(-1, 3, 3)
+        extent[recent] = (np.abs(xmat) @ self._half[recent, :, None])[:, :, 0]
+        reach = self._margin + self._reach + self._span * speeds[recent]
+        gap = np.abs(centre[recent, None] - centre) - extent[recent, None] - extent
+        near = (gap.max(axis=2) <= reach[:, None]).any(axis=0)
+        # ... and every box resting on one of those, up to the top of the pile: a box frozen
+        # on a simulated one would hold it down, or hang in the air once it slid away.
+        gaps = np.abs(centre[:, None] - centre) - extent[:, None] - extent  # (n, n, 3)
+        rests_on = (gaps[:, :, 0] < 0) & (gaps[:, :, 1] < 0) & (gaps[:, :, 2] <= self._margin)
+        rests_on &= centre[:, None, 2] > centre[None, :, 2]  # [i, j]: i is above j
+        while True:
+            grown = near | rests_on[:, near].any(axis=1)
+            if (grown == near).all():
+                break
+            near = grown
+        frozen = backend._frozen[self._placed]
+        thaw, freeze = frozen & near, ~(frozen | near | active)
+        if thaw.any() or freeze.any():
+            backend._thaw(self._placed[thaw])
+            backend._freeze(self._placed[freeze])
+            backend._regroup_sleep()
+
+    def thaw_all(self) -> None:
+        frozen = self._placed[self._backend._frozen[self._placed]]
+        if frozen.size:
+            self._backend._thaw(frozen)
+            self._backend._regroup_sleep()
 
 
 class _HeldBox:

@@ -216,7 +216,7 @@
       ["set_aside", "set aside", 0], ["unsettled_steps", "unsettled steps", 0],
       ["not_at_rest", "not at rest", 0], ["decision_ms", "ms / decision", 2],
       ["step_ms", "ms / env step", 2], ["episode_s", "s / episode", 3],
-    ];
+    ].concat(D.details_extra || []); // e.g. the answer formats of rows that read a model's text
     var table = document.getElementById("details-table");
     var head = el("tr", {}, [el("th", { text: "Method", "data-col": "0" })]);
     cols.forEach(function (c, i) {

@@ -27,8 +27,10 @@ How reuse is decided, each step (never by assumption, always by comparison):
 
 Decoding is a plain greedy loop over the same cache (explicit position ids, no sampling), so
 cached and uncached runs compute the same thing and give the same tokens; the tests check this
-against ``model.generate`` too. Imports torch/transformers: only the vlm extra may import this
-module.
+against ``model.generate`` too. With a batcher attached (:mod:`packlab.vlm.infer.batching`, the
+``vlm`` policy's ``batch`` option) the encoding and prefill above stay the episode's own and only
+that loop runs in a batch with other episodes' answers. Imports torch/transformers: only the vlm
+extra may import this module.
 """
 
 from __future__ import annotations
@@ -113,7 +115,8 @@ class Generation:
     dropped_steps: int  # past steps dropped to fit max_length (encoding.encode_fitting)
     encode_s: float  # rendering to tokens and pixels
     prefill_s: float  # feeding the new context tokens
-    decode_s: float  # the token-by-token loop
+    decode_s: float  # the token-by-token loop (in a batch: waiting for it and running it)
+    batch_rows: int = 1  # answers decoded together with this one, itself included
 
     @property
     def total_s(self) -> float:
@@ -214,6 +217,12 @@ def cache_kind(cache: Any) -> str:
     return "croppable"
 
 
+def next_mrope_position(prompt: _Prompt) -> int:
+    """The M-RoPE position of the first generated token: as ``generate`` does, text goes on
+    after the context's largest position (an image's positions end below its token count)."""
+    return int(prompt.positions[1:].max()) + 1
+
+
 class PrefixCachedGenerator:
     """Greedy answers to chat contexts, reusing the previous step's cache when the new context
     extends it (see the module docstring). ``reuse_prefix=False`` re-encodes every context from
@@ -244,6 +253,12 @@ class PrefixCachedGenerator:
         # The module whose get_rope_index gives M-RoPE positions (the inner model, else the model).
         self._rope_owner: Any = inner if hasattr(inner, "get_rope_index") else self.model
         self.device = next(self.model.parameters()).device
+        #: The decode batcher of this model in this process (``packlab.vlm.infer.batching``), or
+        #: None to decode alone; the policy attaches it.
+        self.batcher: Any = None
+        #: ``on``: every answer goes through the batcher; ``auto``: only while another episode
+        #: asks the same model in this process.
+        self.batch_mode = "auto"
         self.reset()
 
     def reset(self) -> None:
@@ -254,6 +269,8 @@ class PrefixCachedGenerator:
         self._keys: list[tuple] = []  # content keys of those images, in order
         self._snapshot: _Snapshot | None = None
         self.processor.clear()
+        if self.batcher is not None:
+            self.batcher.enter(self)
 
     # -- positions ---------------------------------------------------------------------------
     def _positions(self, input_ids: torch.Tensor, mm: torch.Tensor, grid: torch.Tensor | None):
@@ -378,8 +395,7 @@ class PrefixCachedGenerator:
         """Greedy tokens after the prompt: (generated ids, whether an end token ended them)."""
         n = len(prompt.ids)
         generated: list[int] = []
-        # As generate does: text after the context's last M-RoPE position.
-        next_mrope = int(prompt.positions[1:].max()) + 1
+        next_mrope = next_mrope_position(prompt)
         while True:
             tok = int(torch.argmax(logits))
             generated.append(tok)
@@ -407,7 +423,10 @@ class PrefixCachedGenerator:
         t1 = time.perf_counter()
         logits, reused = self._prefill(prompt)
         t2 = time.perf_counter()
-        generated, finished = self._decode(prompt, logits)
+        if self.batcher is None:
+            generated, finished, rows = *self._decode(prompt, logits), 1
+        else:
+            generated, finished, rows = self.batcher.decode(self, prompt, logits)
         t3 = time.perf_counter()
 
         # The cache now holds the context and every generated token but the last.
@@ -427,4 +446,11 @@ class PrefixCachedGenerator:
             encode_s=t1 - t0,
             prefill_s=t2 - t1,
             decode_s=t3 - t2,
+            batch_rows=rows,
         )
+
+    def drop_cache(self) -> None:
+        """Forget the cache (not the memoised images): the next step encodes its whole context.
+        For a step whose decode failed part-way, after which the cache's state is unknown."""
+        self._cache, self._ids, self._spans, self._keys = None, [], [], []
+        self._snapshot = None

@@ -13,14 +13,17 @@ Importing this module is cheap: torch and transformers are imported when a ``vlm
 its model (:mod:`packlab.vlm.infer.runtime`, on the first :meth:`VLMPolicy.reset`), so policies
 are picklable and cheap to build in the parent process and each worker loads its own copy.
 
-Per-step diagnostics (token counts, prefix reuse, timings) are kept in the policy's
-``step_log`` (a list of dicts, one per ``act`` of the current episode).
+Per-step diagnostics (token counts, prefix reuse, timings, the answer's format event) are kept
+in the policy's ``step_log`` (a list of dicts, one per ``act`` of the current episode); how each
+answer was read also reaches the episode's records (:meth:`VLMPolicy.last_answer_format`).
 
 ``prompt=reference`` plays a model trained on the reference implementation's data with the
 reference's request and answer reading (:mod:`packlab.vlm.serve.reference_turns`, as the
 ``endpoint`` policy does): its text, images and thinking prefill, which the model continues; the
 chat template gets ``enable_thinking`` true unless ``template_kwargs`` says otherwise. A
-re-ask (``reask``) keeps the same template switches (a server would use its defaults).
+re-ask (``reask``) keeps the same template switches (a server would use its defaults);
+``fallback`` picks the reference's relaxed (``set_aside``) or strict (``invalid``) handling of
+an answer that does not parse.
 """
 
 from __future__ import annotations
@@ -36,13 +39,13 @@ from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.policy import CandidateVLMPolicy
 from packlab.vlm.extra import VLM_EXTRA_HINT, import_torch_side
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
-from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.parse import logged_answer_format, parse_with_format
 from packlab.vlm.prompt.reference import EXTRA_BODY as REFERENCE_EXTRA_BODY
 from packlab.vlm.prompt.reference import SAMPLING as REFERENCE_SAMPLING
 from packlab.vlm.prompt.reference import with_prefill
-from packlab.vlm.prompt.reference_parse import parse_reference
+from packlab.vlm.prompt.reference_parse import Fallback, parse_reference
 from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
-from packlab.vlm.serve.reference_turns import ReferenceTurns, local_image
+from packlab.vlm.serve.reference_turns import ReferenceTurns, check_fallback, local_image
 
 if TYPE_CHECKING:  # generate.py imports torch; only its type is needed here
     from packlab.vlm.infer.generate import Generation
@@ -59,6 +62,10 @@ CANDIDATE_ARGS = ("model", "threads", "name", "blank_image", "runtime", "overflo
 #: The prompt protocols and the answer budget each defaults to.
 PROMPTS = ("packlab", "reference")
 DEFAULT_MAX_NEW_TOKENS = {"packlab": 64, "reference": REFERENCE_SAMPLING["max_tokens"]}
+#: How answers are decoded with other episodes' (``batch``; batching.MODES, without torch here).
+BATCH_MODES = ("auto", "on", "off")
+#: Most answers decoded together (``max_batch``; batching.DEFAULT_MAX_BATCH).
+DEFAULT_MAX_BATCH = 8
 
 
 def _check_settings(
@@ -88,6 +95,14 @@ def _check_settings(
         require_choice(image, ImageMode, "image")
 
 
+def _check_batch(batch: object, max_batch: object) -> None:
+    """ConfigError (one line) for a batch setting the policy cannot run with."""
+    if batch not in BATCH_MODES:
+        raise ConfigError(f"batch = {batch!r}: choose one of {', '.join(BATCH_MODES)}")
+    if isinstance(max_batch, bool) or not isinstance(max_batch, int) or max_batch < 1:
+        raise ConfigError(f"max_batch = {max_batch!r}: must be a whole number >= 1")
+
+
 def _generation_log(gen: Generation) -> dict[str, object]:
     """The step log's fields about one generation (tokens, cache reuse, dropped steps)."""
     return {
@@ -96,6 +111,7 @@ def _generation_log(gen: Generation) -> dict[str, object]:
         "new_tokens": len(gen.token_ids),
         "finished": gen.finished,
         "dropped_steps": gen.dropped_steps,
+        "batch_rows": gen.batch_rows,
     }
 
 
@@ -107,6 +123,10 @@ class VLMPolicy:
     None take the values the checkpoint was trained with (its ``packlab_model.json``), else the
     defaults (full history, heightmap images, no length limit). ``reuse_cache=False`` re-encodes
     the whole context every step (same answers, slower; for checks and latency comparisons).
+    ``batch`` decodes this episode's answers together with those of the other episodes asking
+    the same model in this process (``packlab bench --concurrency N``), up to ``max_batch`` at
+    once: ``auto`` while another episode is asking, ``on`` always, ``off`` never
+    (:mod:`packlab.vlm.infer.batching`).
     """
 
     def __init__(
@@ -126,15 +146,21 @@ class VLMPolicy:
         name: str | None = None,
         prompt: str = "packlab",
         reask: bool = False,
+        fallback: Fallback = "set_aside",
+        batch: str = "auto",
+        max_batch: int = DEFAULT_MAX_BATCH,
     ) -> None:
         if prompt not in PROMPTS:
             raise ConfigError(f"prompt = {prompt!r}: choose one of {', '.join(PROMPTS)}")
         if not isinstance(reask, bool):
             raise ConfigError(f"reask = {reask!r}: must be true or false")
+        check_fallback(fallback, prompt)
         if max_new_tokens is None:
             max_new_tokens = DEFAULT_MAX_NEW_TOKENS[prompt]
         _check_settings(model, history, image, max_new_tokens, max_length, threads)
-        self.prompt, self.reask = prompt, reask
+        _check_batch(batch, max_batch)
+        self.batch, self.max_batch = batch, max_batch
+        self.prompt, self.reask, self.fallback = prompt, reask, fallback
         # The protocol is part of what a row measures, so a report can tell the two apart.
         self.name = name or ("vlm (reference prompt)" if prompt == "reference" else "vlm")
         self.model_spec = model
@@ -165,7 +191,8 @@ class VLMPolicy:
     ) -> VLMPolicy:
         """A policy playing a model already in memory (a trainer's closed-loop evaluation):
         nothing is loaded; the model stays where it is, in its dtype."""
-        policy = cls(max_new_tokens=max_new_tokens, name=name)  # its default spec is never loaded
+        # Its default spec is never loaded; one evaluation loop, so no batcher.
+        policy = cls(max_new_tokens=max_new_tokens, name=name, batch="off")
         policy.model_spec = "in-memory"
         runtime = import_torch_side(RUNTIME_MODULE)
         policy._generator = runtime.make_generator(
@@ -218,9 +245,12 @@ class VLMPolicy:
         self._generator = runtime.make_generator(
             vlm, self.max_new_tokens, self.reuse_cache, self.image_size, max_length, template_kwargs
         )
+        runtime.attach_batcher(self._generator, self.batch, self.max_batch)
         self._renderer = ContextRenderer(options, self.image_size)
         if self.prompt == "reference":
-            self._reference = ReferenceTurns(options.history, options.image, image_part=local_image)
+            self._reference = ReferenceTurns(
+                options.history, options.image, image_part=local_image, fallback=self.fallback
+            )
         self.resolved = {
             "model": self.model_spec,
             "family": vlm.family,
@@ -232,6 +262,8 @@ class VLMPolicy:
             "max_new_tokens": self.max_new_tokens,
             "reuse_cache": self.reuse_cache,
             "image_size": self.image_size,
+            "batch": self.batch,
+            "max_batch": self.max_batch,
             "greedy": True,
         }
 
@@ -260,8 +292,11 @@ class VLMPolicy:
             "image_size": self.image_size,
             "reuse_cache": self.reuse_cache,
             "model_seed": self.model_seed,
+            "batch": self.batch,
+            "max_batch": self.max_batch,
             "prompt": self.prompt,
             "reask": self.reask,
+            "fallback": self.fallback,
         }
         return {**requested, **self.resolved}
 
@@ -289,7 +324,7 @@ class VLMPolicy:
         messages = self._renderer.messages(observation)
         render_s = time.perf_counter() - t0
         gen = self._generator.generate(messages)
-        action = parse_or_unparsable(gen.text)
+        action, event = parse_with_format(gen.text)
         self.step_log.append(
             {
                 "step": observation.step_index,
@@ -299,14 +334,22 @@ class VLMPolicy:
                 "prefill_s": round(gen.prefill_s, 6),
                 "decode_s": round(gen.decode_s, 6),
                 "parsed": isinstance(action, Action),
+                "format_event": event,
             }
         )
         return action
 
-    def _act_reference(self, observation: Observation, turns: ReferenceTurns) -> Action:
+    def last_answer_format(self) -> dict[str, Any] | None:
+        """How the latest :meth:`act` read its answer (the episode's answer-format hook,
+        DESIGN.md section 7): format event, re-ask (``reask`` on) and forced set-aside."""
+        return logged_answer_format(self.step_log[-1]) if self.step_log else None
+
+    def _act_reference(
+        self, observation: Observation, turns: ReferenceTurns
+    ) -> Action | Unparsable:
         """One step of the reference's protocol: the model continues the thinking prefill; an
-        answer it cannot use is asked for once more (``reask``), then set aside as the
-        reference's evaluation does."""
+        answer it cannot use is asked for once more (``reask``), then set aside or played as an
+        invalid step as the reference's evaluation does (``fallback``)."""
         view = turns.view(observation)
         gen = self._generator.generate(with_prefill(view))
         text, parsed, reasked = gen.text, parse_reference(gen.text), False
@@ -322,7 +365,8 @@ class VLMPolicy:
                 "format_event": decision.event,
                 "parse_error": decision.error,
                 "forced_set_aside": decision.forced,
-                "reasked": reasked,
+                # logged where a second ask was possible
+                **({"reasked": reasked} if self.reask else {}),
             }
         )
         return decision.action

@@ -1,5 +1,5 @@
 """The torch side of the ``vlm`` policy (vlm extra): device and dtype, the models loaded in this
-process, and the generator each policy asks.
+process, the generator each policy asks and the decode batcher the generators of one model share.
 
 :class:`packlab.vlm.infer.policy.VLMPolicy` imports this module on its first load (through
 :func:`packlab.vlm.extra.import_torch_side`), so that building and pickling the policy never
@@ -9,6 +9,7 @@ imports torch.
 from __future__ import annotations
 
 import threading
+import weakref
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ import torch
 
 from packlab.core.errors import ConfigError
 from packlab.vlm.data.encoding import ProcessingConfig
+from packlab.vlm.infer.batching import DecodeBatcher
 from packlab.vlm.infer.generate import PrefixCachedGenerator
 from packlab.vlm.model.checkpoint import VLM, load_model
 from packlab.vlm.model.tiny import build_tiny_model
@@ -30,6 +32,12 @@ DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch
 _LOADED: OrderedDict[tuple, VLM] = OrderedDict()
 _LOADED_MAX = 2
 _LOADED_LOCK = threading.Lock()
+
+#: The decode batcher of each loaded model in this process, per batch size limit: every
+#: episode of the model shares it (packlab.vlm.infer.batching). Keyed by the model module
+#: itself, weakly, so a model dropped from _LOADED takes its batchers with it.
+_BATCHERS: weakref.WeakKeyDictionary[Any, dict[int, DecodeBatcher]] = weakref.WeakKeyDictionary()
+_BATCHERS_LOCK = threading.Lock()
 
 
 def set_threads(threads: int) -> None:
@@ -108,3 +116,30 @@ def make_generator(
         image_size=image_size, max_length=max_length, template_kwargs=template_kwargs
     )
     return PrefixCachedGenerator(vlm, config, max_new_tokens, reuse_prefix)
+
+
+def attach_batcher(generator: PrefixCachedGenerator, mode: str, max_batch: int) -> None:
+    """Have ``generator`` decode through its model's batcher in this process (``mode`` ``auto``
+    or ``on``), or alone (``off``)."""
+    if mode == "off":
+        generator.batcher = None
+        return
+    model = generator.model
+    with _BATCHERS_LOCK:
+        per_size = _BATCHERS.setdefault(model, {})
+        if max_batch not in per_size:
+            batcher = per_size[max_batch] = DecodeBatcher(max_batch)
+            # Its thread ends with the model (without waiting for it); at exit the daemon
+            # thread just ends with the process.
+            weakref.finalize(model, batcher.stop, 0.0).atexit = False
+        generator.batcher = per_size[max_batch]
+    generator.batch_mode = mode
+
+
+def stop_batchers() -> None:
+    """Stop every decode batcher of this process (their threads end; a later answer starts
+    them again)."""
+    with _BATCHERS_LOCK:
+        batchers = [b for per_size in _BATCHERS.values() for b in per_size.values()]
+    for batcher in batchers:
+        batcher.stop()

@@ -38,8 +38,11 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
+from packlab.core.records import FormatEvent
 from packlab.core.types import Action, Unparsable
 
 #: The keys of an action, in the order the prompt renders them; any order parses.
@@ -377,8 +380,40 @@ def parse_or_unparsable(text: str) -> Action | Unparsable:
     Never raises. The text kept is cut to MAX_ANSWER_CHARS (it goes into step records and the
     next prompt's history).
     """
+    return parse_with_format(text)[0]
+
+
+def parse_with_format(text: str) -> tuple[Action | Unparsable, FormatEvent]:
+    """:func:`parse_or_unparsable` and the answer's format event as this parser sees it:
+    ``strict_json`` when the whole answer (after any reasoning) is the object (``plain``),
+    ``extra_text`` when it was found in a code fence or among other text, ``parse_fail`` when
+    the answer holds no action. Never raises."""
     try:
-        return parse_action(text).action
+        found = parse_action(text)
     except ActionParseError as e:
         kept = text[:MAX_ANSWER_CHARS] if isinstance(text, str) else ""
-        return Unparsable(text=kept, error=e.reason)
+        return Unparsable(text=kept, error=e.reason), "parse_fail"
+    strict = found.case.removeprefix("think+") == "plain"
+    return found.action, "strict_json" if strict else "extra_text"
+
+
+#: Step-log keys of the text-answer policies (``vlm``, ``endpoint``) -> the answer-format
+#: hook's keys (``packlab.sim.episode.answer_format``).
+_LOGGED_FORMAT = {
+    "format_event": "format_event",
+    "reasked": "reasked",
+    "forced_set_aside": "forced",
+}
+
+
+def logged_answer_format(entry: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The ``last_answer_format`` hook's value from a text-answer policy's step-log entry: its
+    format event, whether it re-asked (where logged) and a forced set-aside's reason (where one
+    was played); None when the entry has no format event (no answer was read)."""
+    if entry.get("format_event") is None:
+        return None
+    return {
+        hook: entry[logged]
+        for logged, hook in _LOGGED_FORMAT.items()
+        if entry.get(logged) is not None
+    }

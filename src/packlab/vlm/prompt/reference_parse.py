@@ -20,7 +20,9 @@ crash on or spend long on: an answer over :data:`MAX_ANSWER_CHARS` characters, a
 
 What the evaluation does with a failure (:func:`forced_set_aside`): in its relaxed mode an
 answer that does not parse, or names an object id outside the shown buffer, sets aside a shown
-object drawn at random with a seed derived from (seed, sample id, step, reason).
+object drawn at random with a seed derived from (seed, sample id, step, reason). Its strict
+mode plays ``{object_id: -1, x: 0, y: 0, rotation: 0}`` instead, an invalid action that places
+nothing (:data:`FALLBACKS`; packlab records it as an invalid ``unparsable`` step).
 """
 
 from __future__ import annotations
@@ -31,13 +33,18 @@ import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from packlab.core.records import FormatEvent
 from packlab.core.types import Action
 from packlab.vlm.prompt.reference import derived_seed
 
-FormatEvent = Literal["strict_json", "extra_text", "parse_fail"]
 ParseError = Literal["json_parse_failed", "missing_or_invalid_field", "invalid_rotation"]
 #: Why an answer was replaced by a forced set-aside.
 ForcedReason = Literal["parse_fail", "invalid_object_id"]
+#: What is played in place of an answer that does not parse: a forced set-aside of a random
+#: shown box (``set_aside``, the reference's relaxed mode, which its benchmark configuration
+#: uses) or an invalid step that places nothing (``invalid``, its strict mode).
+Fallback = Literal["set_aside", "invalid"]
+FALLBACKS: tuple[Fallback, ...] = ("set_aside", "invalid")
 
 #: Longest answer read (reasoning included); the reference asks for at most 512 tokens.
 MAX_ANSWER_CHARS = 64 * 1024
@@ -121,8 +128,10 @@ def forced_set_aside(
 
 
 __all__ = [
+    "FALLBACKS",
     "FORCED_SEED",
     "MAX_ANSWER_CHARS",
+    "Fallback",
     "ForcedReason",
     "FormatEvent",
     "ParseError",

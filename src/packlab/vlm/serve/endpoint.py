@@ -41,7 +41,17 @@ Prompt protocols (``prompt``): ``packlab`` (default) is packlab's own prompt and
 its system and user text, 224 px blue-to-red heightmaps, the thinking prefill and chat-template
 switches, 512 answer tokens unless ``max_tokens`` says otherwise, its lenient parser, an optional
 second request after an unusable answer (``reask``), and a seeded forced set-aside of a shown
-box in place of an answer it cannot use. Its step log labels each step's format event.
+box in place of an answer it cannot use (``fallback="set_aside"``, the reference's relaxed mode)
+or an invalid step (``fallback="invalid"``, its strict mode).
+
+Every answer read is labelled with its format event (``strict_json``, ``extra_text`` or
+``parse_fail``, as the protocol's parser sees it) in the step log, and reported to the episode
+through :meth:`EndpointPolicy.last_answer_format`, so bench records and tables count them.
+
+``tag_requests`` (off by default) sends the OpenAI ``user`` field as ``<case id>/<run seed>``, so
+a server's logs can group the requests of one episode and a scripted test server
+(:mod:`packlab.vlm.serve.oracle_answers`) can tell apart episodes whose requests read the same.
+It names the case: never turn it on for a model under evaluation.
 """
 
 from __future__ import annotations
@@ -55,17 +65,17 @@ from packlab.core.choices import HistoryMode, ImageMode
 from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
-from packlab.vlm.prompt.parse import parse_or_unparsable
+from packlab.vlm.prompt.parse import logged_answer_format, parse_with_format
 from packlab.vlm.prompt.reference import EXTRA_BODY as REFERENCE_EXTRA_BODY
 from packlab.vlm.prompt.reference import SAMPLING as REFERENCE_SAMPLING
-from packlab.vlm.prompt.reference_parse import parse_reference
+from packlab.vlm.prompt.reference_parse import Fallback, parse_reference
 from packlab.vlm.prompt.render import BLANK_IMAGE, PromptOptions, keep_last_steps
 from packlab.vlm.serve.openai_messages import (
     blank_png_data_url,
     png_data_url,
     to_openai_messages,
 )
-from packlab.vlm.serve.reference_turns import ReferenceTurns
+from packlab.vlm.serve.reference_turns import ReferenceTurns, check_fallback
 from packlab.vlm.serve.transport import MAX_RESPONSE_BYTES, HTTPReply, TransportError, http_post
 
 #: Defaults of :class:`EndpointPolicy` (seconds; tries = 1 + retries).
@@ -237,6 +247,8 @@ class EndpointPolicy:
         timeout_s: float | None = None,
         prompt: str = "packlab",
         reask: bool = False,
+        fallback: Fallback = "set_aside",
+        tag_requests: bool = False,
     ) -> None:
         if not isinstance(base_url, str) or not base_url.startswith(("http://", "https://")):
             raise ConfigError(
@@ -247,6 +259,9 @@ class EndpointPolicy:
             raise ConfigError(f"prompt = {prompt!r}: choose one of {', '.join(PROMPTS)}")
         if not isinstance(reask, bool):
             raise ConfigError(f"reask = {reask!r}: must be true or false")
+        if not isinstance(tag_requests, bool):
+            raise ConfigError(f"tag_requests = {tag_requests!r}: must be true or false")
+        check_fallback(fallback, prompt)
         if max_tokens is None:
             max_tokens = DEFAULT_MAX_TOKENS[prompt]
         _check_numbers(
@@ -259,7 +274,10 @@ class EndpointPolicy:
             max_past_steps,
         )
         self.options = PromptOptions(history, image)  # which checks the names
-        self.prompt, self.reask = prompt, reask
+        self.prompt, self.reask, self.fallback = prompt, reask, fallback
+        # Off by default: the tag names the case, which a model under test must not be told.
+        self.tag_requests = tag_requests
+        self._tag = ""
         # The protocol is part of what a row measures, so a report can tell the two apart.
         self.name = name or ("endpoint (reference prompt)" if prompt == "reference" else "endpoint")
         self.base_url, self.url = base_url, chat_completions_url(base_url)
@@ -321,6 +339,8 @@ class EndpointPolicy:
             "max_past_steps": self.max_past_steps,
             "prompt": self.prompt,
             "reask": self.reask,
+            "fallback": self.fallback,
+            "tag_requests": self.tag_requests,
         }
 
     # -- request building ----------------------------------------------------------------------
@@ -346,6 +366,7 @@ class EndpointPolicy:
             "temperature": self.temperature,
             "max_tokens": self.max_tokens,
             **({"seed": self.seed} if self.seed is not None else {}),
+            **({"user": self._tag} if self.tag_requests else {}),
             **protocol,
         }
         body.update(self.extra_body)
@@ -353,7 +374,9 @@ class EndpointPolicy:
 
     def _turns(self) -> ReferenceTurns:
         if self._reference is None:
-            self._reference = ReferenceTurns(self.options.history, self.options.image)
+            self._reference = ReferenceTurns(
+                self.options.history, self.options.image, fallback=self.fallback
+            )
         return self._reference
 
     def _reference_view(self, observation: Observation) -> list[dict[str, Any]]:
@@ -385,6 +408,8 @@ class EndpointPolicy:
         self._renderer = ContextRenderer(self.options, self.image_size)
         self._urls = {}
         self.step_log = []
+        # Read only when asked for: the case's id is not the policy's to know.
+        self._tag = f"{case.episode_id}/{seed}" if self.tag_requests else ""
         if self.prompt == "reference":
             self._turns().reset(case)
 
@@ -459,9 +484,16 @@ class EndpointPolicy:
         if isinstance(got, Unparsable):
             return got
         text, decoded = got
-        action = parse_or_unparsable(text)
+        action, event = parse_with_format(text)
         self._log_reply(log, decoded, isinstance(action, Action))
+        log["format_event"] = event
         return action
+
+    def last_answer_format(self) -> dict[str, Any] | None:
+        """How the latest :meth:`act` read its answer (the episode's answer-format hook,
+        DESIGN.md section 7): format event, re-ask (``reask`` on) and forced set-aside; None
+        when no answer came back to read."""
+        return logged_answer_format(self.step_log[-1]) if self.step_log else None
 
     def _act_reference(self, observation: Observation, log: dict[str, Any]) -> Action | Unparsable:
         """One step of the reference's protocol: ask, read leniently, re-ask once if enabled,
@@ -477,7 +509,8 @@ class EndpointPolicy:
             return got
         text, decoded = got
         parsed = parse_reference(text)
-        log["reasked"] = False
+        if self.reask:  # logged where a second ask was possible
+            log["reasked"] = False
         if parsed.action is None and self.reask:
             # The reference's second ask: no prefill and no chat-template switches.
             again = self._exchange(self._body(ReferenceTurns.reask(view, text), top_p), log)

@@ -5,7 +5,8 @@ The rendering and the reading are :mod:`packlab.vlm.prompt.reference` and
 :mod:`packlab.vlm.prompt.reference_parse`; this module keeps what they need across steps: the
 model's raw answers (the reference's history holds them unparsed), the image data URLs (each
 heightmap is encoded once per episode), and the case's sample id (it seeds the forced
-set-aside).
+set-aside). ``fallback`` picks what an answer that does not parse becomes: the relaxed mode's
+forced set-aside (``set_aside``, default) or the strict mode's invalid action (``invalid``).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import numpy as np
 from PIL import Image
 
 from packlab.core.choices import HistoryMode, ImageMode
-from packlab.core.types import Action, Case, Container, Observation
+from packlab.core.errors import ConfigError
+from packlab.core.types import Action, Case, Container, Observation, Unparsable
 from packlab.vlm.prompt.reference import (
     IMAGE_SIZE,
     ReferenceHistory,
@@ -28,7 +30,10 @@ from packlab.vlm.prompt.reference import (
     with_prefill,
 )
 from packlab.vlm.prompt.reference_parse import (
+    FALLBACKS,
     FORCED_SEED,
+    MAX_ANSWER_CHARS,
+    Fallback,
     ForcedReason,
     ReferenceParse,
     forced_set_aside,
@@ -66,7 +71,7 @@ def local_image(image: Image.Image) -> dict[str, Any]:
 class Decision:
     """What one answer became: the action played and the labels the step log records."""
 
-    action: Action
+    action: Action | Unparsable  # Unparsable: fallback="invalid" after an unreadable answer
     event: str  # strict_json | extra_text | parse_fail
     error: str | None  # the parse error, or invalid_object_id
     forced: ForcedReason | None  # why the action is a forced set-aside, if it is
@@ -81,7 +86,10 @@ class ReferenceTurns:
         image: ImageMode = "heightmap",
         forced_seed: int = FORCED_SEED,
         image_part: Callable[[Image.Image], dict[str, Any]] = openai_image,
+        fallback: Fallback = "set_aside",
     ) -> None:
+        check_fallback(fallback)
+        self.fallback = fallback
         self.history: ReferenceHistory = HISTORY_MODES[history]
         self.image = image
         self.forced_seed = forced_seed
@@ -132,11 +140,22 @@ class ReferenceTurns:
         ]
 
     def decide(self, obs: Observation, raw: str, parsed: ReferenceParse) -> Decision:
-        """The action the reference's relaxed evaluation plays for the final answer ``raw``."""
+        """The action the reference's evaluation plays for the final answer ``raw``: in its
+        relaxed mode (``fallback="set_aside"``) a forced set-aside replaces an answer that does
+        not parse or names an object outside the buffer; in its strict mode (``"invalid"``) an
+        answer that does not parse is an invalid step (an ``Unparsable`` carrying the answer and
+        the parse error) and any action is played as it is."""
         self.raw_answers.append(raw)
         action = parsed.action
         if action is not None and 0 <= action.object_id < len(obs.shown):
             return Decision(action, parsed.event, None, None)
+        if self.fallback == "invalid":
+            # The episode records it: an ``unparsable`` step, or a ``bad_object_id`` one.
+            if action is None:
+                assert parsed.error is not None  # no action: the parser says why
+                unread = Unparsable(raw[:MAX_ANSWER_CHARS], parsed.error)
+                return Decision(unread, parsed.event, parsed.error, None)
+            return Decision(action, parsed.event, "invalid_object_id", None)
         reason: ForcedReason = "parse_fail" if action is None else "invalid_object_id"
         k = forced_set_aside(
             len(obs.shown), self.sample_id, obs.step_index, reason, self.forced_seed
@@ -150,10 +169,24 @@ class ReferenceTurns:
         self.raw_answers.append(text)
 
 
+def check_fallback(fallback: object, prompt: str = "reference") -> None:
+    """ConfigError (one line) for a ``fallback`` the prompt protocol cannot take: one of
+    :data:`FALLBACKS`, and ``invalid`` only with ``prompt=reference`` (packlab's own prompt
+    always records an answer it cannot read as an invalid ``unparsable`` step)."""
+    if fallback not in FALLBACKS:
+        raise ConfigError(f"fallback = {fallback!r}: choose one of {', '.join(FALLBACKS)}")
+    if fallback != "set_aside" and prompt != "reference":
+        raise ConfigError(
+            f"fallback = {fallback!r}: applies to prompt=reference only (prompt = {prompt!r} "
+            "records an answer it cannot read as an invalid unparsable step)"
+        )
+
+
 __all__ = [
     "HISTORY_MODES",
     "Decision",
     "ReferenceTurns",
+    "check_fallback",
     "local_image",
     "openai_image",
     "sample_id",

@@ -39,7 +39,9 @@ Command line (serves the tiny random model unless ``--model`` names a checkpoint
     packlab serve --model tiny:qwen3_5:tiny --port 8000   # or python -m packlab.vlm.serve
 
 (:mod:`packlab.vlm.serve.command`).
-This is a test server: one generation at a time per model (a lock), no auth.
+This is the offline test server for tiny models: one generation at a time per model (a lock), no
+auth. Real checkpoints are served by vLLM, which batches the requests of many episodes:
+``packlab serve --engine vllm DIR`` (:mod:`packlab.vlm.serve.vllm_command`).
 """
 
 from __future__ import annotations

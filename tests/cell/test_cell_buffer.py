@@ -1,0 +1,53 @@
+"""The buffer's boxes from its depth image: what packlab's simulated robot finds, and boxes seen
+by a tilted pinhole camera."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cell_scenes import generated_case, look_at, pinhole_depth
+
+from packlab.cell.buffer import measure_boxes
+from packlab.cell.convert import calibration
+from packlab.cell.geometry import Calibration, Pinhole, buffer_image
+from packlab.cell.simulated import simulated_camera
+from packlab.sim.sensing import layout_buffer, perceive_buffer, sensor_preset
+
+
+@pytest.mark.parametrize("preset", ["none", "structured-light", "stereo"])
+@pytest.mark.parametrize(("difficulty", "seed"), [("medium", 5), ("hard", 3)])
+def test_the_boxes_are_the_ones_packlab_s_simulated_robot_finds(preset, difficulty, seed):
+    case = generated_case(difficulty, seed)
+    sensor = sensor_preset(preset)
+    shown = np.array([b.size_mm for b in case.objects[: case.buffer_size]])
+    grid = (case.container.cell_xy_mm, case.container.cell_z_mm)
+    for scan_seed in range(3):
+        scan = perceive_buffer(shown, sensor, np.random.default_rng(scan_seed), "depth", grid)
+        cal = calibration(simulated_camera(scan.image), "buffer_camera")
+        image = buffer_image(scan.image.depth_mm, cal, sensor.buffer_pixel_mm)
+        found = measure_boxes(image, sensor, grid)
+        assert found.boxes == scan.found
+        np.testing.assert_array_equal(found.labels, scan.labels)
+
+
+def test_boxes_seen_by_a_tilted_pinhole_are_measured_to_the_grid():
+    sizes = np.array([[300, 200, 150], [250, 250, 100], [400, 150, 120], [175, 125, 80]])
+    scene = layout_buffer(sizes, np.random.default_rng(3), "apart")
+    boxes = [
+        ((p[0], p[1]), s, np.degrees(yaw))
+        for p, s, yaw in zip(scene.positions_mm, sizes, scene.yaws_rad)
+    ]
+    x0, y0, x1, y1 = scene.extent_mm
+    camera = ((x0 + x1) / 2 - 150, (y0 + y1) / 2 - 100, 1500.0)
+    rotation = look_at(camera, ((x0 + x1) / 2, (y0 + y1) / 2, 0.0), roll_deg=20.0)
+    width, height, f = 1280, 1024, 1100.0
+    cx, cy = width / 2 - 0.5, height / 2 - 0.5
+    depth = pinhole_depth(boxes, camera, rotation, f, f, cx, cy, width, height)
+    cal = Calibration(Pinhole(f, f, cx, cy, width, height), rotation, np.array(camera))
+    found = measure_boxes(buffer_image(depth, cal, 2.0), sensor_preset("none"), (25, 2))
+    measured = sorted(e.size_mm for e in found.boxes)
+    truth = sorted(tuple(int(v) for v in (max(s[:2]), min(s[:2]), s[2])) for s in sizes)
+    assert measured == truth
+    for estimate in found.boxes:  # each top-face centre lies over its box's centre
+        distance = np.hypot(*(scene.positions_mm[:, :2] - estimate.top_centre_mm[:2]).T)
+        assert distance.min() < 15.0
