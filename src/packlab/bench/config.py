@@ -228,14 +228,32 @@ class ResolvedRun:
         return physics_from_json(self.physics)
 
 
+#: PhysicsConfig fields added after runs were recorded, each with the value that reproduces the
+#: settle those runs were made with: a saved ``physics`` entry without them reads as having these
+#: (to resume it and to replay its records).
+PHYSICS_ADDED = {
+    "rest_check_steps": 1,
+    "freeze": False,
+    "freeze_still_steps": 10,
+    "freeze_margin_mm": 10.0,
+    "freeze_speed_fraction": 0.3,
+}
+
+
+def saved_physics(fields: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A config.json ``physics`` entry with the fields added since it was written filled in."""
+    return {**PHYSICS_ADDED, **fields} if fields else fields
+
+
 def physics_from_json(fields: dict[str, Any] | None) -> Any:
     """A config.json ``physics`` entry back to a PhysicsConfig (None stays None)."""
     if not fields:
         return None
     try:
-        values: dict[str, Any] = {
-            k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()
-        }
+        filled = {**PHYSICS_ADDED, **fields}
+        values: dict[str, Any] = {}
+        for k, v in filled.items():
+            values[k] = tuple(v) if isinstance(v, list) else v
         return PhysicsConfig(**values)
     except TypeError as exc:  # a field this version of the engine does not know
         raise ConfigError(f"config.json: field 'physics' = {fields!r}: {exc}") from None
@@ -322,6 +340,8 @@ def check_resumable(saved: dict[str, Any], current: dict[str, Any], path: Path) 
         old, new = saved.get(key), current.get(key)
         if key == "sensing":
             old, new = saved_sensing(old), saved_sensing(new)
+        if key == "physics":
+            old, new = saved_physics(old), saved_physics(new)
         if old == new:
             continue
         if isinstance(old, dict) and isinstance(new, dict):
