@@ -77,7 +77,7 @@ def perceive_buffer(
         labels = _segment(image, preset, segmentation)
         everything = estimate_objects(image, labels, *grid)
         pixels = np.bincount(labels.ravel() + 1)[1:]  # per label
-        found = tuple(e for e in everything if _box_like(e, pixels[e.label], image.pixel_mm))
+        found = tuple(e for e in everything if is_box_like(e, pixels[e.label], image.pixel_mm))
         if len(found) == len(everything) == k:
             break
     if segmentation == "truth":  # the ablation: the true masks say which box is which
@@ -91,6 +91,11 @@ def perceive_buffer(
 def _segment(image: DepthImage, preset: SensorPreset, segmentation: Segmentation) -> np.ndarray:
     if segmentation == "truth":
         return segment_truth(image)
+    return segment_buffer(image, preset)
+
+
+def segment_buffer(image: DepthImage, preset: SensorPreset) -> np.ndarray:
+    """Labels (nx, ny) int32 of the boxes in a buffer image, from depth alone."""
     # Foreground 5 sigma over the table. Cuts must stand out of the noise left after a
     # 1-pixel Gaussian (about 0.3 sigma per pixel, its closing up to 3 times that, its slope
     # about 0.2 sigma per pixel). The window spans the groove of two bevels and a pixel more.
@@ -106,7 +111,7 @@ def _segment(image: DepthImage, preset: SensorPreset, segmentation: Segmentation
     )
 
 
-def _box_like(estimate: EstimatedBox, pixels: int, pixel_mm: float) -> bool:
+def is_box_like(estimate: EstimatedBox, pixels: int, pixel_mm: float) -> bool:
     """True when the segment's ``pixels`` fill ``MIN_FILL`` of its fitted rectangle."""
     long_mm, short_mm, _ = estimate.raw_size_mm
     return pixels * pixel_mm**2 >= MIN_FILL * long_mm * short_mm
@@ -129,4 +134,11 @@ def _assign(
     return tuple(h[0] if len(h) == 1 else None for h in hits)
 
 
-__all__ = ["MAX_SCANS", "MIN_FILL", "BufferPerception", "perceive_buffer"]
+__all__ = [
+    "MAX_SCANS",
+    "MIN_FILL",
+    "BufferPerception",
+    "is_box_like",
+    "perceive_buffer",
+    "segment_buffer",
+]
