@@ -125,31 +125,40 @@ def test_batched_answers_equal_answers_alone(torch, family):
     assert batcher.stats().largest == 3
 
 
-def test_rows_leave_the_batch_with_their_own_cache(torch):
-    """After a batched decode each generator's cache holds what decoding alone leaves: its
+@pytest.mark.parametrize("family", ("qwen3_5", "qwen3_vl"))
+def test_rows_leave_the_batch_with_their_own_cache(torch, family):
+    """After a batched answer each generator's cache holds what answering alone leaves: its
     context and its answer but the last token (checked on the values, Qwen3.5's linear-attention
-    states included)."""
-    from packlab.vlm.infer.batching import decode_together
+    states included), for a row that reuses a cached prefix batched with a row that starts
+    fresh (Qwen3-VL prefills them as one ragged batch, Qwen3.5 row by row)."""
+    from packlab.vlm.infer.batching import answer_together
     from packlab.vlm.model.tiny import build_tiny_model
 
-    vlm = build_tiny_model("qwen3_5", "tiny")
-    contexts = [_episode(i, steps=1)[0] for i in (0, 2)]
-    alone, together = [], []
+    vlm = build_tiny_model(family, "tiny")
+    episodes = [_episode(i, steps=2) for i in (0, 2)]
+    runs = []
     with torch.inference_mode():
-        for store, batched in ((alone, False), (together, True)):
+        for batched in (False, True):
             gens = [_generator(vlm, n) for n in (4, 7)]
-            prompts = [g._encode(c) for g, c in zip(gens, contexts, strict=True)]
-            logits = [g._prefill(p)[0] for g, p in zip(gens, prompts, strict=True)]
+            gens[0].generate(episodes[0][0])  # its first step, alone: a prefix to reuse
+            prompts = [gens[0]._encode(episodes[0][1]), gens[1]._encode(episodes[1][0])]
             if batched:
-                answers = decode_together(list(zip(gens, prompts, logits, strict=True)))
+                answers = [
+                    (a.generated, a.finished, a.reused)
+                    for a in answer_together(list(zip(gens, prompts, strict=True)))
+                ]
             else:
-                answers = [g._decode(p, lg) for g, p, lg in zip(gens, prompts, logits, strict=True)]
-            store.append((answers, [g._cache for g in gens]))
-    (answers_a, caches_a), (answers_b, caches_b) = alone[0], together[0]
+                answers = []
+                for g, prompt in zip(gens, prompts, strict=True):
+                    logits, reused = g._prefill(prompt)
+                    answers.append((*g._decode(prompt, logits), reused))
+            runs.append((answers, [g._cache for g in gens]))
+    (answers_a, caches_a), (answers_b, caches_b) = runs
     assert answers_a == answers_b
+    assert answers_b[0][2] > 0 and answers_b[1][2] == 0  # one row reused its prefix, one did not
     for a, b in zip(caches_a, caches_b, strict=True):
         for la, lb in zip(a.layers, b.layers, strict=True):
-            if hasattr(la, "keys") and la.keys is not None:
+            if getattr(la, "keys", None) is not None:
                 assert la.keys.shape == lb.keys.shape
                 torch.testing.assert_close(la.keys, lb.keys)
                 torch.testing.assert_close(la.values, lb.values)
@@ -173,21 +182,17 @@ def test_a_failing_row_loses_no_other_row(torch, monkeypatch):
     def no_room(*args, **kwargs):
         raise RuntimeError("out of memory (simulated)")
 
-    monkeypatch.setattr(batching, "_stack", no_room)
+    monkeypatch.setattr(batching, "_prefill_ragged", no_room)
     batcher = DecodeBatcher(wait_s=30.0)
     gens = [_generator(vlm, 6) for _ in episodes]
     for gen in gens:
         gen.batcher, gen.batch_mode = batcher, "on"
         gen.reset()
-    real_prefill, calls = gens[1]._prefill, []
 
-    def prefill_once(prompt):  # the episode's own prefill works, the retry alone fails
-        calls.append(1)
-        if len(calls) > 1:
-            raise ValueError("this row is broken")
-        return real_prefill(prompt)
+    def broken(prompt):  # this row's prefill alone fails too
+        raise ValueError("this row is broken")
 
-    gens[1]._prefill = prefill_once
+    gens[1]._prefill = broken
     together, _ = _play_together(gens, episodes)
     batcher.stop()
     assert together[0] == alone[0] and together[2] == alone[2]
@@ -236,6 +241,44 @@ def test_the_batcher_stops_cleanly_and_starts_again(torch):
     gen.generate(context)
     runtime.stop_batchers()
     assert batcher._thread not in threading.enumerate()  # (other tests' batchers may live on)
+
+
+def test_ragged_attention_leaves_answers_alone_unchanged(torch):
+    """Enabling ragged batches wraps the model's attention; a forward outside a batch runs the
+    model's own implementation, so an episode's answers alone are the same before and after."""
+    from packlab.vlm.infer.batching import _RAGGED_PREFIX, enable_ragged_batches
+    from packlab.vlm.model.tiny import build_tiny_model
+
+    vlm = build_tiny_model("qwen3_vl", "tiny")
+    episode = _episode(1, steps=3)
+    before = _play_alone(vlm, [episode], (6,), (None,))
+    assert enable_ragged_batches(vlm.model)
+    assert vlm.model.config.text_config._attn_implementation == _RAGGED_PREFIX + "sdpa"
+    assert vlm.model.config.vision_config._attn_implementation == "sdpa"  # the tower's own
+    assert enable_ragged_batches(vlm.model)  # idempotent
+    assert _play_alone(vlm, [episode], (6,), (None,)) == before
+
+
+def test_a_model_without_a_registered_attention_is_answered_row_by_row(torch):
+    """``eager`` attention has no ragged form: the batcher answers each prompt alone, with the
+    answers it would give alone."""
+    from packlab.vlm.infer.batching import DecodeBatcher
+    from packlab.vlm.model.tiny import build_tiny_model
+
+    vlm = build_tiny_model("qwen3_vl", "tiny")
+    vlm.model.config.text_config._attn_implementation = "eager"
+    episodes = [_episode(i, steps=2) for i in (0, 2)]
+    alone = _play_alone(vlm, episodes, (5, 5), (None, None))
+    batcher = DecodeBatcher(max_batch=8, wait_s=30.0)
+    gens = [_generator(vlm, 5) for _ in episodes]
+    for gen in gens:
+        gen.batcher, gen.batch_mode = batcher, "on"
+        gen.reset()
+    together, generations = _play_together(gens, episodes)
+    batcher.stop()
+    assert together == alone
+    assert {g.batch_rows for gens_of in generations for g in gens_of} == {1}
+    assert vlm.model.config.text_config._attn_implementation == "eager"
 
 
 def test_auto_decodes_alone_when_one_episode_asks(torch):

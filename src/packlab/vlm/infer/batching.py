@@ -1,55 +1,60 @@
-"""Greedy decoding of several episodes' answers together, through one copy of a model.
+"""Greedy answers to several episodes' prompts together, through one copy of a model.
 
 ``packlab bench --concurrency N`` plays up to N episodes per worker process, one thread each, and
 every ``vlm`` policy of the process asks the same loaded model (``runtime._LOADED``). Alone, each
-answer is a loop of batch-1 forwards; the loops of N threads then contend for the same cores and
-pay the per-forward overhead N times. A :class:`DecodeBatcher` (one per model and process)
-gathers the answers that are ready to decode at the same moment and runs their token loops as
-one batch.
+answer is a prefill and a loop of batch-1 forwards; the forwards of N threads then contend for
+the same cores (and the interpreter lock) and pay the per-forward overhead N times. A
+:class:`DecodeBatcher` (one per model and process) gathers the prompts that are ready at the same
+moment and runs their prefills and token loops as one batch, in a thread of its own.
 
 What is batched, and what is not:
 
-* Each episode still encodes and prefills its own context in its own thread, on its own
-  key-value cache, with the per-episode prefix reuse of
-  :class:`~packlab.vlm.infer.generate.PrefixCachedGenerator` unchanged: batching keeps prefix
-  caching. A step's new tokens are a small part of its context, so the prefill is short; the
-  decode (up to ``max_new_tokens`` forwards) is where the time goes, and that is batched.
-  Images only ever enter a prefill, so they never cross rows and every family batches (Qwen3.5,
-  Qwen3-VL, Qwen2.5-VL; their pixel values and grids stay each row's own).
-* The prefilled caches are stacked into one batch cache: attention layers' keys and values
-  left-padded to the longest row, with an attention mask that hides the padding; linear-attention
-  layers' fixed-size states (Qwen3.5's gated delta net) stacked as they are, since a decode
-  step feeds each row exactly one token and their states never see padding. Each row keeps its
-  own M-RoPE positions (its context length and its next M-RoPE position plus the tokens
-  generated so far), so padding moves no position.
+* Each episode renders and encodes its own context in its own thread. The batcher then brings
+  each row's key-value cache back to the longest prefix it can reuse, with the same decisions as
+  :class:`~packlab.vlm.infer.generate.PrefixCachedGenerator` alone: batching keeps prefix
+  caching.
+* The batch cache is ragged: row b's keys and values fill the first length_b columns of buffers
+  with room for the tokens to come, and each forward gives every row its own number of new
+  tokens (right-aligned in the inputs; a shorter row's first inputs are padding, never written
+  to its cache). Attention runs row by row over each row's own columns (an ``AttentionInterface``
+  function wrapping the model's own implementation, :func:`enable_ragged_batches`; forwards
+  outside a batch run that implementation unchanged), so no row pays for another row's length,
+  nothing is padded inside a row and no position moves; each row keeps its own M-RoPE
+  positions.
+* Attention-only caches (Qwen3-VL, Qwen2.5-VL) are prefilled as one batch, the rows' images fed
+  together to the vision tower (each image is encoded on its own there). Qwen3.5's gated
+  delta-net layers keep a recurrent state that padding inputs would change, so its rows are
+  prefilled one by one and only decoded together (a decode step feeds every row exactly one
+  token, and their fixed-size states are stacked as they are).
 * Rows stop on their own: at an end-of-turn token or their ``max_new_tokens``. A row that stops
-  is cut out of the batch at once, with its cache as it would be after decoding alone (context
+  is cut out of the batch at once, with its cache as it would be after answering alone (context
   plus generated tokens, the last excepted), and handed back to its episode for the next step.
 * Greedy and deterministic: each row's tokens are the tokens it gets alone, up to
   floating-point ties (a batched matrix product may round differently from a batch of one;
   float32 tiny models give identical answers, which the tests check).
 
-Gathering: the first answer ready starts a batch; the batcher then waits for the other episodes
+Gathering: the first prompt ready starts a batch; the batcher then waits for the other episodes
 active on the model (an episode is active from its reset while its policy is alive and it asked
 within the last ``idle_s``), up to ``max_batch`` rows, and stops waiting as soon as every one is
 in, or after the longer of ``wait_s`` (a few milliseconds) and the time the previous batch
-took to decode. Waiting longer than that would cost more than it saves (an answer that misses
-the batch gets a decode loop of its own, which takes about as long); and while an episode
-prepares its answer (rendering, encoding, prefilling, physics) it keeps the cores busy, so on a
-saturated machine the wait costs no throughput at all. While a batch decodes, the answers that
-become ready queue up and form the next one.
+took. Waiting longer than that would cost more than it saves (a prompt that misses the batch
+is answered in the next one); and while an episode prepares its prompt (rendering, encoding,
+physics) it keeps the cores busy, so on a saturated machine the wait costs no throughput at all.
+While a batch runs, the prompts that become ready queue up and form the next one.
 
-``mode``: ``on`` sends every answer through the batcher; ``auto`` (the policy's default) only
+``mode``: ``on`` sends every prompt through the batcher; ``auto`` (the policy's default) only
 when another episode is active on the model in this process, so a single episode (``--concurrency
-1``) decodes alone in its own thread with no hand-off or wait. A batch whose forward fails (for
-example out of memory at that batch size) is decoded again row by row, each from a fresh
-prefill; an error then reaches only its own row.
+1``) is answered alone in its own thread with no hand-off or wait. A batch whose forward fails
+(for example out of memory at that batch size) is answered again row by row, each from an empty
+cache; an error then reaches only its own row. A model whose attention implementation is not a
+registered one (``eager``) is answered row by row too.
 
 Imports torch/transformers: only the vlm extra may import this module.
 """
 
 from __future__ import annotations
 
+import contextvars
 import copy
 import json
 import logging
@@ -64,7 +69,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from transformers.cache_utils import DynamicLayer
+from transformers import DynamicCache
+from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
 
 from packlab.vlm.infer.generate import cache_kind, next_mrope_position
 
@@ -90,8 +96,8 @@ _BATCH_LOG: Path | None = None
 
 def record_batches(path: str | os.PathLike[str] | None) -> None:
     """Have every batcher of this process (and of processes forked from it) append one JSON line
-    per batch to ``path``: ``{"pid", "rows", "steps", "decode_s"}``; None stops it. For
-    measurements (``benchmarks/vlm_batched_throughput.py``)."""
+    per batch to ``path``: ``{"pid", "rows", "steps", "batch_s"}`` (``batch_s``: its prefill and
+    decode); None stops it. For measurements (``benchmarks/vlm_batched_throughput.py``)."""
     global _BATCH_LOG
     _BATCH_LOG = None if path is None else Path(path)
 
@@ -109,7 +115,7 @@ class BatchStats:
         return self.rows / self.batches if self.batches else 0.0
 
 
-# -- the batched decode (batcher thread) ---------------------------------------------------------
+# -- the batched prefill and decode (batcher thread) ---------------------------------------------
 
 
 @dataclass(slots=True)
@@ -127,47 +133,169 @@ class _Row:
         return self.finished or len(self.generated) >= self.gen.max_new_tokens
 
 
-def _attention_length(cache: Any) -> int | None:
-    """Tokens the cache's attention layers hold (None: it has none)."""
-    for layer in cache.layers:
-        if type(layer) is DynamicLayer:
-            return int(layer.keys.shape[-2])
-    return None
+@dataclass(frozen=True, slots=True)
+class Answer:
+    """What the batcher hands back to an episode for one prompt."""
+
+    generated: list[int]  # greedy token ids, the end token included when reached
+    finished: bool  # an end token ended them
+    rows: int  # answers prefilled or decoded together with this one, itself included
+    reused: int  # prompt tokens whose state came from the episode's cache
+    prefill_s: float  # wall time of the prefill (the batch's, when batched)
 
 
-class _GrowingLayer(DynamicLayer):
-    """An attention layer of the batch cache: keys and values in buffers with room for the
-    tokens still to come, so a decode step writes one column in place where a plain
-    :class:`DynamicLayer` would copy the whole cache (``torch.cat``), for every row."""
+# A batch cache is ragged: row b's attention keys and values fill columns [0, length_b) of
+# buffers as wide as the longest row plus room, the rest is unused. Each forward feeds every row
+# its own number of new tokens, right-aligned in the (B, N) inputs (a shorter row's first inputs
+# are padding); its cache layers write the real ones after the row's length, and the attention
+# computes each row over its own columns only. Nothing is padded inside a row, so no position
+# moves, no mask hides anything, and no row pays for another row's length.
 
-    def fill(self, keys: torch.Tensor, values: torch.Tensor, room: int) -> None:
-        """Hold ``keys``/``values`` (B, H, L, D), with space for ``room`` more tokens."""
+
+@dataclass(frozen=True, slots=True)
+class _RaggedStep:
+    """One forward of a ragged batch: where each row's new tokens go, and how many there are."""
+
+    starts: list[int]  # row b's new keys go to columns [starts[b], starts[b] + fresh[b])
+    fresh: list[int]  # real new tokens of each row (right-aligned in the inputs)
+
+    @property
+    def ends(self) -> list[int]:
+        return [s + n for s, n in zip(self.starts, self.fresh, strict=True)]
+
+
+#: The ragged forward running in this thread (None: an ordinary forward).
+_STEP: contextvars.ContextVar[_RaggedStep | None] = contextvars.ContextVar(
+    "packlab_ragged_step", default=None
+)
+#: The 4-D mask passed with a ragged forward: a prepared mask, which the model hands to the
+#: attention as it is (its content is not read), so no padding mask is built for the batch.
+_NO_MASK = torch.ones(1, 1, 1, 1, dtype=torch.bool)
+_RAGGED_PREFIX = "packlab_ragged+"
+
+
+def _ragged_attention(inner: str) -> Any:
+    """An attention function for ``AttentionInterface``: in a ragged forward, each row over its
+    own columns (torch's scaled dot-product attention, causal from the row's cached length);
+    otherwise exactly ``inner`` (the model's own implementation), so answers decoded alone are
+    untouched."""
+    from transformers.modeling_utils import ALL_ATTENTION_FUNCTIONS
+
+    def attention(module, query, key, value, attention_mask, scaling=None, **kwargs):
+        step = _STEP.get()
+        if step is None:
+            return ALL_ATTENTION_FUNCTIONS[inner](
+                module, query, key, value, attention_mask, scaling=scaling, **kwargs
+            )
+        width = query.shape[2]
+        gqa = query.shape[1] != key.shape[1]
+        parts = []
+        for b, (start, n) in enumerate(zip(step.starts, step.fresh, strict=True)):
+            end = start + n
+            mask = None
+            if n > 1 and start > 0:  # causal, aligned to the row's last column
+                rows = torch.arange(start, end, device=query.device)[:, None]
+                mask = (torch.arange(end, device=query.device)[None, :] <= rows)[None, None]
+            parts.append(
+                torch.nn.functional.scaled_dot_product_attention(
+                    query[b : b + 1, :, width - n :],
+                    key[b : b + 1, :, :end],
+                    value[b : b + 1, :, :end],
+                    attn_mask=mask,
+                    is_causal=n > 1 and start == 0,
+                    scale=scaling,
+                    enable_gqa=gqa,
+                ).transpose(1, 2)  # (1, n, heads, dim)
+            )
+        if width == 1:
+            return torch.cat(parts), None
+        out = query.new_zeros(query.shape[0], width, query.shape[1], query.shape[3])
+        for b, (part, n) in enumerate(zip(parts, step.fresh, strict=True)):
+            out[b, width - n :] = part[0]
+        return out, None
+
+    return attention
+
+
+def enable_ragged_batches(model: Any) -> bool:
+    """Let ``model``'s text attention run ragged batches: an ``AttentionInterface`` function that
+    wraps its implementation (forwards outside a batch run exactly that). False where that
+    implementation is not a registered one (``eager``: each model has its own)."""
+    from transformers.masking_utils import ALL_MASK_ATTENTION_FUNCTIONS
+    from transformers.modeling_utils import ALL_ATTENTION_FUNCTIONS
+
+    config = getattr(model.config, "text_config", None) or model.config
+    inner = config._attn_implementation or "sdpa"
+    if inner.startswith(_RAGGED_PREFIX):
+        return True
+    if inner not in ALL_ATTENTION_FUNCTIONS or inner not in ALL_MASK_ATTENTION_FUNCTIONS:
+        return False
+    name = _RAGGED_PREFIX + inner
+    with _REGISTER_LOCK:
+        if name not in ALL_ATTENTION_FUNCTIONS:
+            ALL_ATTENTION_FUNCTIONS.register(name, _ragged_attention(inner))
+            ALL_MASK_ATTENTION_FUNCTIONS.register(name, ALL_MASK_ATTENTION_FUNCTIONS[inner])
+        config._attn_implementation = name
+    return True
+
+
+_REGISTER_LOCK = threading.Lock()
+
+
+class _RaggedLayer(DynamicLayer):
+    """An attention layer of a ragged batch cache (see above): buffers with room for the tokens
+    to come, written in place where a plain :class:`DynamicLayer` would copy the whole cache."""
+
+    def __init__(self, keys: torch.Tensor, values: torch.Tensor, room: int) -> None:
+        super().__init__()
         self.lazy_initialization(keys, values)
-        shape = (*keys.shape[:2], keys.shape[2] + room, keys.shape[3])
-        self._k, self._v = keys.new_empty(shape), values.new_empty(shape)
-        self._k[:, :, : keys.shape[2]] = keys
-        self._v[:, :, : values.shape[2]] = values
-        self._view(keys.shape[2])
+        self._k, self._v = keys, values
+        self._width = keys.shape[2]  # columns in use (the longest row)
+        self._grow(self._width + room)
 
-    def _view(self, length: int) -> None:
-        self.keys, self.values = self._k[:, :, :length], self._v[:, :, :length]
+    def _grow(self, capacity: int) -> None:
+        if capacity > self._k.shape[2]:
+            shape = (*self._k.shape[:2], capacity, self._k.shape[3])
+            k, v = self._k.new_zeros(shape), self._v.new_zeros(shape)
+            k[:, :, : self._width] = self._k[:, :, : self._width]
+            v[:, :, : self._width] = self._v[:, :, : self._width]
+            self._k, self._v = k, v
+        self.keys, self.values = self._k[:, :, : self._width], self._v[:, :, : self._width]
 
     def update(
         self, key_states: torch.Tensor, value_states: torch.Tensor, *args: Any, **kwargs: Any
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        n, m = self.keys.shape[2], key_states.shape[2]
-        if n + m > self._k.shape[2]:  # more tokens than announced: grow (never in decode)
-            self.fill(self.keys, self.values, room=max(m, n))
-        self._k[:, :, n : n + m] = key_states
-        self._v[:, :, n : n + m] = value_states
-        self._view(n + m)
+        step = _STEP.get()
+        if step is None:
+            raise RuntimeError("a ragged batch cache used outside a ragged forward")
+        ends = step.ends
+        self._width = max(self._width, *ends)
+        self._grow(self._width)
+        width = key_states.shape[2]
+        if width == 1:  # a decode step: one token per row, one indexed write
+            rows = torch.arange(len(ends), device=self._k.device)
+            cols = torch.tensor(step.starts, device=self._k.device)
+            self._k[rows, :, cols] = key_states[:, :, 0]
+            self._v[rows, :, cols] = value_states[:, :, 0]
+        else:
+            for b, (start, n) in enumerate(zip(step.starts, step.fresh, strict=True)):
+                self._k[b, :, start : start + n] = key_states[b, :, width - n :]
+                self._v[b, :, start : start + n] = value_states[b, :, width - n :]
         return self.keys, self.values
 
-    def select(self, rows: torch.Tensor, start: int) -> None:
-        """Keep only ``rows``, from position ``start`` on (room kept)."""
-        n = self.keys.shape[2]
-        self._k, self._v = self._k[rows, :, start:], self._v[rows, :, start:]
-        self._view(n - start)
+    def keep(self, rows: torch.Tensor, width: int) -> None:
+        """Keep only ``rows``, now at most ``width`` columns long (room kept)."""
+        self._k, self._v = self._k[rows], self._v[rows]
+        self._width = width
+        self._grow(0)
+
+    def row(self, b: int, length: int) -> DynamicLayer:
+        """Row ``b``'s first ``length`` columns as a batch-1 layer of its own."""
+        new = DynamicLayer()
+        keys = self._k[b : b + 1, :, :length].clone()
+        new.lazy_initialization(keys, keys)
+        new.keys, new.values = keys, self._v[b : b + 1, :, :length].clone()
+        return new
 
 
 def _copy_layer(layer: Any) -> Any:
@@ -179,155 +307,267 @@ def _copy_layer(layer: Any) -> Any:
     return new
 
 
-def _stack(caches: Sequence[Any], pads: Sequence[int], room: int) -> Any:
-    """One batch cache of batch-1 caches: attention keys/values left-padded by ``pads``, with
-    space for ``room`` more tokens."""
+def _ragged_cache(caches: Sequence[Any], lengths: Sequence[int], room: int) -> Any:
+    """One ragged batch cache of batch-1 caches holding ``lengths`` tokens each (a fresh cache:
+    0), with room for ``room`` more columns; linear-attention states stacked as they are."""
     layers = []
+    width = max(lengths)
     for parts in zip(*(c.layers for c in caches), strict=True):
-        if type(parts[0]) is DynamicLayer:
-            new = _GrowingLayer()
-            new.fill(
-                torch.cat([_pad_left(p.keys, n) for p, n in zip(parts, pads, strict=True)]),
-                torch.cat([_pad_left(p.values, n) for p, n in zip(parts, pads, strict=True)]),
-                room,
-            )
-        else:  # linear attention: fixed-size states, no sequence axis
+        if isinstance(parts[0], LinearAttentionCacheLayerMixin):
             new = _copy_layer(parts[0])
             for store in ("conv_states", "recurrent_states"):
                 states = getattr(new, store)
                 for k, v in states.items():
                     if v is not None:
                         states[k] = torch.cat([getattr(p, store)[k] for p in parts])
+        else:
+            ref = next((p for p in parts if p.is_initialized), None)
+            if ref is None:  # every row is fresh: shapes from the model's config below
+                new = _LazyRaggedLayer(len(parts), room)
+            else:
+                heads, dim = ref.keys.shape[1], ref.keys.shape[3]
+                keys = ref.keys.new_zeros(len(parts), heads, width, dim)
+                values = ref.values.new_zeros(len(parts), heads, width, dim)
+                for i, (p, n) in enumerate(zip(parts, lengths, strict=True)):
+                    if n:
+                        assert p.keys.shape[2] == n  # the cache holds exactly its prefix
+                        keys[i, :, :n] = p.keys[0]
+                        values[i, :, :n] = p.values[0]
+                new = _RaggedLayer(keys, values, room)
         layers.append(new)
     batch = copy.copy(caches[0])
     batch.layers = layers
     return batch
 
 
-def _pad_left(t: torch.Tensor, n: int) -> torch.Tensor:
-    """(1, H, L, D) -> (1, H, n + L, D), zeros first."""
-    return torch.nn.functional.pad(t, (0, 0, n, 0)) if n else t
+class _LazyRaggedLayer(DynamicLayer):
+    """A ragged layer whose rows are all empty: it becomes a :class:`_RaggedLayer` (in place,
+    by class) at its first update, when the keys' shape is known."""
+
+    def __init__(self, rows: int, room: int) -> None:
+        super().__init__()
+        self._rows, self._room = rows, room
+
+    def update(self, key_states, value_states, *args, **kwargs):
+        empty = key_states.new_zeros(self._rows, key_states.shape[1], 0, key_states.shape[3])
+        room = self._room + key_states.shape[2]
+        self.__class__ = _RaggedLayer
+        _RaggedLayer.__init__(self, empty, empty.clone(), room)  # type: ignore[misc]
+        return self.update(key_states, value_states, *args, **kwargs)
 
 
-def _select(cache: Any, rows: list[int], start: int) -> None:
-    """Keep only ``rows`` of the batch cache, attention layers from position ``start`` on."""
+def _keep_rows(cache: Any, rows: list[int], width: int) -> None:
+    """Keep only ``rows`` of the batch cache; its attention layers ``width`` columns wide."""
     for layer in cache.layers:
-        if isinstance(layer, _GrowingLayer):
-            layer.select(torch.tensor(rows, device=layer.keys.device), start)
-        else:
+        if isinstance(layer, _RaggedLayer):
+            layer.keep(torch.tensor(rows, device=layer.keys.device), width)
+        elif isinstance(layer, LinearAttentionCacheLayerMixin):
             for store in (layer.conv_states, layer.recurrent_states):
                 for k, v in store.items():
                     if v is not None:
                         store[k] = v[torch.tensor(rows, device=v.device)]
 
 
-def _take_row(cache: Any, row: int, pad: int) -> Any:
-    """Row ``row`` of the batch cache as a batch-1 cache of its own (padding removed)."""
+def _take_row(cache: Any, b: int, length: int) -> Any:
+    """Row ``b`` of the batch cache as a batch-1 cache of its own, ``length`` tokens long."""
     layers: list[Any] = []
     for layer in cache.layers:
-        if isinstance(layer, _GrowingLayer):
-            new = DynamicLayer()
-            keys = layer.keys[row : row + 1, :, pad:].clone()
-            new.lazy_initialization(keys, keys)
-            new.keys, new.values = keys, layer.values[row : row + 1, :, pad:].clone()
+        if isinstance(layer, _RaggedLayer):
+            layers.append(layer.row(b, length))
         else:
             new = _copy_layer(layer)
             for store in ("conv_states", "recurrent_states"):
                 states = getattr(new, store)
                 for k, v in states.items():
                     if v is not None:
-                        states[k] = v[row : row + 1].clone()
-        layers.append(new)
+                        states[k] = v[b : b + 1].clone()
+            layers.append(new)
     single = copy.copy(cache)
     single.layers = layers
     return single
 
 
 class NotBatchable(ValueError):
-    """The answers cannot be stacked into one batch; nothing was changed, each can be decoded
+    """The answers cannot be stacked into one batch; nothing was changed, each can be answered
     alone as it is."""
 
 
-def _check_batchable(rows: Sequence[_Row]) -> None:
-    """NotBatchable unless the rows' caches can be stacked (one model, batch-1 prefilled caches
-    of the kinds :func:`_stack` knows)."""
-    model = rows[0].gen.model
-    for r in rows:
-        cache = r.gen._cache
-        if r.gen.model is not model:
+def _check_stackable(gens: Sequence[Any]) -> str:
+    """NotBatchable unless the generators' caches can be stacked (one model whose attention runs
+    ragged batches; caches of the kinds :func:`_ragged_cache` knows, or none yet); the model's
+    cache kind."""
+    model = gens[0].model
+    if not enable_ragged_batches(model):
+        raise NotBatchable("the model's attention implementation cannot run ragged batches")
+    for gen in gens:
+        if gen.model is not model:
             raise NotBatchable("rows of different models")
-        if cache is None or cache_kind(cache) == "opaque":
+        if gen._cache is not None and cache_kind(gen._cache) == "opaque":
             raise NotBatchable("a row's cache is of a kind that cannot be stacked")
-        held = _attention_length(cache)
-        if held is not None and held != len(r.prompt.ids):
-            raise NotBatchable(f"a cache holds {held} tokens, its context {len(r.prompt.ids)}")
+    kind = cache_kind(DynamicCache(config=model.config))
+    if kind == "opaque":
+        raise NotBatchable("the model's cache is of a kind that cannot be stacked")
+    return kind
 
 
-def decode_together(requests: Sequence[tuple[Any, Any, torch.Tensor]]) -> list[tuple[list, bool]]:
-    """Greedy answers of prefilled generators, decoded as one batch (see the module docstring).
-
-    ``requests``: (generator, prompt, logits of the prompt's last token) after the generator's
-    prefill, its cache holding exactly the prompt. Returns (generated ids, finished) per request;
-    each generator's cache then holds its prompt and its generated ids but the last, as after
-    decoding alone. Raises :class:`NotBatchable` before touching anything when the caches
-    cannot be stacked; after any other exception the caches are in an unknown state."""
-    rows = [_Row(gen, prompt, [int(torch.argmax(logits))]) for gen, prompt, logits in requests]
-    live = [i for i, r in enumerate(rows) if not r.done()]  # the others need no forward
-    if live:
-        _decode_live([rows[i] for i in live])
-    return [(r.generated, r.finished) for r in rows]
+def _attention_length(cache: Any) -> int | None:
+    """Tokens the cache's attention layers hold (None: it has none)."""
+    for layer in cache.layers:
+        if type(layer) is DynamicLayer:
+            return int(layer.keys.shape[-2]) if layer.is_initialized else 0
+    return None
 
 
-def _decode_live(rows: list[_Row]) -> None:
-    """The token loop of rows that each need at least one more forward."""
-    _check_batchable(rows)
-    gen0 = rows[0].gen
+def answer_together(requests: Sequence[tuple[Any, Any]]) -> list[Answer]:
+    """Greedy answers to encoded prompts of several generators, prefilled and decoded together.
+
+    ``requests``: (generator, prompt) with each generator's cache as its previous step left it.
+    Each prompt reuses its own cache's prefix as :meth:`PrefixCachedGenerator._prefill` would.
+    Attention-only caches (Qwen3-VL, Qwen2.5-VL) are prefilled as one ragged batch; caches with
+    linear-attention states (Qwen3.5), which padding would change, are prefilled row by row.
+    The decode is one ragged batch either way. Each generator's cache then holds its prompt and
+    its answer but the last token, as after answering alone. Raises :class:`NotBatchable`
+    before touching anything when the caches cannot be stacked; after any other exception the
+    caches are in an unknown state."""
+    gens = [gen for gen, _ in requests]
+    kind = _check_stackable(gens)
+    t0 = time.perf_counter()
+    room = max(gen.max_new_tokens for gen in gens)
+    if kind == "croppable":
+        reused = [gen._rewind(prompt) for gen, prompt in requests]
+        cache = _ragged_cache(
+            [gen._cache for gen in gens],
+            reused,
+            room + max(len(p.ids) - h for (_, p), h in zip(requests, reused, strict=True)),
+        )
+        for gen in gens:  # the batch cache is the only copy now
+            gen._cache = None
+        logits = _prefill_ragged(requests, reused, cache)
+    else:
+        prefilled = [gen._prefill(prompt) for gen, prompt in requests]
+        reused = [p for _, p in prefilled]
+        logits = [lg for lg, _ in prefilled]
+        cache = None
+    prefill_s = time.perf_counter() - t0
+    rows = [
+        _Row(gen, prompt, [int(torch.argmax(lg))])
+        for (gen, prompt), lg in zip(requests, logits, strict=True)
+    ]
+    if cache is None:  # prefilled alone: the rows that go on are stacked for the decode
+        live = [r for r in rows if not r.done()]
+        if live:
+            lengths = [len(r.prompt.ids) for r in live]
+            cache = _ragged_cache([r.gen._cache for r in live], lengths, room)
+            for r in live:
+                r.gen._cache = None
+            _decode_ragged(live, cache, lengths)
+    else:
+        _decode_ragged(rows, cache, [len(r.prompt.ids) for r in rows])
+    return [
+        Answer(r.generated, r.finished, len(rows), p, prefill_s)
+        for r, p in zip(rows, reused, strict=True)
+    ]
+
+
+def _prefill_ragged(
+    requests: Sequence[tuple[Any, Any]], held: Sequence[int], cache: Any
+) -> list[torch.Tensor]:
+    """Feed each prompt's tokens after the ``held`` its row of the ragged ``cache`` holds, every
+    row in one forward; the logits of each prompt's last token."""
+    gen0 = requests[0][0]
     device = gen0.device
-    lengths = [len(r.prompt.ids) for r in rows]
-    width = max(lengths)
-    pads = [width - n for n in lengths]
-    room = max(r.gen.max_new_tokens for r in rows)
-    cache = _stack([r.gen._cache for r in rows], pads, room)
-    for r in rows:  # the batch cache is the only copy now: no row's state is held twice
-        r.gen._cache = None
-    # Which cached positions each row attends to (False: padding), with room for the tokens to
-    # come. Given as the 4-D boolean mask the attention takes, which the model uses as it is:
-    # building one from a 2-D padding mask at every step would cost more than the step's matmuls.
-    allowed = torch.ones(len(rows), 1, 1, width + room, dtype=torch.bool, device=device)
-    columns = torch.arange(width, device=device)[None, :]
-    allowed[:, 0, 0, :width] = columns >= torch.tensor(pads, device=device)[:, None]
-    mrope = torch.tensor([next_mrope_position(r.prompt) for r in rows], device=device)
-    plain = torch.tensor(lengths, device=device)
-    fed, held = 0, width  # tokens fed to every live row (they started together); cache length
-    while rows:
-        tokens = torch.tensor([[r.generated[-1]] for r in rows], device=device)
-        step = torch.stack([plain + fed, mrope + fed, mrope + fed, mrope + fed]).view(4, -1, 1)
+    fresh = [len(p.ids) - h for (_, p), h in zip(requests, held, strict=True)]
+    span = max(fresh)
+    rows = len(requests)
+    pad_id = min(gen0.eos_ids)  # any real token: padding inputs are never attended to
+    ids = torch.full((rows, span), pad_id, dtype=torch.long, device=device)
+    mm = torch.zeros(rows, span, dtype=torch.long, device=device)
+    positions = torch.zeros(4, rows, span, dtype=torch.long, device=device)
+    pixels, grids = [], []
+    for i, ((_gen, prompt), h, n) in enumerate(zip(requests, held, fresh, strict=True)):
+        enc, end = prompt.enc, len(prompt.ids)
+        ids[i, span - n :] = enc.input_ids[h:end]
+        mm[i, span - n :] = enc.mm_token_type_ids[h:end]
+        positions[:, i, span - n :] = prompt.positions[:, 0, h:end]
+        image_pixels, image_grids = _images_between(prompt, h, end)
+        if image_pixels is not None:
+            pixels.append(image_pixels)
+            grids.append(image_grids)
+    images: dict[str, Any] = {}
+    if pixels:
+        images["pixel_values"] = torch.cat(pixels).to(device)
+        images["image_grid_thw"] = torch.cat(grids).to(device)
+    token = _STEP.set(_RaggedStep(list(held), fresh))
+    try:
         out = gen0.model(
-            input_ids=tokens,
-            position_ids=step,
-            attention_mask=allowed[..., : held + 1],
+            input_ids=ids,
+            position_ids=positions,
+            mm_token_type_ids=mm,
+            attention_mask=_NO_MASK.to(device),
             cache=cache,
             use_cache=True,
+            logits_to_keep=1,
+            **images,
         )
-        fed, held = fed + 1, held + 1
+    finally:
+        _STEP.reset(token)
+    return list(out.logits[:, -1])
+
+
+def _images_between(prompt: Any, a: int, b: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Pixel values and grids of the prompt's images whose tokens lie in [a, b) (None: none)."""
+    spans, enc = prompt.spans, prompt.enc
+    if any(s < a < e or s < b < e for s, e in spans):
+        raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
+    inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
+    if not inside:
+        return None, None
+    grid = enc.image_grid_thw
+    offsets = [0]
+    for g in grid:
+        offsets.append(offsets[-1] + int(g.prod()))
+    lo, hi = inside[0], inside[-1] + 1
+    return enc.pixel_values[offsets[lo] : offsets[hi]], grid[lo:hi]
+
+
+def _decode_ragged(rows: list[_Row], cache: Any, lengths: list[int]) -> None:
+    """The token loop of ``rows`` (each with its first token) on the ragged batch ``cache``,
+    whose row b holds ``lengths[b]`` tokens. Each row leaves the batch with its own cache as
+    decoding alone would leave it."""
+    gen0 = rows[0].gen
+    device = gen0.device
+    mrope = torch.tensor([next_mrope_position(r.prompt) for r in rows], device=device)
+    plain = torch.tensor([len(r.prompt.ids) for r in rows], device=device)
+    fed = 0  # tokens fed to every live row (they started together)
+    while True:
+        keep = [j for j, r in enumerate(rows) if not r.done()]
+        if len(keep) < len(rows):
+            for j, r in enumerate(rows):
+                if j not in keep:
+                    r.gen._cache = _take_row(cache, j, lengths[j])
+            if not keep:
+                return
+            rows, lengths = [rows[j] for j in keep], [lengths[j] for j in keep]
+            _keep_rows(cache, keep, max(lengths))
+            index = torch.tensor(keep, device=device)
+            mrope, plain = mrope[index], plain[index]
+        tokens = torch.tensor([[r.generated[-1]] for r in rows], device=device)
+        step = torch.stack([plain + fed, mrope + fed, mrope + fed, mrope + fed]).view(4, -1, 1)
+        token = _STEP.set(_RaggedStep(lengths, [1] * len(rows)))
+        try:
+            out = gen0.model(
+                input_ids=tokens,
+                position_ids=step,
+                attention_mask=_NO_MASK.to(device),
+                cache=cache,
+                use_cache=True,
+            )
+        finally:
+            _STEP.reset(token)
+        fed += 1
+        lengths = [n + 1 for n in lengths]
         for r, tok in zip(rows, out.logits[:, -1].argmax(-1).tolist(), strict=True):
             r.generated.append(int(tok))
-        keep = [j for j, r in enumerate(rows) if not rows[j].done()]
-        if len(keep) == len(rows):
-            continue
-        for j, r in enumerate(rows):
-            if j not in keep:
-                r.gen._cache = _take_row(cache, j, pads[j])
-        if not keep:
-            return
-        # Drop the finished rows, and the padding columns no remaining row needs.
-        start = min(pads[j] for j in keep)
-        _select(cache, keep, start)
-        allowed, held = allowed[keep, :, :, start:], held - start
-        pads = [pads[j] - start for j in keep]
-        rows = [rows[j] for j in keep]
-        index = torch.tensor(keep, device=device)
-        mrope, plain = mrope[index], plain[index]
 
 
 # -- gathering (episode threads and the batcher thread) -----------------------------------------
@@ -335,13 +575,12 @@ def _decode_live(rows: list[_Row]) -> None:
 
 @dataclass(slots=True)
 class _Request:
-    """An answer waiting to be decoded, and where its result goes."""
+    """An encoded prompt waiting for its answer, and where the answer goes."""
 
     gen: Any
     prompt: Any
-    logits: torch.Tensor
     done: threading.Event = field(default_factory=threading.Event)
-    result: tuple[list[int], bool, int] | None = None
+    result: Answer | None = None
     error: BaseException | None = None
     cancelled: bool = False  # its episode stopped waiting (a time limit)
 
@@ -350,12 +589,12 @@ _STOP = object()
 
 
 class DecodeBatcher:
-    """Decodes the answers of one model's episodes in this process together (module docstring).
+    """Answers the prompts of one model's episodes in this process together (module docstring).
 
-    :meth:`enter` is called by each episode's generator when the episode starts, :meth:`decode`
-    in the episode's thread after each prefill; a thread of the batcher's own runs the batches.
+    :meth:`enter` is called by each episode's generator when the episode starts, :meth:`answer`
+    in the episode's thread after each encoding; a thread of the batcher's own runs the batches.
     :meth:`stop` ends that thread (the answers still queued get an error); a later
-    :meth:`decode` starts a new one.
+    :meth:`answer` starts a new one.
     """
 
     def __init__(
@@ -370,7 +609,7 @@ class DecodeBatcher:
         self._lock = threading.Lock()
         self._clients: dict[int, float] = {}  # id(generator) -> when it last asked or got an answer
         self._stats = BatchStats(0, 0, 0)
-        self._last_decode_s = 0.0  # wall time of the latest batch's decode
+        self._last_batch_s = 0.0  # wall time of the latest batch (prefill and decode)
         self._start_fresh()
 
     def _start_fresh(self) -> None:
@@ -381,17 +620,16 @@ class DecodeBatcher:
         self._stopping = False
 
     # -- episode side ----------------------------------------------------------------------
-    def decode(self, gen: Any, prompt: Any, logits: torch.Tensor) -> tuple[list[int], bool, int]:
-        """(generated ids, finished, rows decoded together) for a prefilled generator, whose
-        cache afterwards holds what :meth:`PrefixCachedGenerator._decode` would leave."""
+    def answer(self, gen: Any, prompt: Any) -> Answer:
+        """The greedy answer to an encoded prompt of ``gen``, whose cache afterwards holds what
+        :meth:`PrefixCachedGenerator._prefill` and ``_decode`` would leave."""
         others = self._arrive(gen)
-        first = int(torch.argmax(logits))
-        needs_forward = first not in gen.eos_ids and gen.max_new_tokens > 1
-        if not needs_forward or (gen.batch_mode == "auto" and others == 0):
-            generated, finished = gen._decode(prompt, logits)
-            self._seen(gen)
-            return generated, finished, 1
-        request = _Request(gen, prompt, logits)
+        if gen.batch_mode == "auto" and others == 0:
+            try:
+                return _answer_alone(gen, prompt, fresh=False)
+            finally:
+                self._seen(gen)
+        request = _Request(gen, prompt)
         self._submit(request)
         try:
             while not request.done.wait(_POLL_S):
@@ -480,7 +718,7 @@ class DecodeBatcher:
     def _gather(self, requests: queue.Queue[Any], first: _Request) -> list[_Request]:
         """``first`` and the answers that join it (module docstring: gathering)."""
         batch = [first]
-        wait = max(self.wait_s, min(self._last_decode_s, _LONGEST_WAIT_S))
+        wait = max(self.wait_s, min(self._last_batch_s, _LONGEST_WAIT_S))
         deadline = time.monotonic() + wait
         while len(batch) < self.max_batch:
             try:
@@ -502,18 +740,18 @@ class DecodeBatcher:
         return [r for r in batch if not r.cancelled]
 
     def _serve(self, batch: list[_Request]) -> None:
-        """Decode ``batch`` together; row by row if that fails."""
+        """Answer ``batch`` together; row by row if that fails."""
         t0 = time.perf_counter()
         with torch.inference_mode():
             try:
-                answers = decode_together([(r.gen, r.prompt, r.logits) for r in batch])
+                answers = answer_together([(r.gen, r.prompt) for r in batch])
             except NotBatchable as exc:
-                log.info("decoding %d answers one by one: %s", len(batch), exc)
+                log.info("answering %d prompts one by one: %s", len(batch), exc)
                 for r in batch:
                     self._alone(r, fresh=False)
             except Exception as exc:  # noqa: BLE001 - each row is retried alone below
                 log.warning(
-                    "a batch of %d answers failed (%s: %s); decoding them one by one",
+                    "a batch of %d answers failed (%s: %s); answering them one by one",
                     len(batch),
                     type(exc).__name__,
                     exc,
@@ -521,30 +759,24 @@ class DecodeBatcher:
                 for r in batch:
                     self._alone(r, fresh=True)
             else:
-                for r, (generated, finished) in zip(batch, answers, strict=True):
-                    r.result = (generated, finished, len(batch))
-        decode_s = time.perf_counter() - t0
-        self._last_decode_s = decode_s
+                for r, answer in zip(batch, answers, strict=True):
+                    r.result = answer
+        batch_s = time.perf_counter() - t0
+        self._last_batch_s = batch_s
         with self._lock:
             s = self._stats
             self._stats = BatchStats(s.batches + 1, s.rows + len(batch), max(s.largest, len(batch)))
-        steps = max((len(r.result[0]) for r in batch if r.result), default=0)
-        _log_batch(len(batch), steps, decode_s)
+        steps = max((len(r.result.generated) for r in batch if r.result), default=0)
+        _log_batch(len(batch), steps, batch_s)
         for r in batch:
             r.done.set()
 
     @staticmethod
     def _alone(r: _Request, fresh: bool) -> None:
-        """Decode one answer by itself: from its prefilled cache, or (``fresh``, after a failed
-        batch left the cache in an unknown state) from a new prefill. An error here is this
-        answer's only."""
+        """Answer one prompt by itself: from its cache, or (``fresh``, after a failed batch left
+        the cache in an unknown state) from an empty one. An error here is this answer's only."""
         try:
-            logits = r.logits
-            if fresh:
-                r.gen.drop_cache()
-                logits, _reused = r.gen._prefill(r.prompt)
-            generated, finished = r.gen._decode(r.prompt, logits)
-            r.result = (generated, finished, 1)
+            r.result = _answer_alone(r.gen, r.prompt, fresh)
         except Exception as exc:  # noqa: BLE001 - raised in the episode's own thread
             r.gen.drop_cache()
             r.error = exc
@@ -560,10 +792,21 @@ class DecodeBatcher:
                 item.done.set()
 
 
-def _log_batch(rows: int, steps: int, decode_s: float) -> None:
+def _answer_alone(gen: Any, prompt: Any, fresh: bool) -> Answer:
+    """Prefill and decode one prompt on its own (``fresh``: from an empty cache)."""
+    if fresh:
+        gen.drop_cache()
+    t0 = time.perf_counter()
+    logits, reused = gen._prefill(prompt)
+    prefill_s = time.perf_counter() - t0
+    generated, finished = gen._decode(prompt, logits)
+    return Answer(generated, finished, 1, reused, prefill_s)
+
+
+def _log_batch(rows: int, steps: int, batch_s: float) -> None:
     """One line of :func:`record_batches`' file, when one is set."""
     if _BATCH_LOG is None:
         return
-    line = {"pid": os.getpid(), "rows": rows, "steps": steps, "decode_s": round(decode_s, 6)}
+    line = {"pid": os.getpid(), "rows": rows, "steps": steps, "batch_s": round(batch_s, 6)}
     with _BATCH_LOG.open("a", encoding="utf-8") as f:
         f.write(json.dumps(line) + "\n")

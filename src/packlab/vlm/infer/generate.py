@@ -28,9 +28,9 @@ How reuse is decided, each step (never by assumption, always by comparison):
 Decoding is a plain greedy loop over the same cache (explicit position ids, no sampling), so
 cached and uncached runs compute the same thing and give the same tokens; the tests check this
 against ``model.generate`` too. With a batcher attached (:mod:`packlab.vlm.infer.batching`, the
-``vlm`` policy's ``batch`` option) the encoding and prefill above stay the episode's own and only
-that loop runs in a batch with other episodes' answers. Imports torch/transformers: only the vlm
-extra may import this module.
+``vlm`` policy's ``batch`` option) the encoding above stays the episode's own; the prefill (with
+the same reuse decisions, step 3) and the loop run in a batch with other episodes' answers.
+Imports torch/transformers: only the vlm extra may import this module.
 """
 
 from __future__ import annotations
@@ -114,8 +114,8 @@ class Generation:
     reused_tokens: int  # context tokens whose state came from the cache (0: full encode)
     dropped_steps: int  # past steps dropped to fit max_length (encoding.encode_fitting)
     encode_s: float  # rendering to tokens and pixels
-    prefill_s: float  # feeding the new context tokens
-    decode_s: float  # the token-by-token loop (in a batch: waiting for it and running it)
+    prefill_s: float  # feeding the new context tokens (in a batch: the batch's prefill)
+    decode_s: float  # the token-by-token loop (in a batch: the rest, waiting included)
     batch_rows: int = 1  # answers decoded together with this one, itself included
 
     @property
@@ -368,17 +368,23 @@ class PrefixCachedGenerator:
             dropped_steps=dropped,
         )
 
-    def _prefill(self, prompt: _Prompt) -> tuple[torch.Tensor, int]:
-        """Bring the cache to the longest usable prefix and feed the rest of the prompt.
-
-        Returns (logits of the prompt's last token, prompt tokens reused from the cache)."""
-        ids, n = prompt.ids, len(prompt.ids)
-        p = self._usable_prefix(ids, prompt.spans, prompt.keys)
+    def _rewind(self, prompt: _Prompt) -> int:
+        """Bring the cache back to the longest prefix of ``prompt`` it can keep (a fresh cache
+        when none); how many prompt tokens it then holds."""
+        p = self._usable_prefix(prompt.ids, prompt.spans, prompt.keys)
         if p:
             self._bring_back(p)
         else:
             self._cache = DynamicCache(config=self.model.config)
             self._snapshot = None
+        return p
+
+    def _prefill(self, prompt: _Prompt) -> tuple[torch.Tensor, int]:
+        """Bring the cache to the longest usable prefix and feed the rest of the prompt.
+
+        Returns (logits of the prompt's last token, prompt tokens reused from the cache)."""
+        ids, n = prompt.ids, len(prompt.ids)
+        p = self._rewind(prompt)
         kind = cache_kind(self._cache)
         # Where to snapshot a cache that cannot be cropped: the start of the generation header.
         header = next((i for i in range(n - 1, -1, -1) if ids[i] == self.im_start_id), -1)
@@ -421,12 +427,20 @@ class PrefixCachedGenerator:
         t0 = time.perf_counter()
         prompt = self._encode(messages)
         t1 = time.perf_counter()
-        logits, reused = self._prefill(prompt)
-        t2 = time.perf_counter()
         if self.batcher is None:
-            generated, finished, rows = *self._decode(prompt, logits), 1
-        else:
-            generated, finished, rows = self.batcher.decode(self, prompt, logits)
+            logits, reused = self._prefill(prompt)
+            t2 = time.perf_counter()
+            generated, finished = self._decode(prompt, logits)
+            rows = 1
+        else:  # prefilled and decoded by the batcher, maybe together with other episodes
+            answer = self.batcher.answer(self, prompt)
+            generated, finished, rows, reused = (
+                answer.generated,
+                answer.finished,
+                answer.rows,
+                answer.reused,
+            )
+            t2 = t1 + answer.prefill_s
         t3 = time.perf_counter()
 
         # The cache now holds the context and every generated token but the last.
