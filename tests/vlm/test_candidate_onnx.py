@@ -200,6 +200,36 @@ def test_tiny_random_models_export_and_pick_as_torch(generated, tmp_path, family
 
 
 @pytest.mark.torch
+@pytest.mark.parametrize("map", ["image", "text"])
+def test_the_last_layer_at_the_lines_alone_scores_bit_for_bit_as_the_whole_layer(
+    generated, tmp_path, monkeypatch, map
+):
+    # The text graph runs its last decoder layer at the listed lines' last tokens only: each
+    # score must be the whole layer's to the last bit (so no pick can change), with one listed
+    # line and two too.
+    _torch()
+    import packlab.vlm.candidate.onnx_graphs as graphs
+    from packlab.vlm.candidate.encoding import PromptSettings
+    from packlab.vlm.candidate.onnx_export import export_onnx
+    from packlab.vlm.candidate.onnx_scoring import load_onnx_pointer, score_listed
+
+    model, path = _saved_tiny(tmp_path, "qwen3_vl", map, True, "last")
+    assert graphs.TextGraph(model, map == "image").rows_only
+    whole = shutil.copytree(path, tmp_path / "whole")
+    export_onnx(path, check_states=2)
+    monkeypatch.setattr(graphs, "ROWS_ONLY_FAMILIES", ())
+    export_onnx(whole, check_states=2)
+    rows, full = load_onnx_pointer(path), load_onnx_pointer(whole)
+    settings = PromptSettings.of(rows.meta)
+    states = [*generated, *((o, listed[:n]) for o, listed in generated[:6] for n in (1, 2))]
+    for observation, listed in states:
+        np.testing.assert_array_equal(
+            score_listed(rows, observation, listed, settings),
+            score_listed(full, observation, listed, settings),
+        )
+
+
+@pytest.mark.torch
 @pytest.mark.parametrize("family", ["qwen2_5_vl", "qwen3_vl"])
 def test_onnx_feeds_the_pixels_torch_normalises(generated, tmp_path, family):
     # The runtime normalises outside the graphs, with the mean and std of the card's grid: the
