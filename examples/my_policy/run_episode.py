@@ -19,7 +19,7 @@ from packlab.core.types import Case
 from packlab.metrics import EpisodeMetrics
 from packlab.policies import make_policy
 from packlab.sim.env import demo_cases_path
-from packlab.sim.episode import Episode, run_episode
+from packlab.sim.episode import Episode, policy_start, run_episode
 
 # The package beside this script, importable without `pip install`.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -30,7 +30,7 @@ def play(policy: LowestFirstPolicy, case: Case, seed: int, quiet: bool) -> Episo
     """One episode, one decision at a time: observe, act, step (what run_episode does)."""
     episode = Episode(backend="geometric")
     observation = episode.reset(case, seed)
-    policy.reset(case, seed)
+    policy.reset(policy_start(policy, case, seed), seed)  # what a cell knows, not the case
     while not episode.done:
         action = policy.act(observation)
         step = episode.step(action)

@@ -16,6 +16,7 @@ class CrashOnHard:
     """Packs like FFP's dumbest cousin on easy cases; raises on the first step of a hard one."""
 
     name = CRASH_POLICY
+    needs_case = True  # it reads the case's level, which no real policy is handed
 
     def reset(self, case: Case, seed: int) -> None:
         self._hard = case.difficulty == "hard"

@@ -1,16 +1,13 @@
-"""No policy reads what the episode does not hand it.
+"""No policy is handed what a robot cell would not know.
 
-Every policy declared under the ``packlab.policies`` entry-point group (listed at collection
-time, so a newly registered one is covered without touching this file) plays one small case,
-once with the real case and once with a :class:`BlindCase` at ``reset``: a stand-in that answers
-only the fields a policy may know before the first observation and fails the test on any other
-read (the arrival sequence ``objects``, so future objects and true sizes in perceived mode; the
-``gt_plan``; ``difficulty``, ``generator``, ``origin``; the ``episode_id``, which names a bench
-case and so its content). Reads are also recorded, so a policy that swallows the failure is
-still caught. The blind run must take the same actions as the honest one, in exact and in
-perceived mode (a deterministic fake perceiver that shows sizes off the grid).
-
-The one exception is :data:`PEEKS_BY_DESIGN`.
+The episode hands a policy's ``reset`` an :class:`EpisodeStart` (the container, the buffer
+size, random streams of its own), never the case: not its boxes, plan, id or seed, from which
+the case could be rebuilt. Only a policy that declares ``needs_case`` gets the case, and the
+registered ones that do are :data:`PEEKS_BY_DESIGN`. Every policy declared under the
+``packlab.policies`` entry-point group (listed at collection time, so a newly registered one is
+covered without touching this file) plays exact, perceived (a deterministic fake perceiver that
+shows sizes off the grid) and on the robot path (the depth perceiver under structured light and
+noisy MuJoCo execution) through ``run_episode``, which is checked to hand it nothing else.
 """
 
 from __future__ import annotations
@@ -25,10 +22,12 @@ import numpy as np
 import pytest
 from layered_cases import make_layered_case
 
+from packlab.core.errors import ConfigError
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case
 from packlab.policies import make_policy
 from packlab.policies.registry import ENTRY_POINT_GROUP
-from packlab.sim.episode import Episode
+from packlab.sim.episode import Episode, episode_start, policy_start, run_episode
 from packlab.sim.replan import Perception, Scene
 
 #: Every bench policy: the names declared under the entry-point group (run-time registrations
@@ -41,10 +40,8 @@ PEEKS_BY_DESIGN = {
     "reported beside the policies, not a policy under test",
 }
 
-#: The case fields a policy may read at reset. ``container`` and ``buffer_size`` are in every
-#: observation anyway; ``seed`` is an ingredient of a policy's own random stream (the random
-#: baselines derive theirs from it and the run seed, as the episode derives the buffer shuffle).
-ALLOWED = ("container", "buffer_size", "seed")
+#: What an episode start holds: what every observation shows anyway, and random streams.
+START_FIELDS = ("container", "buffer_size", "streams")
 
 #: Options that make a policy cheap and self-contained here; the rest are built with none.
 OPTIONS: dict[str, dict[str, Any]] = {
@@ -55,23 +52,6 @@ OPTIONS: dict[str, dict[str, Any]] = {
 EXTRAS = {
     "vlm": ("torch", "transformers"),  # OPTIONS: a tiny generative model (the torch path)
 }
-
-
-class BlindCase:
-    """The case as a policy may see it at reset: ``ALLOWED`` fields (plus ``also``) only."""
-
-    def __init__(self, case: Case, also: tuple[str, ...] = ()) -> None:
-        for name in (*ALLOWED, *also):
-            object.__setattr__(self, name, getattr(case, name))
-        object.__setattr__(self, "forbidden_reads", [])
-
-    def __getattr__(self, name: str) -> Any:  # only called for names not set above
-        self.forbidden_reads.append(name)
-        # Not an AttributeError: getattr(case, name, default) and hasattr must not hide it.
-        raise AssertionError(f"the policy read case.{name}, which the episode does not hand it")
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        raise AssertionError(f"the policy wrote case.{name}")
 
 
 class OffGridPerceiver:
@@ -100,17 +80,17 @@ def _case() -> Case:
 def _play(
     policy,
     case: Case,
-    handed,
+    handed=None,
     perceiver=None,
     shown: list | None = None,
     observations: list | None = None,
     show_remaining: bool = True,
 ) -> list:
-    """``run_episode``'s loop, handing ``handed`` to the policy in place of ``case``; the sizes
-    the policy was shown go to ``shown``, the observations to ``observations``."""
+    """``run_episode``'s loop, handing the policy ``handed`` (default: what the episode hands it);
+    the sizes the policy was shown go to ``shown``, the observations to ``observations``."""
     episode = Episode("geometric", perceiver=perceiver, show_remaining=show_remaining)
     observation = episode.reset(case, 1)
-    policy.reset(handed, 1)
+    policy.reset(policy_start(policy, case, 1) if handed is None else handed, 1)
     actions = []
     while not episode.done:
         if shown is not None:
@@ -140,18 +120,6 @@ def _policy_maker(name: str) -> Iterator:
 
     with serve(scripted([], default=action_text(Action(0, 0, 0, 0)))) as server:
         yield lambda: make_policy("endpoint", base_url=server.base_url, timeout_s=30)
-
-
-def _check_blind(name: str, perceiver=None) -> None:
-    case, shown = _case(), []
-    with _policy_maker(name) as make:
-        honest = _play(make(), case, case, perceiver)
-        blind = BlindCase(case)
-        actions = _play(make(), case, blind, perceiver, shown)
-    assert blind.forbidden_reads == [], f"{name} read case.{blind.forbidden_reads[0]}"
-    assert actions == honest, f"{name} acts differently on what it is handed alone"
-    if perceiver is not None:  # the true sizes never reached the policy
-        assert shown and not {b.size_mm for b in case.objects} & set(shown)
 
 
 def _ids(observation) -> list:
@@ -185,56 +153,116 @@ def test_every_policy_plays_with_remaining_hidden(name):
     """``--remaining hidden``: every policy does without the count of boxes still to come."""
     case = _case()
     with _policy_maker(name) as make:
-        actions = _play(make(), case, case, OffGridPerceiver(), show_remaining=False)
+        actions = _play(make(), case, None, OffGridPerceiver(), show_remaining=False)
     assert len(actions) == len(case.objects)
 
 
+class _Spy:
+    """Wraps a policy and keeps what its ``reset`` was handed."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.name, self.handed = inner, inner.name, []
+        self.needs_case = getattr(inner, "needs_case", False)
+
+    def reset(self, start, seed: int) -> None:
+        self.handed.append(start)
+        self.inner.reset(start, seed)
+
+    def act(self, observation):
+        return self.inner.act(observation)
+
+
+def _robot_path():
+    """The robot path's modes: the depth perceiver under structured light, noisy execution."""
+    from packlab.sim.modes import episode_modes
+
+    modes = episode_modes("perceived", "noisy", noise="structured-light")
+    return {"perceiver": modes.perceiver, "execution": modes.execution}
+
+
+@pytest.mark.parametrize("mode", ["exact", "perceived", "robot"])
 @pytest.mark.parametrize("name", [n for n in BENCH_POLICIES if n not in PEEKS_BY_DESIGN])
-def test_no_policy_reads_beyond_its_observation(name):
-    _check_blind(name)
-
-
-@pytest.mark.parametrize("name", [n for n in BENCH_POLICIES if n not in PEEKS_BY_DESIGN])
-def test_no_policy_reads_true_sizes_in_perceived_mode(name):
-    _check_blind(name, OffGridPerceiver())
-
-
-def test_the_exceptions_are_registered_policies_that_do_peek():
-    assert set(PEEKS_BY_DESIGN) <= set(BENCH_POLICIES), set(PEEKS_BY_DESIGN) - set(BENCH_POLICIES)
+def test_the_episode_hands_every_policy_its_start_only(name, mode):
+    """Through ``run_episode`` (geometric exact, the off-grid perceiver, and the robot path on
+    MuJoCo) each registered policy is handed an ``EpisodeStart`` holding nothing of the case
+    but its container and buffer size, and plays the case to the end."""
     case = _case()
-    for name in PEEKS_BY_DESIGN:  # still needed: blind, each fails ...
-        with pytest.raises(AssertionError, match=r"case\.gt_plan"):
-            _play(make_policy(name), case, BlindCase(case))
-    # ... and the oracle reads nothing beyond its plan and the catalogue sizes the plan's
-    # rotations refer to (to turn a box the observation names the other way round).
-    blind = BlindCase(case, also=("gt_plan", "objects"))
-    assert _play(make_policy("oracle"), case, blind) == _play(make_policy("oracle"), case, case)
-    assert blind.forbidden_reads == []
+    kwargs: dict[str, Any] = {"backend": "geometric"}
+    if mode == "perceived":
+        kwargs["perceiver"] = OffGridPerceiver()
+    elif mode == "robot":
+        kwargs = {"backend": "mujoco", **_robot_path()}
+    with _policy_maker(name) as make:
+        spy = _Spy(make())
+        result = run_episode(case, spy, seed=1, **kwargs)
+    assert not spy.needs_case, f"{name} asks for the case"
+    [start] = spy.handed
+    assert type(start) is EpisodeStart
+    assert (start.container, start.buffer_size) == (case.container, case.buffer_size)
+    assert result.metrics is not None
 
 
-class _Peeker:
-    """A policy that looks at the next arrival, hiding the failure if it can."""
+def test_an_episode_start_holds_nothing_the_case_could_be_rebuilt_from():
+    """No field of the start names the case (its fields are the container, the buffer size and
+    a stream maker); a policy looking for the case's seed, id or boxes finds nothing; its
+    streams are reproducible per case and run seed, and apart from the episode's own shuffle."""
+    from dataclasses import fields
 
-    name = "peeker"
+    from packlab.sim.buffer import episode_rng
 
-    def __init__(self, field: str) -> None:
-        self.field = field
+    case = _case()
+    start = episode_start(case, 1)
+    assert tuple(f.name for f in fields(start)) == START_FIELDS
+    for name in ("seed", "episode_id", "objects", "gt_plan", "difficulty", "generator", "origin"):
+        assert not hasattr(start, name), name
+    draws = start.rng(5).integers(1 << 30, size=4)
+    assert (draws == episode_start(case, 1).rng(5).integers(1 << 30, size=4)).all()
+    assert (draws != episode_start(case, 2).rng(5).integers(1 << 30, size=4)).any()
+    assert (draws != episode_rng(case.seed, 1).integers(1 << 30, size=4)).any()
+    with pytest.raises(ValueError, match="stream"):
+        start.rng(0)  # the episode's own shuffle is not the policy's
 
-    def reset(self, case, seed: int) -> None:
-        try:
-            self.seen = getattr(case, self.field, None)
-        except Exception:  # noqa: BLE001 - a policy hiding the failure on purpose
-            self.seen = None
+
+class _Rebuilder:
+    """A policy that tries to rebuild its case from any seed it is handed."""
+
+    name = "rebuilder"
+
+    def reset(self, start, seed: int) -> None:
+        from packlab.datagen.generator import build_case
+
+        self.rebuilt = build_case(start.seed, "easy")
 
     def act(self, observation) -> Action:
         return Action(0, 0, 0, 0)
 
 
-@pytest.mark.parametrize("field", ["objects", "gt_plan", "episode_id", "difficulty", "generator"])
-def test_the_blind_case_catches_a_peek_even_when_it_is_swallowed(field):
+def test_a_policy_that_rebuilds_its_case_from_a_seed_is_stopped():
+    with pytest.raises(AttributeError, match="seed"):
+        run_episode(_case(), _Rebuilder(), seed=0, backend="geometric")
+
+
+def test_the_exceptions_are_registered_policies_that_do_peek():
+    """The policies that ask for the case are the registered exceptions, and they need it:
+    handed only the start, each fails."""
+    assert set(PEEKS_BY_DESIGN) <= set(BENCH_POLICIES), set(PEEKS_BY_DESIGN) - set(BENCH_POLICIES)
     case = _case()
-    blind = BlindCase(case)
-    _play(_Peeker(field), case, blind)
-    assert blind.forbidden_reads == [field]
-    for name in ALLOWED:  # what may be read is the case's own value
-        assert getattr(blind, name) == getattr(case, name)
+    for name in PEEKS_BY_DESIGN:
+        policy = make_policy(name)
+        assert policy.needs_case
+        with pytest.raises(ConfigError, match="handed the case"):
+            policy.reset(episode_start(case, 1), 1)
+        assert len(_play(make_policy(name), case)) == len(case.objects)
+
+
+@pytest.mark.parametrize(
+    ("options", "needs"),
+    [
+        ({}, False),
+        ({"prompt": "reference", "fallback": "invalid"}, False),
+        ({"prompt": "reference"}, True),  # the reference seeds its forced set-aside by sample id
+        ({"tag_requests": True}, True),
+    ],
+)
+def test_the_endpoint_asks_for_the_case_only_where_an_option_reads_it(options, needs):
+    assert make_policy("endpoint", **options).needs_case is needs

@@ -23,7 +23,7 @@ from packlab.rl.decision import SET_ASIDE, decide, pick_row, ranked_rows
 from packlab.rl.features import FeatureSpec, encode
 from packlab.rl.onnx_agent import GRAPH_FILE, load_onnx_agent
 from packlab.rl.policy import SHIPPED_MODELS
-from packlab.sim.episode import Episode, run_episode
+from packlab.sim.episode import Episode, policy_start, run_episode
 
 AGENTS = ("irbpp", "tapnet")
 TORCH_STACK = ("torch", "stable_baselines3", "sb3_contrib")
@@ -44,7 +44,7 @@ def states(cases):
         for name in ("proposer", "random"):
             episode, policy = Episode("geometric"), make_policy(name)
             observation = episode.reset(case, 0)
-            policy.reset(case, 0)
+            policy.reset(policy_start(policy, case, 0), 0)
             while not episode.done:
                 out.append(observation)
                 episode.step(policy.act(observation))

@@ -231,6 +231,7 @@ class _Recorder:
     """The oracle, remembering what it saw and did at every step."""
 
     name = "oracle"
+    needs_case = True  # the oracle's plan
 
     def __init__(self) -> None:
         self.inner = OraclePolicy()

@@ -14,7 +14,8 @@ import numpy as np
 
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.types import Action, Observation
+from packlab.policies import EpisodeStart
 
 NAME = "my-policy"
 PREFERENCES = ("area", "scan")
@@ -36,8 +37,9 @@ class LowestFirstPolicy:
             )
         self.prefer = prefer
 
-    def reset(self, case: Case, seed: int) -> None:
-        """A new episode of ``case``; this policy keeps no state between steps."""
+    def reset(self, start: EpisodeStart, seed: int) -> None:
+        """A new episode: ``start`` holds what a cell knows (container, buffer size) and random
+        streams; this policy keeps no state between steps."""
 
     def act(self, observation: Observation) -> Action:
         """The placement for this step, read from the observation alone."""

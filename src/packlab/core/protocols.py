@@ -7,13 +7,13 @@ observations) share them without importing each other.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from packlab.core.types import Action, Box, Case, Container, Observation, Unparsable
+from packlab.core.types import Action, Box, Container, Observation, Unparsable
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,14 +63,38 @@ class TransitionBackend(Protocol):
         ...
 
 
+@dataclass(frozen=True, slots=True)
+class EpisodeStart:
+    """What a policy is told when an episode starts: what a robot cell knows before its first
+    look (the container and how many boxes its buffer shows), and random streams of its own.
+
+    Nothing here names the case: not its boxes, its plan, its id or its seed. A policy that
+    needs the case itself (the oracle replays its plan) says so with ``needs_case = True`` and
+    is handed the :class:`~packlab.core.types.Case` instead.
+    """
+
+    container: Container
+    buffer_size: int
+    #: stream number -> a generator (the episode's derivation; see :meth:`rng`).
+    streams: Callable[[int], np.random.Generator] = field(repr=False, compare=False)
+
+    def rng(self, stream: int) -> np.random.Generator:
+        """A random stream of the policy's own: the same for the same case, run seed and
+        ``stream`` (>= 1), independent of the episode's own shuffle and of other streams."""
+        if stream < 1:
+            raise ValueError(f"stream = {stream}: must be >= 1 (0 is the episode's own)")
+        return self.streams(stream)
+
+
 @runtime_checkable
 class Policy(Protocol):
     """Chooses one action per step from an observation."""
 
     name: str
 
-    def reset(self, case: Case, seed: int) -> None:
-        """Prepare for a new episode of ``case`` with run seed ``seed``."""
+    def reset(self, start: EpisodeStart, seed: int) -> None:
+        """Prepare for a new episode with run seed ``seed``. A policy with ``needs_case = True``
+        is handed the :class:`~packlab.core.types.Case` in place of ``start``."""
         ...
 
     def act(self, observation: Observation) -> Action | Unparsable:

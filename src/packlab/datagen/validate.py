@@ -24,6 +24,7 @@ import numpy as np
 
 from packlab.core.choices import DEFAULT_SIDES, SideNames
 from packlab.core.feasibility import footprint_fits, placement_height
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, Observation, ShownItem, Unparsable
 from packlab.datagen.config import ValidationConfig
 from packlab.metrics import EpisodeMetrics
@@ -104,7 +105,11 @@ class _Recording:
         self.name = inner.name
         self.seen: list[SeenStep] = []
 
-    def reset(self, case: Case, seed: int) -> None:
+    @property
+    def needs_case(self) -> bool:
+        return bool(getattr(self.inner, "needs_case", False))
+
+    def reset(self, case: EpisodeStart | Case, seed: int) -> None:
         self.seen = []
         self.inner.reset(case, seed)
 

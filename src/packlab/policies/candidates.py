@@ -45,7 +45,8 @@ import numpy as np
 
 from packlab.core.choices import OverflowRule, ProposerRule, require_choice
 from packlab.core.feasibility import CandidateSet, Orientation, observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.features import (
     flush_cells_at,
     flush_grid,
@@ -309,9 +310,9 @@ class ProposerPolicy:
         require_choice(overflow, OverflowRule, "policy-arg proposer:overflow")
         self.overflow = overflow
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         self._fallback = make_sdf()
-        self._fallback.reset(case, seed)
+        self._fallback.reset(start, seed)
 
     def act(self, observation: Observation) -> Action:
         cands = observation_candidates(observation)

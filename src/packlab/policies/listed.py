@@ -41,6 +41,7 @@ from packlab.policies.plan.cover import JOKER
 from packlab.policies.plan.evaluate import Weights
 from packlab.policies.plan.policy import PlanDecision, make_plan_fast, observation_problem
 from packlab.policies.plan.search import Budget, search
+from packlab.sim.episode import episode_start
 
 #: The soft target's share for the teacher's own pick when other listed boxes of its tiling
 #: share the rest: the pick stays the single most likely answer.
@@ -111,7 +112,7 @@ class ListedTeacher:
             self._oracle.reset(case, seed)
         # The planner keeps an episode's state (a filling it follows, a proof that none exists):
         # a new episode must not inherit the last one's.
-        self._plan.reset(case, seed)
+        self._plan.reset(episode_start(case, seed), seed)
 
     def own_action(self, observation: Observation) -> Action:
         """The teacher's own action where its pick is not listed (the raw oracle's layout)."""

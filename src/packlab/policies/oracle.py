@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from packlab.core.errors import ConfigError
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, InternalId, Observation, PlanStep
 from packlab.policies.registry import declare_seed_free, seed_free_always
 
@@ -20,12 +21,16 @@ class OraclePolicy:
     """
 
     name = "oracle"
+    #: It replays the case's plan: the episode hands it the case (``EpisodeStart`` otherwise).
+    needs_case = True
 
     def __init__(self) -> None:
         self._plan: dict[InternalId, tuple[int, PlanStep]] = {}
         self._sizes: dict[InternalId, tuple[int, int, int]] = {}
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, case: EpisodeStart | Case, seed: int) -> None:
+        if not isinstance(case, Case):
+            raise ConfigError("the oracle replays the case's plan: it must be handed the case")
         if case.gt_plan is None:
             raise ConfigError(
                 f"case {case.episode_id!r}: the oracle needs a gt_plan and this case has none"

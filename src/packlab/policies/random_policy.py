@@ -5,9 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from packlab.core.feasibility import observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.heuristics.select import rim_pool, to_action
-from packlab.sim.buffer import episode_rng
+
+#: The policy's random stream (``EpisodeStart.rng``): apart from the episode's own shuffle.
+RNG_STREAM = 7919
 
 
 class RandomPolicy:
@@ -22,9 +25,8 @@ class RandomPolicy:
     def __init__(self) -> None:
         self._rng = np.random.default_rng(0)
 
-    def reset(self, case: Case, seed: int) -> None:
-        # Offset the stream from the episode's shuffle RNG so the two are independent.
-        self._rng = episode_rng(case.seed + 7919, seed)
+    def reset(self, start: EpisodeStart, seed: int) -> None:
+        self._rng = start.rng(RNG_STREAM)
 
     def act(self, observation: Observation) -> Action:
         cands = observation_candidates(observation)

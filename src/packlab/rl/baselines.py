@@ -11,13 +11,13 @@ import numpy as np
 
 from packlab.core.choices import RLAgent
 from packlab.core.errors import ConfigError
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.candidates import STUDENT_K
 from packlab.rl.envs import SET_ASIDE
 from packlab.rl.features import FeatureSpec, encode
-from packlab.sim.buffer import episode_rng
 
-#: Offset of the policies' RNG stream from the episode's own (buffer shuffles).
+#: The policies' random stream (``EpisodeStart.rng``): apart from the episode's own shuffle.
 RNG_OFFSET = 104_729
 
 
@@ -29,8 +29,8 @@ class RandomRowPolicy:
         self.name = f"{agent}-random"
         self._rng = np.random.default_rng(0)
 
-    def reset(self, case: Case, seed: int) -> None:
-        self._rng = episode_rng(case.seed + RNG_OFFSET, seed)
+    def reset(self, start: EpisodeStart, seed: int) -> None:
+        self._rng = start.rng(RNG_OFFSET)
 
     def act(self, observation: Observation) -> Action:
         encoded = encode(observation, self.spec)

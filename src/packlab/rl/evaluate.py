@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, Observation
 from packlab.metrics import EpisodeMetrics
 from packlab.rl.agent import greedy_action
@@ -21,7 +22,7 @@ class GreedyAgent:
     def __init__(self, model: Any, spec: FeatureSpec, name: str = "agent") -> None:
         self.model, self.spec, self.name = model, spec, name
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         """Nothing to prepare: the agent keeps no state between steps."""
 
     def act(self, observation: Observation) -> Action:

@@ -32,7 +32,7 @@ from packlab.rl.features import GRID, N_GLOBALS, N_ITEM_FEATURES, Encoded, Featu
 from packlab.rl.networks import ActorLogits
 from packlab.rl.onnx_agent import GRAPH, GRAPH_FILE, INPUTS, ONNX_KIND, OUTPUTS, batched
 from packlab.sim.env import demo_cases_path
-from packlab.sim.episode import Episode
+from packlab.sim.episode import Episode, policy_start
 
 #: The ONNX opset the graphs are written with (recorded in onnx.json); 18 is the dynamo
 #: exporter's own and ONNX Runtime >= 1.14 runs it.
@@ -61,7 +61,7 @@ def collect_check_states(spec: FeatureSpec, count: int, seed: int = CHECK_SEED) 
     while len(states) < count:
         case = cases[run % len(cases)]
         observation = episode.reset(case, seed + run)
-        policy.reset(case, seed + run)
+        policy.reset(policy_start(policy, case, seed + run), seed + run)
         while not episode.done and len(states) < count:
             encoded = encode(observation, spec)
             if encoded.actions:

@@ -24,7 +24,8 @@ from typing import Any
 from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import CandidateSet, observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.model_cache import load_once
 from packlab.policies.overflow import overflow_decision
 from packlab.rl.card import CARD_FILE, AgentCard, read_card
@@ -128,7 +129,7 @@ class RLAgentPolicy:
             self._playing = self._load()
         return self._playing
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         """Load the agent once; it keeps no state between steps."""
         self._loaded()
 

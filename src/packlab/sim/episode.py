@@ -28,6 +28,7 @@ from packlab.core.choices import (
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import fits_somewhere, footprint_fits, placement_height
 from packlab.core.packing_protocol import BUFFER, PackingProtocol
+from packlab.core.protocols import EpisodeStart
 from packlab.core.records import FORMAT_EVENTS
 from packlab.core.types import (
     Action,
@@ -531,6 +532,26 @@ class Episode:
         )
 
 
+def episode_start(case: Case, seed: int) -> EpisodeStart:
+    """What a policy is told at the start of an episode of ``case`` with run seed ``seed``: the
+    container, the buffer size, and random streams derived as the episode's own shuffle is
+    (stream k from the case seed plus k), so a policy's draws are reproducible per case and run
+    seed while the seed itself never reaches it."""
+    return EpisodeStart(
+        container=case.container,
+        buffer_size=case.buffer_size,
+        streams=lambda stream: episode_rng(case.seed + stream, seed),
+    )
+
+
+def policy_start(policy: Any, case: Case, seed: int) -> Any:
+    """What ``policy.reset`` is handed: the case itself only for a policy that declares
+    ``needs_case = True`` (the oracle, which replays the case's plan), otherwise
+    :func:`episode_start`. Every episode loop hands a policy its start through this. Typed
+    ``Any``: which of the two a policy takes is the policy's own declaration."""
+    return case if getattr(policy, "needs_case", False) else episode_start(case, seed)
+
+
 def answer_format(policy: Any) -> dict[str, Any] | None:
     """How ``policy`` read the answer its latest ``act`` returned, for the step's record: the
     optional hook ``policy.last_answer_format()`` (DESIGN.md section 7) of policies that read a
@@ -588,7 +609,7 @@ def run_episode(
         protocol=protocol,
     )
     observation = episode.reset(case, seed)
-    policy.reset(case, seed)
+    policy.reset(policy_start(policy, case, seed), seed)
     decision_wall: list[float] = []
     decision_cpu: list[float] = []
     formats: list[dict[str, Any] | None] = []

@@ -39,7 +39,7 @@ from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.core.records import EpisodeOk, StepRecord, to_builtins
 from packlab.core.types import Case, InternalId, ShownItem
 from packlab.metrics import EpisodeMetrics
-from packlab.sim.episode import Episode, StepResult
+from packlab.sim.episode import Episode, StepResult, policy_start
 from packlab.sim.heightmap import rasterise_poses
 
 #: Largest distance (mm) between a re-simulated and a recorded final box centre still called
@@ -97,7 +97,7 @@ def live_frames(
     """Run ``policy`` (the Policy protocol) on ``case``, yielding each step as it is taken."""
     episode = Episode(backend, physics)
     observation = episode.reset(case, seed)
-    policy.reset(case, seed)
+    policy.reset(policy_start(policy, case, seed), seed)
     while not episode.done:
         started = time.perf_counter()
         action = policy.act(observation)

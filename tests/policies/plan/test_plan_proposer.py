@@ -17,7 +17,7 @@ from packlab.policies.heuristics.select import TIE_BREAKS, choose, rim_pool
 from packlab.policies.listed import flat_index
 from packlab.policies.plan.proposer import by_sdf, first_placements
 from packlab.sim.env import demo_cases_path
-from packlab.sim.episode import Episode
+from packlab.sim.episode import Episode, policy_start
 
 
 def _played_states(cases, seeds, policies=("random", "sdf")):
@@ -28,7 +28,7 @@ def _played_states(cases, seeds, policies=("random", "sdf")):
                 policy = make_policy(name)
                 episode = Episode("geometric")
                 observation = episode.reset(case, seed)
-                policy.reset(case, seed)
+                policy.reset(policy_start(policy, case, seed), seed)
                 while not episode.done:
                     yield observation
                     episode.step(policy.act(observation))

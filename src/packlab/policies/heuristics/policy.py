@@ -23,7 +23,8 @@ from typing import Any
 from packlab.core.choices import OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.heuristics import dblf, ffp, hm, mta, sdf
 from packlab.policies.heuristics.select import (
     DEFAULT_TIE_BREAK,
@@ -87,7 +88,7 @@ class HeuristicPolicy:
         check_tie_break(self.tie_break, self.name)
         require_choice(self.overflow, OverflowRule, f"policy-arg {self.name}:overflow")
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         """Nothing to prepare: the heuristics keep no state across steps."""
 
     def act(self, observation: Observation) -> Action:

@@ -46,7 +46,8 @@ from packlab.core.choices import (
 )
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
-from packlab.core.types import Action, Case, Observation
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation
 from packlab.policies.overflow import overflow_decision
 from packlab.policies.plan.complete import Completion, CompletionConfig, find_completion
 from packlab.policies.plan.cover import Slot
@@ -129,8 +130,8 @@ class PlanPolicy:
     #: Decisions the endplay changed.
     endplays: int = 0
 
-    def reset(self, case: Case, seed: int) -> None:
-        """Forget the last episode's filling; the plan never reads the case (its future objects)."""
+    def reset(self, start: EpisodeStart, seed: int) -> None:
+        """Forget the last episode's filling (the planner is handed no case, only its start)."""
         self.endgame.reset()
         self.endplay.reset()
 

@@ -34,7 +34,7 @@ from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
-from packlab.sim.episode import run_episode
+from packlab.sim.episode import policy_start, run_episode
 from packlab.sim.modes import DEFAULT_NOISE, EpisodeModes, episode_modes
 from packlab.vlm.candidate.states import LabelledState, append_states, make_state, read_states
 
@@ -65,14 +65,18 @@ class Labeller:
     name: str = "labeller"
     states: list[LabelledState] = field(default_factory=list)
 
+    #: Its rows name their case (and the oracle teacher replays its plan); the actor it plays
+    #: is handed only what the episode hands any policy.
+    needs_case = True
+
     def reset(self, case: Case, seed: int) -> None:
         self._case = case
         self._case_sha256 = case_fingerprint(case)  # every row names its case by content too
         self.teacher.reset(case, seed)
         self._fallback = make_policy("sdf")
-        self._fallback.reset(case, seed)
+        self._fallback.reset(policy_start(self._fallback, case, seed), seed)
         if self.actor is not None:
-            self.actor.reset(case, seed)
+            self.actor.reset(policy_start(self.actor, case, seed), seed)
         self.states = []
 
     def act(self, observation: Observation) -> Action | Unparsable:

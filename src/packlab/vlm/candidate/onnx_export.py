@@ -28,6 +28,7 @@ import torch
 
 from packlab.cases.load import load_cases
 from packlab.core.errors import ConfigError
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Case, Observation
 from packlab.policies.candidates import Candidate, ProposerConfig, propose
 from packlab.policies.onnx_model import (
@@ -90,9 +91,9 @@ class RandomListed:
         self.proposer, self.rng = proposer, np.random.default_rng(seed)
         self.states: list[tuple[Observation, list[Candidate]]] = []
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         self.fallback = make_policy("sdf")
-        self.fallback.reset(case, seed)
+        self.fallback.reset(start, seed)
 
     def act(self, observation: Observation) -> Any:
         listed = list(propose(observation, self.proposer))

@@ -30,7 +30,8 @@ import numpy as np
 from packlab.core.choices import RUNTIMES, OverflowRule, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import observation_candidates
-from packlab.core.types import Action, Case, Observation, Unparsable
+from packlab.core.protocols import EpisodeStart
+from packlab.core.types import Action, Observation, Unparsable
 from packlab.policies.candidates import ProposerConfig, propose_from
 from packlab.policies.model_cache import load_once
 from packlab.policies.overflow import overflow_decision
@@ -158,10 +159,10 @@ class CandidateVLMPolicy:
         encoding = importlib.import_module(ENCODING_MODULE)
         self._settings = encoding.PromptSettings.of(meta, blank_map=self.blank_image)
 
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart, seed: int) -> None:
         self.load()
         self._fallback = make_policy("sdf")
-        self._fallback.reset(case, seed)
+        self._fallback.reset(start, seed)
 
     def act(self, observation: Observation) -> Action | Unparsable:
         self.decisions += 1

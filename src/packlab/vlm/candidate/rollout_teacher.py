@@ -37,7 +37,7 @@ from packlab.core.feasibility import observation_candidates
 from packlab.core.types import Case
 from packlab.policies.candidates import Candidate, ProposerConfig, propose_from
 from packlab.policies.registry import make_policy
-from packlab.sim.episode import Episode
+from packlab.sim.episode import Episode, policy_start
 from packlab.vlm.candidate.collect import (
     DEFAULT_PROPOSER,
     ActorSpec,
@@ -101,12 +101,12 @@ def _play(job: _Job) -> tuple[str, list[LabelledState], float]:
 
     def new_base() -> Callable:
         policy = make_policy(job.base)
-        policy.reset(case, 0)
+        policy.reset(policy_start(policy, case, 0), 0)
         return policy.act
 
     spec = job.actor if job.actor is not None else (job.base, {})
     actor = make_policy(spec[0], **spec[1])
-    actor.reset(case, 0)
+    actor.reset(policy_start(actor, case, 0), 0)
     fingerprint = case_fingerprint(case)
     env = Episode("geometric")
     observation = env.reset(case, 0)

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from packlab.core.choices import HistoryMode, ImageMode, require_choice
 from packlab.core.errors import ConfigError
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.candidate.files import is_pointer_dir
 from packlab.vlm.candidate.policy import CandidateVLMPolicy
@@ -305,15 +306,21 @@ class VLMPolicy:
         """The :class:`packlab.vlm.infer.generate.PrefixCachedGenerator` (after :meth:`load`)."""
         return self._generator
 
+    @property
+    def needs_case(self) -> bool:
+        """Handed the case at reset only for the reference protocol's relaxed mode: its forced
+        set-aside is seeded by the case's sample id, as the reference seeds it."""
+        return self.prompt == "reference" and self.fallback == "set_aside"
+
     # -- the Policy protocol -----------------------------------------------------------------
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart | Case, seed: int) -> None:
         self.load()
         assert self._renderer is not None  # set by load()
         self._generator.reset()
         self._renderer.reset()
         self.step_log = []
         if self._reference is not None:
-            self._reference.reset(case)
+            self._reference.reset(start)
 
     def act(self, observation: Observation) -> Action | Unparsable:
         if self._generator is None or self._renderer is None:

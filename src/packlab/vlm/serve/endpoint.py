@@ -63,6 +63,7 @@ from typing import Any
 
 from packlab.core.choices import HistoryMode, ImageMode
 from packlab.core.errors import ConfigError, EndpointUnavailable
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, Observation, Unparsable
 from packlab.vlm.prompt.context import DEFAULT_IMAGE_SIZE, ContextRenderer
 from packlab.vlm.prompt.parse import logged_answer_format, parse_with_format
@@ -403,15 +404,24 @@ class EndpointPolicy:
         auth = {"Authorization": f"Bearer {key}"} if key else {}
         return {"Content-Type": "application/json", "Accept": "application/json", **auth}
 
+    @property
+    def needs_case(self) -> bool:
+        """Handed the case at reset only where an option reads it: ``tag_requests`` (the case id
+        in each request) and the reference protocol's relaxed mode (its forced set-aside is
+        seeded by the case's sample id, as the reference seeds it)."""
+        return self.tag_requests or (self.prompt == "reference" and self.fallback == "set_aside")
+
     # -- the Policy protocol -------------------------------------------------------------------
-    def reset(self, case: Case, seed: int) -> None:
+    def reset(self, start: EpisodeStart | Case, seed: int) -> None:
         self._renderer = ContextRenderer(self.options, self.image_size)
         self._urls = {}
         self.step_log = []
-        # Read only when asked for: the case's id is not the policy's to know.
-        self._tag = f"{case.episode_id}/{seed}" if self.tag_requests else ""
+        # Read only when asked for (needs_case): the case's id is not the policy's to know.
+        self._tag = (
+            f"{start.episode_id}/{seed}" if isinstance(start, Case) and self.tag_requests else ""
+        )
         if self.prompt == "reference":
-            self._turns().reset(case)
+            self._turns().reset(start)
 
     def _request(self, body: bytes, log: dict[str, Any]) -> HTTPReply:
         """The first answer that is not a transport failure or a 5xx, trying ``self.tries``

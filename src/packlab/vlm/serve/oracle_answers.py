@@ -32,7 +32,7 @@ from typing import Any
 
 from packlab.core.types import Action, Case, Observation
 from packlab.policies.oracle import OraclePolicy
-from packlab.sim.episode import run_episode
+from packlab.sim.episode import policy_start, run_episode
 from packlab.vlm.prompt import reference
 from packlab.vlm.prompt.render import action_text
 from packlab.vlm.serve.endpoint import EndpointPolicy
@@ -67,9 +67,11 @@ class _Recorder:
         self.endpoint, self.answers = endpoint, answers
         self.oracle = OraclePolicy()
 
+    needs_case = True  # the oracle's plan
+
     def reset(self, case: Case, seed: int) -> None:
         self.oracle.reset(case, seed)
-        self.endpoint.reset(case, seed)
+        self.endpoint.reset(policy_start(self.endpoint, case, seed), seed)
 
     def act(self, observation: Observation) -> Action:
         action = self.oracle.act(observation)

@@ -20,6 +20,7 @@ from PIL import Image
 
 from packlab.core.choices import HistoryMode, ImageMode
 from packlab.core.errors import ConfigError
+from packlab.core.protocols import EpisodeStart
 from packlab.core.types import Action, Case, Container, Observation, Unparsable
 from packlab.vlm.prompt.reference import (
     IMAGE_SIZE,
@@ -98,8 +99,12 @@ class ReferenceTurns:
         self.raw_answers: list[str] = []
         self._parts: dict[tuple, dict[str, Any]] = {}
 
-    def reset(self, case: Case) -> None:
-        self.sample_id = sample_id(case)
+    def reset(self, case: Case | EpisodeStart) -> None:
+        """A new episode. The relaxed mode's forced set-aside is seeded by the case's sample id,
+        so it needs the case; the strict mode is handed only the episode's start."""
+        if self.fallback == "set_aside" and not isinstance(case, Case):
+            raise TypeError("the relaxed mode's forced set-aside needs the case's sample id")
+        self.sample_id = sample_id(case) if isinstance(case, Case) else ""
         self.raw_answers = []
         self._parts = {}
 
