@@ -4,6 +4,10 @@ plan-fast's picks in this process, small valid requests as JSON, a ray-cast pinh
 
 from __future__ import annotations
 
+import socket
+import threading
+import time
+
 import numpy as np
 
 from packlab.cell.images import encode_depth
@@ -150,3 +154,41 @@ def pinhole_depth(
         hit = (near <= far) & (near > 0)
         depth = np.where(hit & (near < depth), near, depth)
     return np.where(np.isfinite(depth), depth, np.nan)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+class LiveServer:
+    """uvicorn serving the app in a thread of this process."""
+
+    def __init__(self, workers: int = 1):
+        import uvicorn  # the cell extra: only the tests that serve need it
+
+        from packlab.cell.app import create_app
+        from packlab.cell.server import make_backend
+        from packlab.cell.settings import ServeSettings
+
+        self.backend = make_backend(ServeSettings(workers=workers))
+        self.port = free_port()
+        config = uvicorn.Config(
+            create_app(self.backend, "plan-fast"), port=self.port, log_level="warning"
+        )
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> str:
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            assert time.monotonic() < deadline, "the server did not start"
+            time.sleep(0.05)
+        return f"http://127.0.0.1:{self.port}"
+
+    def __exit__(self, *exc) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=30)
+        self.backend.shutdown()

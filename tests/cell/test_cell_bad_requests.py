@@ -132,6 +132,8 @@ BAD_SESSIONS = [
      422, "container_camera.intrinsics = "),
     ("unknown policy", with_(SESSION, "policy", "plan-fastest"),
      422, "policy = 'plan-fastest': unknown; available: "),
+    ("a policy that needs the case", with_(SESSION, "policy", "oracle"),
+     422, "policy = 'oracle': replays a case's plan, which a cell has not"),
     ("an option the policy does not take", with_(SESSION, "policy_options", {"warp": 9}),
      422, "policy_options = {'warp': 9}: plan: unknown option 'warp'"),
     ("an unknown sensing preset", with_(SESSION, "sensing", {"preset": "lidar"}),

@@ -2,55 +2,16 @@
 
 from __future__ import annotations
 
-import socket
-import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-import uvicorn
-from cell_scenes import PRESET, generated_case, in_process
+from cell_scenes import PRESET, LiveServer, generated_case, in_process
 
-from packlab.cell.app import create_app
 from packlab.cell.client import CellClient
-from packlab.cell.server import make_backend
-from packlab.cell.settings import ServeSettings
 from packlab.cell.simulated import planned_steps, session_request, simulated_camera
 
 SESSIONS = 8
 STEPS = 3
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
-class LiveServer:
-    """uvicorn serving the app in a thread of this process."""
-
-    def __init__(self, workers: int):
-        self.backend = make_backend(ServeSettings(workers=workers))
-        self.port = free_port()
-        config = uvicorn.Config(
-            create_app(self.backend, "plan-fast"), port=self.port, log_level="warning"
-        )
-        self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-
-    def __enter__(self) -> str:
-        self.thread.start()
-        deadline = time.monotonic() + 30
-        while not self.server.started:
-            assert time.monotonic() < deadline, "the server did not start"
-            time.sleep(0.05)
-        return f"http://127.0.0.1:{self.port}"
-
-    def __exit__(self, *exc) -> None:
-        self.server.should_exit = True
-        self.thread.join(timeout=30)
-        self.backend.shutdown()
 
 
 def one_cell(url: str, case, steps) -> list[tuple[int, int, int, int]]:

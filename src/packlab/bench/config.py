@@ -201,6 +201,7 @@ class ResolvedRun:
                 "executor": self.config.executor,
                 "concurrency": self.config.concurrency,
                 "reuse": self.config.reuse,
+                **({"via_cell": self.config.via_cell} if self.config.via_cell else {}),
                 "episode_timeout_s": self.config.episode_timeout_s,
                 "max_transport_failures": self.config.max_transport_failures,
                 "deadline_s": self.config.deadline_s,

@@ -178,6 +178,12 @@ class RunConfig:
     #: seed) and copy that episode to the other seeds (``packlab.bench.reuse``); False plays
     #: every seed. Not part of the identity: the records are the same either way, times aside.
     reuse: bool = True
+    #: A running cell service (``packlab cell serve``) whose policies play the episodes: the
+    #: bench sends each step's rendered depth images and calibrations, the service answers
+    #: (``packlab.cell.via_cell``). None: the policies play in the bench's processes. Not part
+    #: of the identity: the records are the same either way, times aside and a tie the policy
+    #: breaks by the order the boxes are listed in (docs/cell.md).
+    via_cell: str | None = None
     #: PhysicsConfig fields to change from the engine's defaults (mujoco only), e.g.
     #: (("max_settle_steps", 1000),). Part of the run's identity: they change the scores.
     physics_overrides: tuple[tuple[str, Any], ...] = ()
@@ -264,6 +270,16 @@ class RunConfig:
                     f"policy-arg {name}:{key}: policy {name!r} is not among the policies to run"
                 )
         _check_sensing(self)
+        if self.via_cell is not None and self.observation != "perceived":
+            raise ConfigError(
+                f"via-cell = {self.via_cell!r}: the service sees only depth images; add "
+                "--observation perceived (with --execution noisy: the honest robot path)"
+            )
+        if self.via_cell is not None and self.segmentation != "depth":
+            raise ConfigError(
+                f"via-cell = {self.via_cell!r}: the service segments the buffer from depth; "
+                "drop --segmentation truth"
+            )
         self.packing_protocol()  # ConfigError for an unknown name or a stray --lookahead
         if self.protocol == "online" and self.observation != "exact":
             raise ConfigError(

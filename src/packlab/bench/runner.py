@@ -26,6 +26,7 @@ stopped, every record written stays, and the summary and table are written for w
 from __future__ import annotations
 
 import fcntl
+import importlib
 import json
 import os
 import time
@@ -49,7 +50,7 @@ from packlab.bench.records import (
 )
 from packlab.bench.report import write_outputs
 from packlab.bench.reuse import ReusePlan, copyable, reuse_plan, reused_record
-from packlab.bench.task import DeadlineReached, Task, error_record, run_task
+from packlab.bench.task import VIA_CELL_MODULE, DeadlineReached, Task, error_record, run_task
 from packlab.cases import save_cases
 from packlab.core.choices import ErrorKind
 from packlab.core.errors import ConfigError, RunAborted
@@ -105,6 +106,7 @@ class EpisodeWork:
     policy_kwargs: dict[str, dict[str, Any]]
     timeout_s: float | None
     modes: EpisodeModes = EXACT_MODES  # the observation / execution modes (exact: empty)
+    via_cell: str | None = None  # the cell service whose policies play (None: in-process)
 
     def __call__(self, task: Task, ctx: Context) -> EpisodeRecord:
         # ctx.deadline is set in this process and on Ray: there the episode's alarm is the only
@@ -119,6 +121,7 @@ class EpisodeWork:
             timeout_s=self.timeout_s,
             deadline=ctx.deadline,
             modes=self.modes,
+            via_cell=self.via_cell,
         )
 
     def lost(self, task: Task, lost: Lost) -> EpisodeError:
@@ -167,6 +170,7 @@ def execute(
         run.policy_kwargs(),
         config.episode_timeout_s,
         run.episode_modes(),
+        config.via_cell,
     )
     return run_items(
         work,
@@ -354,6 +358,15 @@ def run_bench(
     deadline = None if config.deadline_s is None else time.monotonic() + config.deadline_s
     run = resolve(config)
     preflight_policies(run.policies, run.policy_kwargs())
+    if run.config.via_cell is not None:
+        try:  # the cell extra, only when asked
+            driver = importlib.import_module(VIA_CELL_MODULE)
+        except ImportError as exc:
+            raise ConfigError(
+                f"via-cell needs the cell extra ({exc.name} not installed): "
+                "pip install -e '.[cell]'"
+            ) from None
+        driver.preflight_service(run.config.via_cell, run.policies)
     with RunLock(run.out):
         return _run_locked(run, on_record, figures, deadline, html)
 

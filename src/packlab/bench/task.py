@@ -23,6 +23,7 @@ stays silent past it (see ``packlab.executors``).
 from __future__ import annotations
 
 import ctypes
+import importlib
 import os
 import signal
 import threading
@@ -43,6 +44,10 @@ from packlab.executors import DeadlineReached
 from packlab.policies import make_policy
 from packlab.sim.episode import run_episode
 from packlab.sim.modes import EXACT_MODES, EpisodeModes
+
+#: The driver of ``--via-cell`` (``served_policy``, ``preflight_service``): it needs the cell
+#: extra (httpx, pydantic), so it is imported only by a run that asks for it.
+VIA_CELL_MODULE = "packlab.cell.via_cell"
 
 #: Values of a failed record's ``error_kind``.
 ERROR_KINDS = choices(ErrorKind)
@@ -207,6 +212,20 @@ def error_record(
     )
 
 
+@contextmanager
+def _player(
+    policy: str, kwargs: dict[str, Any], modes: EpisodeModes, via_cell: str | None
+) -> Iterator[tuple[Any, EpisodeModes]]:
+    """The episode's policy and modes: the policy made here, or the cell service's at
+    ``via_cell`` (with the modes that hand it the rendered images)."""
+    if via_cell is None:
+        yield make_policy(policy, **kwargs), modes
+        return
+    driver = importlib.import_module(VIA_CELL_MODULE)  # the cell extra, only when asked
+    with driver.served_policy(via_cell, policy, kwargs, modes) as pair:
+        yield pair
+
+
 def run_task(
     case: Case,
     policy: str,
@@ -218,6 +237,7 @@ def run_task(
     timeout_s: float | None = None,
     deadline: float | None = None,
     modes: EpisodeModes = EXACT_MODES,
+    via_cell: str | None = None,
 ) -> EpisodeRecord:
     """The record of one episode (``EpisodeOk``), or of its failure (``EpisodeError``).
 
@@ -225,25 +245,28 @@ def run_task(
     between episodes; policies that hold heavy models cache them per process themselves.
     ``timeout_s`` limits this episode; ``deadline`` (``time.monotonic()``) is the run's end:
     reaching it raises DeadlineReached instead of producing a record. ``modes`` are the
-    observation and execution modes (exact by default).
+    observation and execution modes (exact by default); ``via_cell``: a cell service's URL.
     """
     started, started_cpu = time.perf_counter(), time.process_time()
     head = _header(case, policy, seed, backend)
     timing: dict[str, Any] = {}
     record: EpisodeRecord
     try:
-        with time_limit(timeout_s, deadline):
+        with (
+            time_limit(timeout_s, deadline),
+            _player(policy, policy_kwargs or {}, modes, via_cell) as (player, played),
+        ):
             result = run_episode(
                 case,
-                make_policy(policy, **(policy_kwargs or {})),
+                player,
                 seed,
                 backend=backend,
                 physics=physics,
-                perceiver=modes.perceiver,
-                execution=modes.execution,
-                sides=modes.sides,
-                show_remaining=modes.show_remaining,
-                protocol=modes.protocol,
+                perceiver=played.perceiver,
+                execution=played.execution,
+                sides=played.sides,
+                show_remaining=played.show_remaining,
+                protocol=played.protocol,
             )
         body = result.to_record()
         # The registry name is the key (a policy object's own ``name`` could differ).

@@ -13,7 +13,9 @@ place pose in the container frame, and how the place skill would put it down. Mo
 - ``app``, ``server``, ``settings``: the FastAPI app and ``packlab cell serve``;
 - ``client``: ``CellClient``, the Python client;
 - ``simulated``: packlab's simulated cameras as a cell describes them, and a generated case's
-  steps rendered and encoded as a cell sends them.
+  steps rendered and encoded as a cell sends them;
+- ``via_cell``: the bench's episodes played through a running service (``packlab bench
+  --via-cell URL``).
 
 ``step``, ``geometry``, ``buffer``, ``images``, ``errors``, ``limits`` and ``settings`` need the
 core install only; the rest needs the ``cell`` extra (FastAPI, uvicorn, httpx, pydantic).

@@ -28,7 +28,7 @@ from packlab.cell.step import (
     StepAnswer,
     StepInput,
 )
-from packlab.core.types import Container
+from packlab.core.types import Action, Container, Unparsable
 from packlab.sim.execution import EXECUTION_PRESETS
 from packlab.sim.sensing.presets import sensor_preset
 
@@ -139,6 +139,7 @@ def answer_model(answer: StepAnswer, session_id: str | None, decode_ms: float) -
         box=_box(answer.box),
         placement=None if answer.placement is None else _placement(answer.placement),
         boxes=[_box(b) for b in answer.boxes],
+        action=_action(answer.action),
         dropped_segments=answer.dropped_segments,
         heightmap=schema.Heightmap(
             cells=(int(heightmap.shape[0]), int(heightmap.shape[1])),
@@ -154,6 +155,16 @@ def answer_model(answer: StepAnswer, session_id: str | None, decode_ms: float) -
             total=t.total_ms + decode_ms,
         ),
     )
+
+
+def _action(action: Action | Unparsable) -> schema.PolicyAction | None:
+    if isinstance(action, Unparsable):
+        return None
+    fields = (action.object_id, action.rotation, action.x, action.y)
+    if not all(isinstance(v, (int, np.integer)) for v in fields):
+        return None  # not a whole-number answer: the judge already named it
+    object_id, rotation, x, y = (int(v) for v in fields)
+    return schema.PolicyAction(object_id=object_id, rotation=rotation, x=x, y=y)
 
 
 def _box(box: MeasuredBox) -> schema.Box:

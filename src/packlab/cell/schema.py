@@ -254,6 +254,16 @@ class PlacementPlan(Answer):
     approach: ApproachPlan
 
 
+class PolicyAction(Answer):
+    """The policy's own answer, as it gave it: ``object_id`` indexes ``boxes``; x = y = -1 sets
+    that box aside on purpose."""
+
+    object_id: int
+    rotation: int
+    x: int = Field(description="the footprint's minimum cell along x")
+    y: int = Field(description="the footprint's minimum cell along y")
+
+
 class Heightmap(Answer):
     cells: tuple[int, int]
     cell_mm: int
@@ -279,6 +289,9 @@ class StepAnswer(Answer):
     box: Box
     placement: PlacementPlan | None
     boxes: list[Box]
+    action: PolicyAction | None = Field(
+        default=None, description="the policy's own answer; None: it gave none that could be read"
+    )
     dropped_segments: int = Field(description="buffer segments not box-like, left out")
     heightmap: Heightmap
     timings_ms: Timings
@@ -316,6 +329,7 @@ __all__ = [
     "PinholeIntrinsics",
     "PlacementPlan",
     "PlanRequest",
+    "PolicyAction",
     "PolicyList",
     "Pose",
     "PresetName",

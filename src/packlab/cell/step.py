@@ -25,10 +25,9 @@ from packlab.cell.geometry import Calibration, buffer_image, container_heightmap
 from packlab.cell.limits import MAX_BOXES
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
-from packlab.core.protocols import Policy
+from packlab.core.protocols import EpisodeStart, Policy
 from packlab.core.types import (
     Action,
-    Case,
     Container,
     HistoryEntry,
     Observation,
@@ -36,7 +35,7 @@ from packlab.core.types import (
     Unparsable,
 )
 from packlab.policies.registry import policy_factory
-from packlab.sim.buffer import size_cells
+from packlab.sim.buffer import episode_rng, size_cells
 from packlab.sim.execution import ExecutedDrop, ExecutionNoise, full_faces, place_command
 from packlab.sim.execution import seat_sides as skill_seat_sides
 from packlab.sim.physics.place_skill import APPROACH_MM, PLACE_RETRIES, PlaceCommand
@@ -177,8 +176,8 @@ class StepAnswer:
 def open_session(config: CellConfig) -> SessionState:
     """A fresh session: the policy made by name and reset for this container.
 
-    The policy is reset with a case that holds the container and buffer size only: policies
-    never read a case's objects (docs/install.md, "A learned policy in a robot cell").
+    The policy is reset with what a cell knows (:func:`cell_start`); a policy that needs a
+    case (the oracle) is refused.
     """
     try:
         factory = policy_factory(config.policy)
@@ -189,9 +188,21 @@ def open_session(config: CellConfig) -> SessionState:
         policy = factory(**dict(config.policy_options))
     except (ConfigError, TypeError) as exc:  # TypeError: a keyword the factory does not take
         raise CellInputError("policy_options", dict(config.policy_options), str(exc)) from None
-    case = Case("cell", config.container, config.buffer_size, objects=(), seed=config.seed)
-    policy.reset(case, config.seed)
+    if getattr(policy, "needs_case", False):
+        raise CellInputError("policy", config.policy, "replays a case's plan, which a cell has not")
+    policy.reset(cell_start(config), config.seed)
     return SessionState(config, policy)
+
+
+def cell_start(config: CellConfig) -> EpisodeStart:
+    """What a session's policy is told at its start: the container, the buffer's size, and
+    random streams of its own drawn from the session's seed alone (a cell has no case)."""
+    seed = config.seed
+    return EpisodeStart(
+        container=config.container,
+        buffer_size=config.buffer_size,
+        streams=lambda stream: episode_rng(stream, seed),
+    )
 
 
 def plan_step(state: SessionState, step: StepInput) -> StepAnswer:
@@ -432,6 +443,7 @@ __all__ = [
     "StepInput",
     "Timings",
     "approach",
+    "cell_start",
     "judge",
     "open_session",
     "plan_step",

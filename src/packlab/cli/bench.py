@@ -42,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     _add_case_options(p)
     _add_run_options(p)
+    _add_cell_options(p)
     _add_limit_options(p)
     _add_sensing_options(p)
     _add_protocol_options(p)
@@ -262,6 +263,22 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
         help="play every seed: by default a policy that plays the same episode for every run "
         "seed (exact modes; e.g. the heuristics and the oracle) is played for the lowest seed "
         "and copied to the others",
+    )
+
+
+def _add_cell_options(p: argparse.ArgumentParser) -> None:
+    """Where the policies play: in the bench's processes, or in a running cell service."""
+    add_field(
+        p,
+        RunConfig,
+        "via_cell",
+        "--via-cell",
+        metavar="URL",
+        help="play the policies through the cell service at URL (started with `packlab cell "
+        "serve`; needs the cell extra): each step sends only the rendered depth images and "
+        "camera calibrations, and the answer is carried out here; needs --observation "
+        "perceived; the records are the in-process run's but where the policy breaks a tie "
+        "by the order boxes are listed in (docs/cell.md); not part of the run's identity",
     )
 
 

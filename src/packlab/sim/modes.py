@@ -29,7 +29,7 @@ from packlab.core.choices import (
 from packlab.core.packing_protocol import BUFFER, PackingProtocol
 from packlab.sim.execution import ExecutionNoise, execution_noise
 from packlab.sim.replan import Perceiver, Perception, Scene
-from packlab.sim.sensing import perceive_state
+from packlab.sim.sensing import PerceivedState, perceive_state
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,8 +42,14 @@ class SensingPerceiver:
     segmentation: Segmentation = DEFAULT_SEGMENTATION
 
     def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception:
+        return perception_of(self.perceived_state(scene, rng))
+
+    def perceived_state(self, scene: Scene, rng: np.random.Generator) -> PerceivedState:
+        """What the cameras and the perception made of ``scene``: the noisy depth images, the
+        buffer's segments and which shown box each stands for, behind the ``Perception`` this
+        perceiver returns (a driver that sends the images to a cell service reads them)."""
         shown = scene.sizes_mm[list(scene.shown)].reshape(-1, 3)
-        state = perceive_state(
+        return perceive_state(
             scene.container,
             scene.sizes_mm,
             scene.positions_mm,
@@ -53,19 +59,23 @@ class SensingPerceiver:
             rng,
             self.segmentation,
         )
-        sizes = tuple(tuple(int(v) for v in row) for row in np.asarray(state.shown_sizes_mm))
-        grasp = tuple(tuple(float(v) for v in row) for row in state.grasp_errors)
-        return Perception(
-            np.asarray(state.heightmap, dtype=np.int32),
-            sizes,  # type: ignore[arg-type]
-            dims_error_mm=tuple(float(v) for v in state.stats.dims_error_mm),
-            yaw_error_deg=tuple(float(v) for v in state.stats.yaw_error_deg),
-            heightmap_mae_mm=float(state.stats.heightmap_mae_mm),
-            grasp_errors=grasp,  # type: ignore[arg-type]
-            missed=state.missed,
-            axis_swapped=tuple(bool(v) for v in state.axis_swapped),
-            scans=state.stats.scans,
-        )
+
+
+def perception_of(state: PerceivedState) -> Perception:
+    """The episode's ``Perception`` of a ``PerceivedState``."""
+    sizes = tuple(tuple(int(v) for v in row) for row in np.asarray(state.shown_sizes_mm))
+    grasp = tuple(tuple(float(v) for v in row) for row in state.grasp_errors)
+    return Perception(
+        np.asarray(state.heightmap, dtype=np.int32),
+        sizes,  # type: ignore[arg-type]
+        dims_error_mm=tuple(float(v) for v in state.stats.dims_error_mm),
+        yaw_error_deg=tuple(float(v) for v in state.stats.yaw_error_deg),
+        heightmap_mae_mm=float(state.stats.heightmap_mae_mm),
+        grasp_errors=grasp,  # type: ignore[arg-type]
+        missed=state.missed,
+        axis_swapped=tuple(bool(v) for v in state.axis_swapped),
+        scans=state.stats.scans,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,4 +128,5 @@ __all__ = [
     "EpisodeModes",
     "SensingPerceiver",
     "episode_modes",
+    "perception_of",
 ]
