@@ -10,7 +10,9 @@ resident memory is its own. For comparison, the public reference environment (Py
 machine; the target is at least 50x faster on the hard size with stacks as still.
 ``--physics`` changes ``PhysicsConfig`` fields as ``packlab bench --physics`` does (the settle
 before the settle region: ``--physics freeze=false --physics rest_check_steps=1``); the load
-average is printed since the machine may be shared.
+average is printed since the machine may be shared. "cpu ms" is the process's CPU time over the
+episodes per placement (the oracle's decisions, trivial, included): on a shared machine it moves
+less with the load than the wall times do.
 """
 
 from __future__ import annotations
@@ -50,12 +52,14 @@ def measure_size(args: tuple[str, int, int, dict]) -> dict:
     physics = PhysicsConfig(**overrides)
     cases = cases_with(difficulty, n_objects, episodes)
     times, drift, overall, settle = [], 0.0, [], []
+    cpu_start = time.process_time()
     for case in cases:
         result = run_episode(case, make_policy("oracle"), seed=0, backend="mujoco", physics=physics)
         times += [s.wall_time_s for s in result.steps]
         settle += [s.settle_steps for s in result.steps]
         overall.append(result.metrics.overall)
         drift = max(drift, plan_drift_mm(case, result.poses))
+    cpu_s = time.process_time() - cpu_start
     container = cases[0].container.size_mm
     return {
         "difficulty": difficulty,
@@ -63,6 +67,7 @@ def measure_size(args: tuple[str, int, int, dict]) -> dict:
         "container_cm": "x".join(f"{v / 10:g}" for v in container),
         "mean_ms": 1e3 * float(np.mean(times)),
         "p95_ms": 1e3 * float(np.percentile(times, 95)),
+        "cpu_ms": 1e3 * cpu_s / len(times),
         "settle_steps": float(np.mean(settle)),
         "drift_mm": drift,
         "min_overall": min(overall),
@@ -125,6 +130,7 @@ def main() -> None:
     )
     header = (
         f"{'size':8s} {'boxes':>5s} {'container cm':>14s} {'mean ms':>8s} {'p95 ms':>8s} "
+        f"{'cpu ms':>7s} "
         f"{'steps':>6s} "
         f"{'drift mm':>8s} {'overall':>8s} {'peak MB':>8s} {'ref s':>6s} {'speed-up':>8s}"
     )
@@ -134,7 +140,7 @@ def main() -> None:
         ref = REFERENCE_S[r["difficulty"]]
         print(
             f"{r['difficulty']:8s} {r['boxes']:5d} {r['container_cm']:>14s} "
-            f"{r['mean_ms']:8.2f} {r['p95_ms']:8.2f} "
+            f"{r['mean_ms']:8.2f} {r['p95_ms']:8.2f} {r['cpu_ms']:7.2f} "
             f"{r['settle_steps']:6.1f} {r['drift_mm']:8.3f} {r['min_overall']:8.4f} "
             f"{r['peak_rss_mb']:8.0f} "
             f"{ref:6.3f} {ref * 1e3 / r['mean_ms']:7.0f}x"

@@ -97,23 +97,34 @@ def box_top_region(
     j1 = min(int(np.ceil((position_mm[1] + extent[1]) / cell_mm)), ny)
     if i0 >= i1 or j0 >= j1:
         return None
-    gx, gy = np.meshgrid(
-        (np.arange(i0, i1) + 0.5) * cell_mm, (np.arange(j0, j1) + 0.5) * cell_mm, indexing="ij"
-    )
+    # The cells' centres as broadcast views (the values of a meshgrid, without its copies).
+    shape = (i1 - i0, j1 - j0)
+    gx = np.broadcast_to(((np.arange(i0, i1) + 0.5) * cell_mm)[:, None], shape)
+    gy = np.broadcast_to(((np.arange(j0, j1) + 0.5) * cell_mm)[None, :], shape)
     top = box_top_over_cells(np.asarray(position_mm, dtype=np.float64), rot, half, gx, gy)
     return i0, i1, j0, j1, top
 
 
 def compose_regions(grid_shape: tuple[int, int], regions) -> np.ndarray:
     """Heightmap (int32 mm, 0 = floor) as the max over per-box regions from ``box_top_region``."""
-    hm = np.zeros(grid_shape, dtype=np.float64)
+    return round_heightmap(max_regions_into(np.zeros(grid_shape, dtype=np.float64), regions))
+
+
+def max_regions_into(top: np.ndarray, regions) -> np.ndarray:
+    """Raise ``top`` (float mm, in place) to the max of itself and per-box regions from
+    ``box_top_region`` (None: a box over no cell; NaN cells: not covered); returns ``top``."""
     for region in regions:
         if region is None:
             continue
-        i0, i1, j0, j1, top = region
-        window = hm[i0:i1, j0:j1]
-        np.fmax(window, top, out=window)
-    return np.rint(hm).astype(np.int32)
+        i0, i1, j0, j1, cells = region
+        window = top[i0:i1, j0:j1]
+        np.fmax(window, cells, out=window)
+    return top
+
+
+def round_heightmap(top: np.ndarray) -> np.ndarray:
+    """Float top heights (mm) as a heightmap: whole mm, int32."""
+    return np.rint(top).astype(np.int32)
 
 
 def rasterise_poses(

@@ -22,6 +22,12 @@ Design choices (measured on a 2-core CPU; see benchmarks/physics_placement.py):
   alone in between).
 * A box is never dropped inside another: Eq. 2 heights come from a heightmap sampled at cell
   centres, which can miss the edge of a tilted neighbour, so the drop is raised until clear.
+* Asking whether and how deep one box touches anything (the drop's clearance, the place
+  skill's guarded moves) runs MuJoCo's collision detection on that box's pairs alone
+  (``_collide_with``): the same contacts, bit for bit, without the pile's own. The heightmap
+  re-samples only the boxes that moved and keeps the maximum over the others
+  (``_rasterise``). Neither changes a result: an episode is the same, step for step, as with
+  the whole scene collided and the heightmap composed afresh.
 * Collision boxes are shrunk horizontally by ``collision_inset_mm`` per side so boxes placed flush
   against a neighbour or a wall touch without interpenetrating (touching is not overlapping);
   heights are exact, so supports are unaffected. The heightmap uses the true sizes.
@@ -39,7 +45,12 @@ import numpy as np
 from packlab.core.errors import ConfigError
 from packlab.core.protocols import Transition
 from packlab.core.types import Box, Container
-from packlab.sim.heightmap import box_top_region, compose_regions, yaw_quaternion
+from packlab.sim.heightmap import (
+    box_top_region,
+    max_regions_into,
+    round_heightmap,
+    yaw_quaternion,
+)
 from packlab.sim.physics.place_skill import LIFT_TOLERANCE_MM, PlaceCommand, SkillReport
 from packlab.sim.physics.place_skill import place as run_place_skill
 
@@ -164,13 +175,17 @@ class PhysicsConfig:
             )
 
 
-def _squared_speeds(qvel: np.ndarray, dof_idx: np.ndarray) -> np.ndarray:
+def _squared_speeds(
+    qvel: np.ndarray, dof_idx: np.ndarray, work: np.ndarray | None = None
+) -> np.ndarray:
     """(n, 2) squared linear (m/s)^2 and angular (rad/s)^2 speeds of n free bodies, from qvel.
 
-    ``dof_idx`` (n, 6) holds each body's free-joint dofs: 3 linear, then 3 angular.
+    ``dof_idx`` (n, 6) holds each body's free-joint dofs: 3 linear, then 3 angular; ``work``
+    (float64, its shape), if given, holds the velocities in between instead of a new array.
     """
-    v = qvel[dof_idx]
-    return (v * v).reshape(-1, 2, 3).sum(axis=2)
+    v = qvel.take(dof_idx, out=work)
+    np.multiply(v, v, out=v)
+    return v.reshape(-1, 2, 3).sum(axis=2)
 
 
 def _stillest(speed2: np.ndarray, net2: np.ndarray, limits: np.ndarray) -> np.ndarray:
@@ -193,6 +208,18 @@ def _net_squared_speeds(before: np.ndarray, after: np.ndarray, span_s: float) ->
     out[:, 1] = (2.0 * np.arccos(cos_half)) ** 2
     out /= span_s**2
     return out
+
+
+def _added_in_order(values: np.ndarray) -> np.ndarray:
+    """The sum over the first axis of ``values`` (n, ...), added one at a time to 0.0 in
+    order, as a loop of ``+=`` over contacts adds them: bit for bit that loop's result, which
+    numpy's pairwise ``sum`` is not. Zeros (of the other axes' shape) when n = 0."""
+    if len(values) == 0:
+        return np.zeros(values.shape[1:])
+    # A running sum from 0.0 and numpy's running sum from the first value differ only where
+    # the first value is -0.0 and every one after it a zero (-0.0 there, +0.0 in the loop):
+    # adding +0.0 settles that and changes nothing else.
+    return np.cumsum(values, axis=0)[-1] + 0.0
 
 
 def _rotation_matrices(quats: np.ndarray) -> np.ndarray:
@@ -319,6 +346,12 @@ class MujocoBackend:
         self._geom_ids = np.zeros(0, dtype=int)
         self._frozen_geom_ids = np.zeros(0, dtype=int)
         self._frozen = np.zeros(0, dtype=bool)
+        #: The box geom whose pairs alone collide while ``_collide_with`` masks the others
+        #: (None: the whole scene collides), and the masks it replaced.
+        self._colliding_only: int | None = None
+        self._unmasked = np.zeros(0, dtype=np.int32)
+        self._pose_idx = np.zeros((0, 7), dtype=int)
+        self._dof_idx = np.zeros((0, 6), dtype=int)
 
     def reset(self, container: Container, boxes: Sequence[Box]) -> np.ndarray:
         model = mujoco.MjModel.from_xml_string(build_model_xml(container, boxes, self.config))
@@ -326,13 +359,23 @@ class MujocoBackend:
         self._container_or_none = container
         self._sizes_mm = np.array([b.size_mm for b in boxes], dtype=np.float64).reshape(-1, 3)
         self._placed = np.zeros(len(boxes), dtype=bool)
-        self._regions: dict[int, tuple[np.ndarray, np.ndarray, object]] = {}
+        # The heightmap's per-box regions (``_rasterise``): each box's region and the pose
+        # (mm, wxyz) it was sampled at, and the regions' maximum so far (None: recompose).
+        self._regions: dict[int, tuple[int, int, int, int, np.ndarray] | None] = {}
+        self._sampled = np.zeros(len(boxes), dtype=bool)
+        self._sampled_pose = np.zeros((len(boxes), 7))
+        self._composed: np.ndarray | None = None
         self._body_ids = np.array([model.body(f"box{i}").id for i in range(len(boxes))], dtype=int)
         self._geom_ids = np.array([model.geom(f"g{i}").id for i in range(len(boxes))], dtype=int)
         self._frozen_geom_ids = np.array(
             [model.geom(f"f{i}").id for i in range(len(boxes))], dtype=int
         )
         self._frozen = np.zeros(len(boxes), dtype=bool)
+        self._colliding_only = None
+        # Each box's free-joint entries: (n, 7) into qpos, (n, 6) into qvel.
+        joints = model.body_jntadr[self._body_ids]
+        self._pose_idx = model.jnt_qposadr[joints][:, None] + np.arange(7)
+        self._dof_idx = model.jnt_dofadr[joints][:, None] + np.arange(6)
         mujoco.mj_forward(model, self._data)
         return np.zeros(container.cells, dtype=np.int32)
 
@@ -446,6 +489,7 @@ class MujocoBackend:
     def _park(self, index: int) -> None:
         """Take box ``index`` back out (the place skill set it aside): parked as before it was
         placed, collisions off, weight carried; it no longer counts as placed."""
+        self._whole_scene()
         model, data = self._model, self._data
         body, geom = self._body_ids[index], self._geom_ids[index]
         model.body_gravcomp[body] = 1.0
@@ -454,10 +498,13 @@ class MujocoBackend:
         data.qpos[self._qpos_slice(index)] = (*_park_position(index), 1.0, 0.0, 0.0, 0.0)
         data.qvel[self._qvel_slice(index)] = 0.0
         self._placed[index] = False
-        self._regions.pop(index, None)
+        if self._regions.pop(index, None) is not None:
+            self._composed = None  # its region is no longer part of the heightmap
+        self._sampled[index] = False
 
     def _activate(self, index: int) -> None:
         """Un-park box ``index``: collisions and gravity on; it counts as placed."""
+        self._whole_scene()
         model = self._model
         body, geom = self._body_ids[index], self._geom_ids[index]
         model.body_gravcomp[body] = 0.0
@@ -548,20 +595,22 @@ class MujocoBackend:
         pressure, total = np.zeros((2, 2)), np.zeros(2)  # rows: side, support
         if self._penetration(geom) <= 0.0:
             return force, torque, centre, centre.copy()
+        self._whole_scene()
         mujoco.mj_forward(model, data)
-        wrench = np.zeros(6)
         contacts = data.contact
-        frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
-        for i in np.flatnonzero(self._contacts_with(geom)):  # in contact order, as the sums were
-            mujoco.mj_contactForce(model, data, int(i), wrench)
-            # The normal points from geom1 to geom2; the force pushes geom2 along it.
-            on_box = wrench[0] * frames[i, :3] * (1.0 if second[i] == geom else -1.0)
-            force += on_box
-            r = positions[i, :2] - axis_xy
-            torque += float(r[0] * on_box[1] - r[1] * on_box[0])
-            kind = int(abs(frames[i, 2]) > 0.5)
-            pressure[kind] += abs(wrench[0]) * positions[i, :2]
-            total[kind] += abs(wrench[0])
+        mine = np.flatnonzero(self._contacts_with(geom))
+        normal, frames = self._normal_forces(mine), contacts.frame[mine]
+        positions = contacts.pos[mine, :2]
+        # The normal points from geom1 to geom2; the force pushes geom2 along it.
+        sign = np.where(contacts.geom2[mine] == geom, 1.0, -1.0)[:, None]
+        on_box = normal[:, None] * frames[:, :3] * sign
+        force = _added_in_order(on_box)
+        r = positions - axis_xy
+        torque = float(_added_in_order(r[:, 0] * on_box[:, 1] - r[:, 1] * on_box[:, 0]))
+        support_kind = np.abs(frames[:, 2]) > 0.5
+        for kind, rows in enumerate((~support_kind, support_kind)):
+            pressure[kind] = _added_in_order(np.abs(normal[rows])[:, None] * positions[rows])
+            total[kind] = _added_in_order(np.abs(normal[rows]))
         side, support = (pressure[k] / total[k] if total[k] > 0 else centre for k in (0, 1))
         return force, torque, side, support
 
@@ -591,20 +640,30 @@ class MujocoBackend:
         force, torque, pressure, total = np.zeros(2), 0.0, np.zeros(2), 0.0
         if self._penetration(geom) <= 0.0:
             return force, torque, centre
+        self._whole_scene()
         mujoco.mj_forward(model, data)
-        wrench = np.zeros(6)
         contacts = data.contact
-        frames, positions, second = contacts.frame, contacts.pos, contacts.geom2
-        for i in np.flatnonzero(self._contacts_with(geom) & (np.abs(frames[:, 2]) <= 0.5)):
-            mujoco.mj_contactForce(model, data, int(i), wrench)
-            # The normal points from geom1 to geom2; the force pushes geom2 along it.
-            on_box = wrench[0] * frames[i, :2] * (1.0 if second[i] == geom else -1.0)
-            force += on_box
-            r = positions[i, :2] - centre
-            torque += float(r[0] * on_box[1] - r[1] * on_box[0])
-            pressure += abs(wrench[0]) * positions[i, :2]
-            total += abs(wrench[0])
+        side = np.flatnonzero(self._contacts_with(geom) & (np.abs(contacts.frame[:, 2]) <= 0.5))
+        normal, positions = self._normal_forces(side), contacts.pos[side, :2]
+        # The normal points from geom1 to geom2; the force pushes geom2 along it.
+        sign = np.where(contacts.geom2[side] == geom, 1.0, -1.0)[:, None]
+        on_box = normal[:, None] * contacts.frame[side, :2] * sign
+        force = _added_in_order(on_box)
+        r = positions - centre
+        torque = float(_added_in_order(r[:, 0] * on_box[:, 1] - r[:, 1] * on_box[:, 0]))
+        pressure = _added_in_order(np.abs(normal)[:, None] * positions)
+        total = float(_added_in_order(np.abs(normal)))
         return force, torque, pressure / total if total > 0 else centre
+
+    def _normal_forces(self, contacts: np.ndarray) -> np.ndarray:
+        """The normal force (N) of each of ``contacts`` (indices into ``data.contact``), as
+        ``mj_contactForce`` gives it after a solve (``mj_forward``)."""
+        model, data, wrench = self._model, self._data, np.zeros(6)
+        out = np.empty(len(contacts))
+        for k, i in enumerate(contacts.tolist()):
+            mujoco.mj_contactForce(model, data, i, wrench)
+            out[k] = wrench[0]
+        return out
 
     def _clear_below(self, index: int, rotation: int, yaw_deg: float = 0.0) -> bool:
         """Cheap sufficient test that box ``index`` starts clear: every placed box whose planar
@@ -637,9 +696,44 @@ class MujocoBackend:
         """Deepest penetration (m) of ``geom`` into anything, at the current positions."""
         model, data = self._model, self._data
         mujoco.mj_kinematics(model, data)  # also wakes a tree whose qpos was just set
-        mujoco.mj_collision(model, data)
-        mine = self._contacts_with(geom)
-        return float(-data.contact.dist[mine].min()) if mine.any() else 0.0
+        self._collide_with(geom)  # every contact listed is one of geom's
+        return float(-data.contact.dist.min()) if data.ncon else 0.0
+
+    def _collide_with(self, geom: int) -> None:
+        """MuJoCo's collision detection for the pairs that involve box geom ``geom`` only.
+
+        ``data.contact`` then lists exactly the contacts of ``geom`` that a full
+        ``mj_collision`` lists, in the same order and bit for bit (each pair's contacts come
+        from that pair's geometry alone), without the pile's own contacts, which in a messy
+        pile were most of a guarded move's cost. A box's ``contype`` and ``conaffinity`` (geom
+        and body) are both 1 while it collides and both 0 otherwise, and the walls and the
+        floor collide through that bit too; here the other colliding boxes keep only an
+        affinity, moved to bit 1, which ``geom`` alone (given both bits) matches, so no pair
+        without ``geom`` passes MuJoCo's filter and every pair with it passes as before. The
+        masks stay so over a run of such calls for one geom (the place skill's guarded moves)
+        and are restored (``_whole_scene``) before anything else reads or changes them: the
+        settle, the force readings (``mj_forward``), placing, parking, freezing.
+        """
+        if self._colliding_only != geom:
+            self._whole_scene()
+            model, geoms, bodies = self._model, self._geom_ids, self._body_ids
+            self._unmasked = active = model.geom_contype[geoms].copy()  # 1: the box collides
+            mine = geoms == geom
+            only_type = np.where(mine, 3 * active, 0)
+            only_affinity = np.where(mine, 3, 2) * active
+            self._colliding_only = geom
+            model.geom_contype[geoms] = model.body_contype[bodies] = only_type
+            model.geom_conaffinity[geoms] = model.body_conaffinity[bodies] = only_affinity
+        mujoco.mj_collision(self._model, self._data)
+
+    def _whole_scene(self) -> None:
+        """Undo ``_collide_with``'s masks: every box collides as its state says again."""
+        if self._colliding_only is None:
+            return
+        model, geoms, bodies, active = self._model, self._geom_ids, self._body_ids, self._unmasked
+        model.geom_contype[geoms] = model.geom_conaffinity[geoms] = active
+        model.body_contype[bodies] = model.body_conaffinity[bodies] = active
+        self._colliding_only = None
 
     def _highest_top(self, skip: int) -> float:
         """Height (m) of the highest point of any placed box but ``skip`` (0 if none)."""
@@ -652,35 +746,34 @@ class MujocoBackend:
         return top
 
     def _settle(self, window: int, cap: int, dropped: int | None = None) -> Transition:
-        """Step until every placed box stays still for ``window`` consecutive steps.
-
-        A box is still when its speed is under the thresholds, measured either from its
-        velocity now or from its net motion over the last ``rest_motion_steps`` steps (see
-        ``PhysicsConfig.rest_motion_steps``). The test runs every ``rest_check_steps`` steps:
-        the settle stops at the first check where the still checks in a row span ``window``
-        steps (one check per step is the test step by step). Stops at ``cap`` steps with
-        ``capped`` set; the transition carries, when it stopped either way, the largest speeds
-        of any box, each box measured by whichever of the two is stiller.
+        """Step until every placed box stays still for ``window`` consecutive steps. A box is
+        still when its speed is under the thresholds, measured either from its velocity now or
+        from its net motion over the last ``rest_motion_steps`` steps (``PhysicsConfig``). The
+        test runs every ``rest_check_steps`` steps: the settle stops at the first check where
+        the still checks in a row span ``window`` steps (one check per step is the test step by
+        step). Stops at ``cap`` steps with ``capped`` set; the transition carries, when it
+        stopped either way, the largest speeds of any box, each box measured by whichever of
+        the two is stiller.
 
         With ``PhysicsConfig.freeze`` and a ``dropped`` box (the box just let go, moving from
         the start) only the settle region is simulated: boxes away from the motion are frozen
         while it lasts (``_SettleRegion``); a frozen box is still by construction. Without a
         dropped box (the final settle, a box set aside) every box is simulated.
         """
+        self._whole_scene()
         model, data, cfg = self._model, self._data, self.config
         placed = np.flatnonzero(self._placed)
-        bodies = self._body_ids[placed]
-        dof = model.jnt_dofadr[model.body_jntadr[bodies]][:, None]
-        qadr = model.jnt_qposadr[model.body_jntadr[bodies]][:, None]
-        dof_idx, pose_idx = dof + np.arange(6), qadr + np.arange(7)
+        dof_idx, pose_idx = self._dof_idx[placed], self._pose_idx[placed]
+        qpos, qvel = data.qpos, data.qvel  # views of the state the steps update in place
+        velocity = np.empty(dof_idx.shape)  # the placed boxes' velocities at a check
         limits = np.array([cfg.linear_speed_threshold, cfg.angular_speed_threshold]) ** 2
         every, k, dt = cfg.rest_check_steps, cfg.rest_motion_steps, cfg.timestep_s
         lag = -(-k // every)  # checks back to the poses the net motion is measured from
         # Poses at the last lag + 1 checks (a ring) and the step of each.
-        history = np.empty((lag + 1, len(bodies), 7))
+        history = np.empty((lag + 1, len(placed), 7))
         history_step = np.zeros(lag + 1, dtype=int)
-        history[0] = data.qpos[pose_idx]
-        speed2 = _squared_speeds(data.qvel, dof_idx)
+        history[0] = qpos[pose_idx]
+        speed2 = _squared_speeds(qvel, dof_idx)
         calm = limits * cfg.freeze_speed_fraction**2  # under these a box may be frozen
         region = self._region(placed, dropped, np.all(speed2 < calm, axis=1), every * dt)
         step, check, still_checks, steps, capped = 0, 0, 0, cap, True
@@ -693,21 +786,22 @@ class MujocoBackend:
                     mujoco.mj_step(model, data)
                 step, check = step + n, check + 1
                 now, then = check % (lag + 1), (check + 1) % (lag + 1)
-                history[now], history_step[now] = data.qpos[pose_idx], step
-                speed2 = _squared_speeds(data.qvel, dof_idx)
-                moving = np.any(speed2 >= limits, axis=1)
+                qpos.take(pose_idx, out=history[now])
+                history_step[now] = step
+                speed2 = _squared_speeds(qvel, dof_idx, velocity)
+                moving = (speed2 >= limits).any(axis=1)
                 # Moving by the rest test, or not calm enough to freeze (a superset).
-                restless = moving if region is None else np.any(speed2 >= calm, axis=1)
+                restless = moving if region is None else (speed2 >= calm).any(axis=1)
                 if step > k and restless.any():  # only then is a net motion over k steps known
-                    fast = np.flatnonzero(restless)  # the net motion of the others is moot
+                    # Every box's (the others' are moot: still by velocity already).
                     net2 = _net_squared_speeds(
-                        history[then, fast], history[now, fast], (step - history_step[then]) * dt
+                        history[then], history[now], (step - history_step[then]) * dt
                     )
-                    moving[fast] &= (net2 >= limits).any(axis=1)
+                    moving &= (net2 >= limits).any(axis=1)
                     if region is not None:
-                        restless[fast] = (net2 >= calm).any(axis=1)
+                        restless &= (net2 >= calm).any(axis=1)
                 if region is not None:
-                    region.moved(restless, n)
+                    region.moved(np.asarray(restless), n)
                 if moving.any():
                     still_checks = 0
                 else:
@@ -749,6 +843,7 @@ class MujocoBackend:
         stops colliding, has its weight carried and its velocity zeroed, so it stays put and
         falls asleep alone. Both the model's and the data's pose of the stand-in are set: with
         sleeping on, MuJoCo does not recompute static geoms' poses at every step."""
+        self._whole_scene()
         model, data = self._model, self._data
         geoms, stand_ins = self._geom_ids[indices], self._frozen_geom_ids[indices]
         bodies = self._body_ids[indices]
@@ -769,6 +864,7 @@ class MujocoBackend:
         """Undo ``_freeze`` for boxes ``indices``: the box collides again, at the pose it was
         frozen in, at rest, under its weight; its stand-in goes off. A box still asleep stays
         asleep until an awake box touches it, as any sleeping box (see ``_regroup_sleep``)."""
+        self._whole_scene()
         model = self._model
         geoms, stand_ins = self._geom_ids[indices], self._frozen_geom_ids[indices]
         bodies = self._body_ids[indices]
@@ -802,10 +898,11 @@ class MujocoBackend:
         n = len(self._placed)
         positions = np.full((n, 3), np.nan)
         quats = np.full((n, 4), np.nan)
-        for i in np.flatnonzero(self._placed).tolist():
-            q = self._data.qpos[self._qpos_slice(i)]
-            positions[i] = q[:3] / _MM
-            quats[i] = q[3:]
+        placed = self._placed
+        if placed.any():
+            pose = self._data.qpos[self._pose_idx[placed]]
+            positions[placed] = pose[:, :3] / _MM
+            quats[placed] = pose[:, 3:]
         return positions, quats
 
     def _rasterise(self) -> np.ndarray:
@@ -813,20 +910,32 @@ class MujocoBackend:
 
         A box's region is recomputed when it moved more than ``_REUSE_MM`` or turned more than
         ``_REUSE_QUAT`` since it was last sampled; smaller motions cannot change a whole-mm
-        heightmap by more than rounding.
+        heightmap by more than rounding. The regions' maximum is kept: where only boxes not
+        sampled before were added, they are maxed into it (the maximum is exact, so the result
+        is the one over every region); where a sampled box moved, it is composed again.
         """
         positions, quats = self.poses()
         grid, cell = self._container.cells, self._container.cell_xy_mm
-        for i in np.flatnonzero(self._placed).tolist():
-            cached = self._regions.get(i)
-            if (
-                cached is None
-                or np.abs(cached[0] - positions[i]).max() > _REUSE_MM
-                or np.abs(cached[1] - quats[i]).max() > _REUSE_QUAT
-            ):
-                region = box_top_region(grid, cell, self._sizes_mm[i], positions[i], quats[i])
-                self._regions[i] = (positions[i].copy(), quats[i].copy(), region)
-        return compose_regions(grid, (r[2] for r in self._regions.values()))
+        placed = np.flatnonzero(self._placed)
+        pose = np.concatenate([positions[placed], quats[placed]], axis=1)
+        was = self._sampled_pose[placed]
+        sampled = self._sampled[placed]
+        moved = sampled & (
+            (np.abs(was[:, :3] - pose[:, :3]).max(axis=1, initial=0.0) > _REUSE_MM)
+            | (np.abs(was[:, 3:] - pose[:, 3:]).max(axis=1, initial=0.0) > _REUSE_QUAT)
+        )
+        stale = moved | ~sampled
+        new_regions = []
+        for i, row in zip(placed[stale].tolist(), pose[stale]):
+            region = box_top_region(grid, cell, self._sizes_mm[i], row[:3], row[3:])
+            self._regions[i] = region
+            new_regions.append(region)
+        self._sampled[placed[stale]] = True
+        self._sampled_pose[placed[stale]] = pose[stale]
+        if self._composed is None or moved.any():
+            self._composed = np.zeros(grid, dtype=np.float64)
+            new_regions = list(self._regions.values())
+        return round_heightmap(max_regions_into(self._composed, new_regions))
 
 
 class _SettleRegion:
@@ -918,6 +1027,7 @@ class _HeldBox:
 
     def __init__(self, backend: MujocoBackend, index: int) -> None:
         self._backend = backend
+        self._qpos = backend._data.qpos  # a view of the episode's state, updated in place
         self._geom = int(backend._geom_ids[index])
         self._address = backend._qpos_slice(index).start
         self._pose = backend._qpos_slice(index)
@@ -929,26 +1039,26 @@ class _HeldBox:
         return self._weight
 
     def snapshot(self) -> np.ndarray:
-        return np.array(self._backend._data.qpos[self._pose])
+        return np.array(self._qpos[self._pose])
 
     def restore(self, token: np.ndarray) -> None:
-        self._backend._data.qpos[self._pose] = token
+        self._qpos[self._pose] = token
 
     def moved_since(self, token: np.ndarray) -> np.ndarray:
         # The free joint's first three entries are the position; its move is the gripper's.
-        return np.array(self._backend._data.qpos[self._address : self._address + 2] - token[:2])
+        return np.array(self._qpos[self._address : self._address + 2] - token[:2])
 
     def translate(self, dx: float, dy: float, dz: float) -> None:
-        self._backend._data.qpos[self._address : self._address + 3] += (dx, dy, dz)
+        self._qpos[self._address : self._address + 3] += (dx, dy, dz)
 
     def turn(self, angle: float, pivot: np.ndarray) -> None:
-        qpos = self._backend._data.qpos
+        qpos = self._qpos
         qpos[self._pose] = _pivoted(qpos[self._pose].copy(), pivot, angle)
 
     def turned_from(self, token: np.ndarray, angle: float, pivot: np.ndarray, axis: int) -> None:
         out = _pivoted(token, pivot, angle)
         out[1 - axis] = token[1 - axis]
-        self._backend._data.qpos[self._pose] = out
+        self._qpos[self._pose] = out
 
     def penetration(self) -> float:
         return self._backend._penetration(self._geom)

@@ -478,13 +478,16 @@ def _probe(
     def search(angle: float, reach_mm: float) -> np.ndarray | None:
         blocked = np.zeros(8, dtype=bool)
         radius = 0.0 if angle else _SLIDE_STEP_MM
+        # Every try starts from the touching pose turned by ``angle``: turned once, restored.
+        held.restore(start)
+        if angle:
+            held.turn(angle, pivot)
+        origin = held.snapshot()
         while radius <= reach_mm + 1e-9 and not blocked.all():
             for k, d in enumerate(directions[: 1 if radius == 0 else 8]):
                 if blocked[k]:
                     continue
-                held.restore(start)
-                if angle:
-                    held.turn(angle, pivot)
+                held.restore(origin)
                 held.translate(d[0] * radius * _MM, d[1] * radius * _MM, 0.0)
                 if held.penetration() > tol:
                     blocked[k] = radius > 0  # a side met: no farther this way
