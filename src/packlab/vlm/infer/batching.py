@@ -72,7 +72,7 @@ import torch
 from transformers import DynamicCache
 from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
 
-from packlab.vlm.infer.generate import cache_kind, next_mrope_position
+from packlab.vlm.infer.generate import cache_kind, images_between, next_mrope_position
 
 log = logging.getLogger(__name__)
 
@@ -489,7 +489,7 @@ def _prefill_ragged(
         ids[i, span - n :] = enc.input_ids[h:end]
         mm[i, span - n :] = enc.mm_token_type_ids[h:end]
         positions[:, i, span - n :] = prompt.positions[:, 0, h:end]
-        image_pixels, image_grids = _images_between(prompt, h, end)
+        image_pixels, image_grids = images_between(prompt, h, end)
         if image_pixels is not None:
             pixels.append(image_pixels)
             grids.append(image_grids)
@@ -512,22 +512,6 @@ def _prefill_ragged(
     finally:
         _STEP.reset(token)
     return list(out.logits[:, -1])
-
-
-def _images_between(prompt: Any, a: int, b: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-    """Pixel values and grids of the prompt's images whose tokens lie in [a, b) (None: none)."""
-    spans, enc = prompt.spans, prompt.enc
-    if any(s < a < e or s < b < e for s, e in spans):
-        raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
-    inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
-    if not inside:
-        return None, None
-    grid = enc.image_grid_thw
-    offsets = [0]
-    for g in grid:
-        offsets.append(offsets[-1] + int(g.prod()))
-    lo, hi = inside[0], inside[-1] + 1
-    return enc.pixel_values[offsets[lo] : offsets[hi]], grid[lo:hi]
 
 
 def _decode_ragged(rows: list[_Row], cache: Any, lengths: list[int]) -> None:

@@ -217,6 +217,26 @@ def cache_kind(cache: Any) -> str:
     return "croppable"
 
 
+def images_between(
+    prompt: _Prompt, a: int, b: int
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Pixel values and grids of the prompt's images whose tokens lie in [a, b) (None, None:
+    none). RuntimeError where [a, b) cuts an image (a bug in the reuse plan)."""
+    spans, enc = prompt.spans, prompt.enc
+    if any(s < a < e or s < b < e for s, e in spans):
+        raise RuntimeError(f"tokens [{a}, {b}) cut an image")
+    inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
+    if not inside:
+        return None, None
+    grid = enc.image_grid_thw
+    assert grid is not None and enc.pixel_values is not None  # image spans: images
+    offsets = [0]
+    for g in grid:
+        offsets.append(offsets[-1] + int(g.prod()))
+    lo, hi = inside[0], inside[-1] + 1
+    return enc.pixel_values[offsets[lo] : offsets[hi]], grid[lo:hi]
+
+
 def next_mrope_position(prompt: _Prompt) -> int:
     """The M-RoPE position of the first generated token: as ``generate`` does, text goes on
     after the context's largest position (an image's positions end below its token count)."""
@@ -322,21 +342,14 @@ class PrefixCachedGenerator:
 
     def _feed(self, prompt: _Prompt, a: int, b: int) -> torch.Tensor:
         """Run tokens [a, b) of ``prompt`` through the model on the cache; logits of the last."""
-        enc, spans = prompt.enc, prompt.spans
+        enc = prompt.enc
         kwargs: dict[str, Any] = {}
-        inside = [i for i, (s, e) in enumerate(spans) if a <= s and e <= b]
-        if any(s < a < e or s < b < e for s, e in spans):
-            raise RuntimeError(f"tokens [{a}, {b}) cut an image")  # a bug in the reuse plan
-        if inside:
-            grid = enc.image_grid_thw
-            assert grid is not None and enc.pixel_values is not None  # image spans: images
-            per_image = [int(g.prod()) for g in grid]
-            offsets = [0]
-            for n in per_image:
-                offsets.append(offsets[-1] + n)
-            lo, hi = inside[0], inside[-1] + 1
-            kwargs["pixel_values"] = enc.pixel_values[offsets[lo] : offsets[hi]].to(self.device)
-            kwargs["image_grid_thw"] = grid[lo:hi].to(self.device)
+        pixels, grid = images_between(prompt, a, b)
+        if pixels is not None and grid is not None:
+            kwargs["pixel_values"], kwargs["image_grid_thw"] = (
+                pixels.to(self.device),
+                grid.to(self.device),
+            )
         out = self.model(
             input_ids=enc.input_ids[a:b].view(1, -1).to(self.device),
             position_ids=prompt.positions[:, :, a:b],
