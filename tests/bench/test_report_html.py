@@ -139,6 +139,21 @@ def test_replays_hold_what_the_records_hold(run_dir, sloppy):
     assert sloppy_ep["metrics"]["set_aside"] == 2 and sloppy_ep["metrics"]["invalid"] == 2
 
 
+def test_copied_episodes_say_which_seed_they_copy(run_dir, sloppy):
+    """A seed-free policy's episodes of seed 1 are copies of seed 0's (the bench's reuse): the
+    page marks each with the seed it copies, in the case browser and the replay's title; a
+    played episode carries no mark."""
+    data = embedded_data(_page(run_dir))
+    episodes = _by_key(data)
+    dblf = [e for (policy, _case, seed), e in episodes.items() if policy == "dblf" and seed == 1]
+    played = [e for (policy, _case, _seed), e in episodes.items() if policy == sloppy]
+    assert dblf and all(e["reused_from"] == 0 for e in dblf)
+    assert played and all("reused_from" not in e for e in played)
+    assert all("reused_from" not in e for (p, _c, s), e in episodes.items() if s == 0)
+    page = _page(run_dir)
+    assert '" (copy of "' in page and "do not depend on the run seed" in page
+
+
 def test_failed_episodes_are_listed_with_their_error(tiny_suite, tmp_path, crash_policy):
     small_run(tiny_suite, tmp_path / "run", policies=("dblf", crash_policy), seeds=(0,))
     data = embedded_data(_page(tmp_path / "run"))

@@ -21,6 +21,7 @@ from typing import Any
 
 from packlab.core.choices import DEFAULT_SIDES, SideNames, own_rotation
 from packlab.core.records import (
+    UNSET,
     EpisodeError,
     EpisodeOk,
     EpisodeRecord,
@@ -192,6 +193,8 @@ def episode_entry(
     if isinstance(record, EpisodeError):
         return {**head, "error": f"{record.error_kind}: {record.error}"[:_ERROR_TEXT]}
     assert isinstance(record, EpisodeOk)
+    if record.reused_from_seed is not UNSET:  # a copy of a seed-free policy's episode
+        head["reused_from"] = record.reused_from_seed
     m = record.metrics
     head["metrics"] = {
         "overall": _r(m.overall),

@@ -348,7 +348,7 @@
       var c = D.cases[e.c], m = D.methods[e.m], x = e.metrics;
       var tr = el("tr", { onclick: function () { openEpisode(e.c, e.s, e.m); } }, [
         td(String(i + 1), i), td(c.id, c.id, "text"), td(c.level, c.level, "text"),
-        td(m.name, m.name, "text"), td(String(e.s), e.s),
+        td(m.name, m.name, "text"), td(e.reused_from === undefined ? String(e.s) : e.s + " (copy of " + e.reused_from + ")", e.s),
       ]);
       if (!x) {
         tr.className = "error";
@@ -602,7 +602,8 @@
     this.message.textContent = why;
     this.message.style.display = why ? "" : "none";
     this.body.style.display = why ? "none" : "";
-    this.title.textContent = c.id + " (" + c.level + "), seed " + replay.s;
+    this.title.textContent = c.id + " (" + c.level + "), seed " + replay.s +
+      (ep && ep.reused_from !== undefined ? " (the episode of seed " + ep.reused_from + ": this policy's episodes do not depend on the run seed)" : "");
     if (why) { this.ep = null; return Promise.resolve(); }
     this.ep = ep;
     this.view = this.layout();
