@@ -19,9 +19,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from msgspec import UNSET
+
 from packlab.core.choices import DEFAULT_SIDES, SideNames, own_rotation
 from packlab.core.records import (
-    UNSET,
     EpisodeError,
     EpisodeOk,
     EpisodeRecord,
