@@ -6,6 +6,7 @@ import msgspec
 import mujoco
 import numpy as np
 import pytest
+from settle_motion import movement_mm
 
 from packlab.bench.summary import summarize
 from packlab.bench.table import render_markdown
@@ -51,16 +52,6 @@ def _play(case: Case, physics: PhysicsConfig, actions) -> Episode:
     return ep
 
 
-def _movement_mm(backend: MujocoBackend, steps: int) -> float:
-    """Largest distance (mm) any placed box's centre travels when the simulation runs on."""
-    before, _ = backend.poses()
-    for _ in range(steps):
-        mujoco.mj_step(backend._model, backend._data)
-    after, _ = backend.poses()
-    placed = ~np.isnan(before[:, 0])
-    return float(np.linalg.norm(after[placed] - before[placed], axis=1).max())
-
-
 def test_a_settle_longer_than_the_step_cap_finishes_in_the_final_settle_and_is_at_rest():
     ep = _play(_toppling_slab_case(), SHORT_STEP_CAP, [Action(0, 0, 0, 0), Action(0, 0, 0, 0)])
     last = ep.steps[-1]
@@ -75,7 +66,7 @@ def test_a_settle_longer_than_the_step_cap_finishes_in_the_final_settle_and_is_a
     assert m.at_rest is True and m.unsettled_steps == 1
     assert 0 < m.final_settle_steps < SHORT_STEP_CAP.final_max_settle_steps
     assert m.residual_linear_mps < 0.01 and m.residual_angular_radps < 0.05
-    assert _movement_mm(ep.backend, 250) < 0.5  # the scored poses are the final ones
+    assert movement_mm(ep.backend, 250) < 0.5  # the scored poses are the final ones
 
 
 def test_a_pile_that_cannot_settle_within_tiny_caps_is_flagged_and_counted():
@@ -124,7 +115,7 @@ def test_a_box_outside_the_walls_lands_on_the_floor_and_rests():
     assert final.settled and final.max_linear_speed < 0.01
     centre = backend.poses()[0][0]
     assert centre[0] > container.size_mm[0] and centre[2] == pytest.approx(20.0, abs=0.5)
-    assert _movement_mm(backend, 250) < 0.1
+    assert movement_mm(backend, 250) < 0.1
 
 
 def test_overflowing_and_set_aside_boxes_end_at_rest_and_count_as_unpacked():

@@ -1,10 +1,10 @@
 """The settle region: while a placement settles, boxes away from the motion are frozen and the
 rest test runs every few steps; stacks end where simulating every box step by step puts them."""
 
-import mujoco
 import numpy as np
 import pytest
 from layered_cases import make_layered_case
+from settle_motion import movement_mm
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Box, Container
@@ -17,16 +17,6 @@ pytestmark = pytest.mark.physics
 #: The settle before the settle region: every box simulated, the rest test after every step.
 STEP_BY_STEP = PhysicsConfig()  # the default: every box simulated, tested after every step
 REGION = PhysicsConfig(freeze=True, rest_check_steps=4)
-
-
-def _movement_mm(backend: MujocoBackend, steps: int) -> float:
-    """Largest distance (mm) any placed box's centre travels when the simulation runs on."""
-    before, _ = backend.poses()
-    for _ in range(steps):
-        mujoco.mj_step(backend._model, backend._data)
-    after, _ = backend.poses()
-    placed = ~np.isnan(before[:, 0])
-    return float(np.linalg.norm(after[placed] - before[placed], axis=1).max())
 
 
 def _spy(backend: MujocoBackend, monkeypatch) -> dict[str, set[int]]:
@@ -116,7 +106,7 @@ def test_a_settle_stops_at_rest_and_the_pile_stays_where_it_stopped():
         step = backend.place(i, 0, corner)
         # A drop onto the floor rests within a few checks: two still checks 4 steps apart.
         assert step.settled and step.settle_steps <= 20
-    assert _movement_mm(backend, 250) < 0.1
+    assert movement_mm(backend, 250) < 0.1
 
 
 def test_checking_every_step_without_freezing_is_the_step_by_step_settle():

@@ -14,6 +14,15 @@ def _item(i: int, internal_id: int, lc: int, wc: int, hc: int) -> ShownItem:
 
 
 @pytest.fixture
+def torch():
+    """torch, for the tests of tiny models (skipped without the vlm extra), on one thread."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("transformers")
+    torch.set_num_threads(1)  # tiny models; avoids thread oversubscription on shared CPUs
+    return torch
+
+
+@pytest.fixture
 def fixed_state():
     """(container, past, current) for a 3-step-old episode in a 10 x 8 cell container."""
     container = Container((250, 200, 200))

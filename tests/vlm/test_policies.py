@@ -27,14 +27,6 @@ from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 FAMILIES = ("qwen3_5", "qwen3_vl", "qwen2_5_vl")
 
 
-@pytest.fixture
-def torch():
-    torch = pytest.importorskip("torch")
-    pytest.importorskip("transformers")
-    torch.set_num_threads(1)  # tiny models; avoids thread oversubscription on shared CPUs
-    return torch
-
-
 def _records(result):
     return [s.to_record()["action"] for s in result.steps]
 

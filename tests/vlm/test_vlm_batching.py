@@ -21,14 +21,6 @@ FAMILIES = ("qwen3_5", "qwen3_vl", "qwen2_5_vl")
 pytestmark = pytest.mark.torch
 
 
-@pytest.fixture
-def torch():
-    torch = pytest.importorskip("torch")
-    pytest.importorskip("transformers")
-    torch.set_num_threads(1)  # tiny models; avoids thread oversubscription on shared CPUs
-    return torch
-
-
 def _episode(index: int, steps: int) -> list[list[dict]]:
     """The contexts of one episode's first ``steps`` steps: each a heightmap image (a colour of
     the episode's own) per turn, past answers as actions; episodes start with ``index`` past

@@ -410,14 +410,6 @@ def _check_stackable(gens: Sequence[Any]) -> str:
     return kind
 
 
-def _attention_length(cache: Any) -> int | None:
-    """Tokens the cache's attention layers hold (None: it has none)."""
-    for layer in cache.layers:
-        if type(layer) is DynamicLayer:
-            return int(layer.keys.shape[-2]) if layer.is_initialized else 0
-    return None
-
-
 def answer_together(requests: Sequence[tuple[Any, Any]]) -> list[Answer]:
     """Greedy answers to encoded prompts of several generators, prefilled and decoded together.
 

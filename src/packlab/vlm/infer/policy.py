@@ -46,7 +46,12 @@ from packlab.vlm.prompt.reference import SAMPLING as REFERENCE_SAMPLING
 from packlab.vlm.prompt.reference import with_prefill
 from packlab.vlm.prompt.reference_parse import Fallback, parse_reference
 from packlab.vlm.prompt.render import PROMPT_VERSION, PromptOptions
-from packlab.vlm.serve.reference_turns import ReferenceTurns, check_fallback, local_image
+from packlab.vlm.serve.reference_turns import (
+    ReferenceTurns,
+    check_fallback,
+    local_image,
+    reads_sample_id,
+)
 
 if TYPE_CHECKING:  # generate.py imports torch; only its type is needed here
     from packlab.vlm.infer.generate import Generation
@@ -310,7 +315,7 @@ class VLMPolicy:
     def needs_case(self) -> bool:
         """Handed the case at reset only for the reference protocol's relaxed mode: its forced
         set-aside is seeded by the case's sample id, as the reference seeds it."""
-        return self.prompt == "reference" and self.fallback == "set_aside"
+        return reads_sample_id(self.prompt, self.fallback)
 
     # -- the Policy protocol -----------------------------------------------------------------
     def reset(self, start: EpisodeStart | Case, seed: int) -> None:

@@ -76,7 +76,7 @@ from packlab.vlm.serve.openai_messages import (
     png_data_url,
     to_openai_messages,
 )
-from packlab.vlm.serve.reference_turns import ReferenceTurns, check_fallback
+from packlab.vlm.serve.reference_turns import ReferenceTurns, check_fallback, reads_sample_id
 from packlab.vlm.serve.transport import MAX_RESPONSE_BYTES, HTTPReply, TransportError, http_post
 
 #: Defaults of :class:`EndpointPolicy` (seconds; tries = 1 + retries).
@@ -409,7 +409,7 @@ class EndpointPolicy:
         """Handed the case at reset only where an option reads it: ``tag_requests`` (the case id
         in each request) and the reference protocol's relaxed mode (its forced set-aside is
         seeded by the case's sample id, as the reference seeds it)."""
-        return self.tag_requests or (self.prompt == "reference" and self.fallback == "set_aside")
+        return self.tag_requests or reads_sample_id(self.prompt, self.fallback)
 
     # -- the Policy protocol -------------------------------------------------------------------
     def reset(self, start: EpisodeStart | Case, seed: int) -> None:

@@ -102,7 +102,7 @@ class ReferenceTurns:
     def reset(self, case: Case | EpisodeStart) -> None:
         """A new episode. The relaxed mode's forced set-aside is seeded by the case's sample id,
         so it needs the case; the strict mode is handed only the episode's start."""
-        if self.fallback == "set_aside" and not isinstance(case, Case):
+        if reads_sample_id("reference", self.fallback) and not isinstance(case, Case):
             raise TypeError("the relaxed mode's forced set-aside needs the case's sample id")
         self.sample_id = sample_id(case) if isinstance(case, Case) else ""
         self.raw_answers = []
@@ -174,6 +174,12 @@ class ReferenceTurns:
         self.raw_answers.append(text)
 
 
+def reads_sample_id(prompt: str, fallback: str) -> bool:
+    """Whether a policy under ``prompt`` and ``fallback`` needs the case at reset: the reference's
+    relaxed mode seeds its forced set-aside by the case's sample id."""
+    return prompt == "reference" and fallback == "set_aside"
+
+
 def check_fallback(fallback: object, prompt: str = "reference") -> None:
     """ConfigError (one line) for a ``fallback`` the prompt protocol cannot take: one of
     :data:`FALLBACKS`, and ``invalid`` only with ``prompt=reference`` (packlab's own prompt
@@ -194,5 +200,6 @@ __all__ = [
     "check_fallback",
     "local_image",
     "openai_image",
+    "reads_sample_id",
     "sample_id",
 ]
