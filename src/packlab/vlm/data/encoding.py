@@ -9,6 +9,13 @@ the same tokens.
 A context that ends with an assistant turn is a prefill: the template renders it open, without
 the generation prompt, and the model continues it (``continue_final_message``).
 
+Step after step: a closed-loop episode encodes a context that repeats most of the previous one.
+An :class:`EncodeMemo` (one per episode, at inference) keeps what repeats: each image entry
+resolved once, and the tokens of each text segment between images. The tokens are the same:
+the tokenizer splits its input at special tokens such as ``<|image_pad|>`` before anything else,
+so tokenising the segments between image tokens one by one gives what tokenising the whole text
+gives (checked on the memo's first context, and the whole text is tokenised where it does not).
+
 Long histories: :func:`encode_fitting` drops the oldest past step (its user turn and its answer)
 until the sequence fits ``max_length``; the system prompt and the current turn are never cut.
 """
@@ -83,15 +90,79 @@ def message_images(messages: Sequence[dict[str, Any]]) -> list[Any]:
     ]
 
 
+class EncodeMemo:
+    """What one episode's successive contexts repeat (module docstring): image entries resolved
+    once, and each text segment's tokens. Entries are recognised by identity (the prompt
+    renderer hands the same image object for the same heightmap; the memo holds a reference, so
+    an identity is never reused while remembered) or, for markers and paths, by value. Arrays
+    are resolved every time: they can change in place. ``clear`` at the start of an episode."""
+
+    def __init__(self, max_items: int = 4096) -> None:
+        self.max_items = max_items
+        self._images: dict[Any, tuple[Any, Image.Image]] = {}
+        self._segments: dict[str, list[int]] = {}
+        self._segmentwise: bool | None = None  # None: not checked yet against the whole text
+
+    def clear(self) -> None:
+        self._images.clear()
+        self._segments.clear()
+
+    def image(self, entry: Any, config: ProcessingConfig) -> Image.Image:
+        if isinstance(entry, np.ndarray):
+            return resolve_image(entry, config)
+        key = (entry, config.image_size) if isinstance(entry, (str, Path)) else id(entry)
+        hit = self._images.get(key)
+        if hit is not None and hit[0] is entry:
+            return hit[1]
+        if len(self._images) >= self.max_items:
+            self._images.clear()
+        image = resolve_image(entry, config)
+        self._images[key] = (entry, image)
+        return image
+
+    def token_ids(self, parts: Sequence[str], counts: Sequence[int], tokenizer) -> list[int]:
+        """The ids of ``parts`` joined by ``counts[i]`` image tokens, segment by segment."""
+        if self._segmentwise is False:
+            return _whole_text_ids(parts, counts, tokenizer)
+        pad = tokenizer.convert_tokens_to_ids(IMAGE_PAD)
+        ids = self._segment(parts[0], tokenizer)
+        for n, part in zip(counts, parts[1:], strict=True):
+            ids = ids + [pad] * n + self._segment(part, tokenizer)
+        if self._segmentwise is None:
+            self._segmentwise = ids == _whole_text_ids(parts, counts, tokenizer)
+            if not self._segmentwise:
+                return _whole_text_ids(parts, counts, tokenizer)
+        return ids
+
+    def _segment(self, text: str, tokenizer) -> list[int]:
+        ids = self._segments.get(text)
+        if ids is None:
+            if len(self._segments) >= self.max_items:
+                self._segments.clear()
+            ids = tokenizer(text, add_special_tokens=False)["input_ids"] if text else []
+            self._segments[text] = ids
+        return ids
+
+
+def _whole_text_ids(parts: Sequence[str], counts: Sequence[int], tokenizer) -> list[int]:
+    text = parts[0] + "".join(IMAGE_PAD * n + rest for n, rest in zip(counts, parts[1:]))
+    return tokenizer(text, add_special_tokens=False)["input_ids"]
+
+
 def encode(
     messages: Sequence[dict[str, Any]],
     tokenizer,
     image_processor,
     config: ProcessingConfig = ProcessingConfig(),
+    memo: EncodeMemo | None = None,
 ) -> Encoded:
     """Encode one context (ending with the user turn to answer, or with an assistant prefill to
-    continue) into model inputs."""
-    images = [resolve_image(im, config) for im in message_images(messages)]
+    continue) into model inputs. ``memo``: the episode's :class:`EncodeMemo` (same result)."""
+    entries = message_images(messages)
+    if memo is None:
+        images = [resolve_image(im, config) for im in entries]
+    else:
+        images = [memo.image(im, config) for im in entries]
     prefill = bool(messages) and messages[-1]["role"] == "assistant"
     text = tokenizer.apply_chat_template(
         list(messages),
@@ -106,13 +177,16 @@ def encode(
             f"chat template emitted {len(parts) - 1} image placeholders for {len(images)} images"
         )
     pixel_values = grid = None
+    counts: list[int] = []
     if images:
         vis = image_processor(images=images, return_tensors="pt")
         pixel_values, grid = vis["pixel_values"].float(), vis["image_grid_thw"].long()
         merge = int(image_processor.merge_size) ** 2
         counts = [int(g.prod()) // merge for g in grid]
-        text = parts[0] + "".join(IMAGE_PAD * n + rest for n, rest in zip(counts, parts[1:]))
-    ids = tokenizer(text, add_special_tokens=False)["input_ids"]
+    if memo is None:
+        ids = _whole_text_ids(parts, counts, tokenizer)
+    else:
+        ids = memo.token_ids(parts, counts, tokenizer)
     input_ids = torch.tensor(ids, dtype=torch.long)
     image_token = tokenizer.convert_tokens_to_ids(IMAGE_PAD)
     mm = (input_ids == image_token).long()
@@ -129,6 +203,7 @@ def encode_fitting(
     tokenizer,
     image_processor,
     config: ProcessingConfig = ProcessingConfig(),
+    memo: EncodeMemo | None = None,
 ) -> tuple[Encoded, int]:
     """:func:`encode`, dropping the oldest past steps until ``config.max_length`` holds.
 
@@ -140,7 +215,7 @@ def encode_fitting(
     # A prefill is part of the current turn: kept, and kept out of the step dropping.
     tail = [msgs.pop()] if msgs and msgs[-1]["role"] == "assistant" else []
     while True:
-        enc = encode([*msgs, *tail], tokenizer, image_processor, config)  # type: ignore[misc]
+        enc = encode([*msgs, *tail], tokenizer, image_processor, config, memo)  # type: ignore[misc]
         if config.max_length is None or enc.length <= config.max_length:
             return enc, dropped
         msgs = drop_oldest_step(msgs)  # type: ignore[arg-type]

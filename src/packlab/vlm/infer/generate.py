@@ -8,14 +8,17 @@ of the previous step and only feeds the tokens that are new.
 How reuse is decided, each step (never by assumption, always by comparison):
 
 1. The context is encoded exactly as :func:`packlab.vlm.data.encoding.encode` does for training
-   (the same function, with an image processor that memoises each distinct image's pixels, so past
-   heightmaps are preprocessed once per episode).
+   (the same function, with the episode's :class:`~packlab.vlm.data.encoding.EncodeMemo` and an
+   image processor that memoises each distinct image's pixels, so past heightmaps are
+   preprocessed once per episode and past text segments tokenised once; same tensors).
 2. The new token sequence is compared with the one whose state the cache holds: tokens must be
    equal *and* every image whose placeholder tokens lie in the shared prefix must be the same
    image (placeholder tokens say nothing about pixels, so images are compared by content hash).
 3. The cache is brought back to the longest usable point of the shared prefix and only the rest
    is fed, with its pixel values and its own slice of the full sequence's 3-D (M-RoPE) position
-   ids, which are always computed over the whole sequence by the model's own ``get_rope_index``.
+   ids: the model's own ``get_rope_index`` over the tokens after the prefix shared with the
+   previous prompt, continued from that prompt's positions (equal to computing them over the
+   whole sequence, which tests check).
    Attention-only caches (Qwen3-VL, Qwen2.5-VL) can be cropped to any point that does not cut an
    image; Qwen3.5's gated-delta-net layers keep a recurrent state that cannot be rolled back, so
    for them the usable points are the end of what the cache holds (the previous prompt plus the
@@ -46,7 +49,13 @@ import torch
 from transformers import DynamicCache
 from transformers.cache_utils import DynamicLayer, LinearAttentionCacheLayerMixin
 
-from packlab.vlm.data.encoding import Encoded, ProcessingConfig, encode, encode_fitting
+from packlab.vlm.data.encoding import (
+    Encoded,
+    EncodeMemo,
+    ProcessingConfig,
+    encode,
+    encode_fitting,
+)
 
 IM_START = "<|im_start|>"
 
@@ -66,6 +75,12 @@ class MemoImageProcessor:
     processing one image at a time and concatenating gives the same tensors as one batched call
     (tests check this). ``last_keys`` holds the content keys of the images of the latest call, in
     order; other attributes (``merge_size``, ...) are the wrapped processor's.
+
+    An episode's calls repeat the previous call's images and add one or two: an image object seen
+    before is recognised by identity (its content key is hashed once), and the patches are
+    written into a buffer with room, so a call that extends the previous one copies only the new
+    images' patches and returns a view (earlier views stay valid: rows are only ever appended,
+    and a call that does not extend the previous one gets a new buffer).
     """
 
     def __init__(self, inner: Any, max_items: int = 1024) -> None:
@@ -73,6 +88,10 @@ class MemoImageProcessor:
         self.max_items = max_items
         self.last_keys: list[tuple] = []
         self._memo: OrderedDict[tuple, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self._known: dict[int, tuple[Any, tuple]] = {}  # id -> (image, content key)
+        self._buffer: torch.Tensor | None = None  # patches of _buffer_keys' images, then room
+        self._buffer_keys: list[tuple] = []
+        self._buffer_rows = 0
 
     def __getattr__(self, name: str) -> Any:
         if name == "inner":  # not set yet (e.g. during unpickling): no recursion
@@ -81,12 +100,24 @@ class MemoImageProcessor:
 
     def clear(self) -> None:
         self._memo.clear()
+        self._known.clear()
+        self._buffer, self._buffer_keys, self._buffer_rows = None, [], 0
         self.last_keys = []
+
+    def _key(self, image: Any) -> tuple:
+        known = self._known.get(id(image))
+        if known is not None and known[0] is image:
+            return known[1]
+        if len(self._known) >= self.max_items:
+            self._known.clear()
+        key = image_key(image)
+        self._known[id(image)] = (image, key)
+        return key
 
     def __call__(self, images: Sequence[Any], return_tensors: str = "pt", **kwargs: Any):
         keys, pixels, grids = [], [], []
         for im in images:
-            key = image_key(im)
+            key = self._key(im)
             hit = self._memo.get(key)
             if hit is None:
                 out = self.inner(images=[im], return_tensors="pt", **kwargs)
@@ -100,7 +131,35 @@ class MemoImageProcessor:
             pixels.append(hit[0])
             grids.append(hit[1])
         self.last_keys = keys
-        return {"pixel_values": torch.cat(pixels), "image_grid_thw": torch.cat(grids)}
+        return {"pixel_values": self._patches(keys, pixels), "image_grid_thw": torch.cat(grids)}
+
+    def _patches(self, keys: list[tuple], pixels: list[torch.Tensor]) -> torch.Tensor:
+        """``torch.cat(pixels)``, copying only what the previous call did not have."""
+        held = len(self._buffer_keys)
+        extends = (
+            self._buffer is not None
+            and held <= len(keys)
+            and keys[:held] == self._buffer_keys
+            and all(
+                p.dtype == self._buffer.dtype and p.shape[1:] == self._buffer.shape[1:]
+                for p in pixels[held:]
+            )
+        )
+        if not extends:
+            self._buffer, self._buffer_keys, self._buffer_rows, held = None, [], 0, 0
+        rows = self._buffer_rows + sum(int(p.shape[0]) for p in pixels[held:])
+        if self._buffer is None or rows > self._buffer.shape[0]:
+            first = pixels[0]
+            grown = first.new_empty((2 * rows, *first.shape[1:]))
+            if self._buffer is not None:
+                grown[: self._buffer_rows] = self._buffer[: self._buffer_rows]
+            self._buffer = grown  # earlier views keep the old storage
+        at = self._buffer_rows
+        for p in pixels[held:]:
+            self._buffer[at : at + p.shape[0]] = p
+            at += p.shape[0]
+        self._buffer_keys, self._buffer_rows = list(keys), rows
+        return self._buffer[:rows]
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,6 +323,7 @@ class PrefixCachedGenerator:
         self.max_new_tokens = max_new_tokens
         self.reuse_prefix = reuse_prefix
         self.processor = MemoImageProcessor(vlm.image_processor)
+        self.encode_memo = EncodeMemo()
         eos = self.model.generation_config.eos_token_id
         eos_ids = set(eos if isinstance(eos, (list, tuple)) else [eos] if eos is not None else [])
         eos_ids.add(int(self.tokenizer.convert_tokens_to_ids("<|im_end|>")))
@@ -288,7 +348,9 @@ class PrefixCachedGenerator:
         self._spans: list[tuple[int, int]] = []  # image spans among them
         self._keys: list[tuple] = []  # content keys of those images, in order
         self._snapshot: _Snapshot | None = None
+        self._last_prompt: _Prompt | None = None  # the latest encoded, for its positions
         self.processor.clear()
+        self.encode_memo.clear()
         if self.batcher is not None:
             self.batcher.enter(self)
 
@@ -306,6 +368,34 @@ class PrefixCachedGenerator:
             image_grid_thw=grid.to(self.device),
         )
         return torch.cat([text, mrope.to(self.device)], dim=0)
+
+    def _positions_reusing(self, enc: Encoded, ids: list[int], spans) -> torch.Tensor:
+        """:meth:`_positions` of the whole sequence, taking those of the tokens it shares with
+        the previous prompt from that prompt: a token's positions depend only on the tokens and
+        image grids before it, and the model's positions go on after an image or a text run
+        from the largest position before it, so the rest's own positions shifted by that
+        largest position + 1 (its plain index by the shared length) are the whole sequence's."""
+        last = self._last_prompt
+        grid = enc.image_grid_thw
+        shared = _outside_images(_common_prefix(last.ids, ids), spans) if last else 0
+        images = sum(1 for _s, e in spans if e <= shared)
+        if (
+            last is None
+            or not self.reuse_prefix  # the reference path computes everything afresh
+            or shared == 0
+            or grid is None
+            or last.enc.image_grid_thw is None
+            or not torch.equal(last.enc.image_grid_thw[:images], grid[:images])
+        ):
+            return self._positions(enc.input_ids, enc.mm_token_type_ids, grid)
+        head = last.positions[:, :, :shared]
+        rest = self._positions(
+            enc.input_ids[shared:],
+            enc.mm_token_type_ids[shared:],
+            grid[images:] if images < len(grid) else None,
+        )
+        offset = torch.tensor([shared, *[int(head[1:].max()) + 1] * 3], device=self.device)
+        return torch.cat([head, rest + offset.view(4, 1, 1)], dim=2)
 
     # -- cache bookkeeping -------------------------------------------------------------------
     def _usable_prefix(self, ids: list[int], spans, keys) -> int:
@@ -368,18 +458,23 @@ class PrefixCachedGenerator:
         self.processor.last_keys = []
         if self.config.max_length is not None:
             enc, dropped = encode_fitting(
-                messages, self.tokenizer, self.processor, config=self.config
+                messages, self.tokenizer, self.processor, self.config, self.encode_memo
             )
         else:
-            enc, dropped = encode(messages, self.tokenizer, self.processor, config=self.config), 0
-        return _Prompt(
+            memo = self.encode_memo
+            enc, dropped = encode(messages, self.tokenizer, self.processor, self.config, memo), 0
+        ids = enc.input_ids.tolist()
+        spans = _image_spans(enc.mm_token_type_ids.tolist())
+        prompt = _Prompt(
             enc=enc,
-            ids=enc.input_ids.tolist(),
-            spans=_image_spans(enc.mm_token_type_ids.tolist()),
+            ids=ids,
+            spans=spans,
             keys=list(self.processor.last_keys) if enc.image_grid_thw is not None else [],
-            positions=self._positions(enc.input_ids, enc.mm_token_type_ids, enc.image_grid_thw),
+            positions=self._positions_reusing(enc, ids, spans),
             dropped_steps=dropped,
         )
+        self._last_prompt = prompt
+        return prompt
 
     def _rewind(self, prompt: _Prompt) -> int:
         """Bring the cache back to the longest prefix of ``prompt`` it can keep (a fresh cache
