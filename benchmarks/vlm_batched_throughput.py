@@ -5,6 +5,7 @@ Usage:
     python benchmarks/vlm_batched_throughput.py                      # tiny qwen3_vl, 2 workers
     python benchmarks/vlm_batched_throughput.py --model tiny:qwen3_5:tiny --seeds 0-3 \
         --settings 1:off,4:off,4:auto,8:auto,8:auto:fresh
+    python benchmarks/vlm_batched_throughput.py --attention 8 --per-level 2   # attention's share
 
 Plays ``--per-level`` cases of each of the easy, medium and hard levels of packlab-bench-v1
 (the first ones of each level), every ``--seeds`` seed, with ``packlab bench --policies vlm
@@ -25,6 +26,10 @@ For each setting it prints:
 * whether every episode's actions and metrics equal the reference's (greedy decoding gives the
   same answers batched or alone, up to floating-point ties).
 
+``--attention N`` plays the same episodes in one process, alone and N at once, and prints the
+CPU seconds the model's attention took against the whole: attention reads each episode's own
+keys and values, which no batch shares, so it bounds what batching can gain.
+
 A random-weight tiny model answers text that never parses, so every step is an invalid step:
 no placement is simulated and the model is nearly all the work (the per-step profile of
 ``--profile`` shows it).
@@ -44,6 +49,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from packlab.bench.options import parse_seeds
 from packlab.bench.suites import load_suite
 from packlab.cases.write import save_cases
 
@@ -229,6 +235,55 @@ def profile(model: str, extra: list[str]) -> None:
     print("(wall seconds, one episode per level; rest: physics, observations, parsing)")
 
 
+def attention_share(model: str, per_level: int, seeds: tuple[int, ...], concurrency: int) -> None:
+    """Where the model's time goes with the episodes of one process answered alone and batched:
+    the seconds spent in scaled dot-product attention (every call of the model's attention,
+    prefill and decode) against the seconds spent in the model's forwards (one thread, torch
+    on one core). Attention reads each episode's own context, whose keys and values no batch
+    shares, so batching cannot shrink it."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    import torch
+
+    from packlab.policies import make_policy
+    from packlab.sim.episode import run_episode
+
+    torch.set_num_threads(1)
+    cases = load_suite("packlab-bench-v1")
+    jobs = [(c, s) for level in LEVELS for c in _level(cases, level)[:per_level] for s in seeds]
+    sdpa = torch.nn.functional.scaled_dot_product_attention
+    lock, spent = threading.Lock(), [0.0]
+
+    def timed(*a: Any, **k: Any) -> Any:
+        t0 = time.thread_time()
+        out = sdpa(*a, **k)
+        with lock:
+            spent[0] += time.thread_time() - t0
+        return out
+
+    print("| episodes at once | episodes | CPU s | attention CPU s | share |")
+    print("| --: | --: | --: | --: | --: |")
+    torch.nn.functional.scaled_dot_product_attention = timed
+    try:
+        for n in (1, concurrency):
+            batch = "on" if n > 1 else "off"
+
+            def play(job: tuple[Any, int], batch: str = batch) -> None:
+                policy = make_policy("vlm", model=model, device="cpu", batch=batch, threads=1)
+                run_episode(job[0], policy, seed=job[1], backend="mujoco")
+
+            play(jobs[0])  # load the model and warm up
+            spent[0] = 0.0
+            cpu0 = time.process_time()
+            with ThreadPoolExecutor(n) as pool:
+                list(pool.map(play, jobs))
+            cpu = time.process_time() - cpu0
+            print(f"| {n} | {len(jobs)} | {cpu:.1f} | {spent[0]:.1f} | {spent[0] / cpu:.0%} |")
+    finally:
+        torch.nn.functional.scaled_dot_product_attention = sdpa
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--model", default="tiny:qwen3_vl:tiny", help="the vlm policy's model")
@@ -241,7 +296,17 @@ def main() -> None:
         "--option", action="append", default=[], help="another vlm option, KEY=VALUE (repeatable)"
     )
     p.add_argument("--profile", action="store_true", help="first, one episode per level alone")
+    p.add_argument(
+        "--attention",
+        type=int,
+        metavar="N",
+        help="only the attention share of the model's time, alone and N episodes at once "
+        "(one process)",
+    )
     args = p.parse_args()
+    if args.attention:
+        attention_share(args.model, args.per_level, parse_seeds(args.seeds), args.attention)
+        return
     settings = [Setting.parse(s) for s in args.settings.split(",")]
     print(
         f"packlab-bench-v1, {args.per_level} cases per level, seeds {args.seeds}, mujoco, "
