@@ -76,6 +76,10 @@ PromptInstructions = Literal["full", "short"]
 #: an image through the vision tower, as the digit text map, both, or an all-zero image (the
 #: blank-image ablation).
 PointerMap = Literal["image", "text", "both", "blank"]
+#: What each listed line of a candidate-mode prompt names (``packlab.vlm.candidate.compose``):
+#: ``full``, its box, rotation, cell and the hand-computed geometry (resting height, support,
+#: flushness, gap); ``cell``, its box, rotation and cell only.
+LineFields = Literal["full", "cell"]
 #: Who computes a learned policy's network outputs: ONNX Runtime (core install) or torch (extras).
 LearnedRuntime = Literal["onnx", "torch"]
 RUNTIMES: tuple[str, ...] = get_args(LearnedRuntime)
@@ -114,6 +118,16 @@ NoisePreset = Literal["none", "structured-light", "stereo"]
 #: How perceived buffer objects are segmented (``packlab.sim.sensing``): from the ground-truth
 #: per-pixel ids (the "SAM-perfect" setting) or by connected components above the table plane.
 Segmentation = Literal["truth", "depth"]
+#: What perceived observation assumes of box sizes (``packlab.sim.sensing.perception``):
+#: ``grid`` snaps lengths and widths to the container's cell and heights to its height step
+#: (the grids every generated case's sizes lie on: a prior of the generator, not of real
+#: cartons); ``none`` reports the raw estimates rounded to whole millimetres.
+SizePrior = Literal["grid", "none"]
+DEFAULT_SIZE_PRIOR: SizePrior = "grid"
+#: The sizes of a layout family's boxes (``packlab.datagen``): ``grid`` (every box fills its
+#: cells of the layout exactly, sides on the grid) or ``off-grid`` (cartons: every box a drawn
+#: clearance smaller than its slot; the perfect layout holds them with gaps).
+CaseSizes = Literal["grid", "off-grid"]
 #: How exact observations name a box's sides: longer side first, as perception names them (a
 #: camera cannot see which side a catalogue calls l), or as the case's catalogue does (the
 #: reference paper's protocol; its generator, like ours, names l after the side a box lies along

@@ -62,6 +62,24 @@ _LIFT_TOLERANCE_MM = LIFT_TOLERANCE_MM
 
 
 @dataclass(frozen=True, slots=True)
+class _SolvedContacts:
+    """The contacts on one geom after a solve (``MujocoBackend._solved_contacts``), in
+    ``data.contact``'s order: what the wrist readings sum."""
+
+    normal: np.ndarray  # (n,) float64 normal force, N (``mj_contactForce``'s first entry)
+    frames: np.ndarray  # (n, 9) float64 contact frames (first row: the normal, geom1 to geom2)
+    positions: np.ndarray  # (n, 2) float64 contact points x and y, m
+    sign: np.ndarray  # (n, 1) float64 +1 where the geom is geom2 (pushed along the normal), -1
+
+
+class _Unread:
+    """Marks a wrist reading's contacts as not read yet (the reading collides and solves)."""
+
+
+_UNREAD = _Unread()
+
+
+@dataclass(frozen=True, slots=True)
 class PhysicsConfig:
     """Engine and settling parameters of the MuJoCo backend (SI units unless the name says)."""
 
@@ -175,6 +193,31 @@ class PhysicsConfig:
             )
 
 
+def _rest_test(
+    speed2: np.ndarray,
+    motion: tuple[np.ndarray, np.ndarray, float] | None,
+    limits: np.ndarray,
+    calm: np.ndarray,
+    region: _SettleRegion | None,
+    steps: int,
+) -> np.ndarray:
+    """Which placed boxes move at a settle check (``MujocoBackend._settle``), from their squared
+    speeds ``speed2`` and, where ``motion`` (poses then, poses now, seconds between) is known,
+    their net motion; the settle region learns which boxes are restless over the last
+    ``steps`` steps (moving, or not calm enough to freeze: a superset)."""
+    moving = (speed2 >= limits).any(axis=1)
+    restless = moving if region is None else (speed2 >= calm).any(axis=1)
+    if motion is not None and restless.any():
+        # Every box's (the others' are moot: still by velocity already).
+        net2 = _net_squared_speeds(*motion)
+        moving &= (net2 >= limits).any(axis=1)
+        if region is not None:
+            restless &= (net2 >= calm).any(axis=1)
+    if region is not None:
+        region.moved(np.asarray(restless), steps)
+    return np.asarray(moving)
+
+
 def _squared_speeds(
     qvel: np.ndarray, dof_idx: np.ndarray, work: np.ndarray | None = None
 ) -> np.ndarray:
@@ -186,6 +229,37 @@ def _squared_speeds(
     v = qvel.take(dof_idx, out=work)
     np.multiply(v, v, out=v)
     return v.reshape(-1, 2, 3).sum(axis=2)
+
+
+#: ``_surely_moving`` counts a box as moving only past the thresholds by this factor, so
+#: that the rounding of sums added in another order than numpy's cannot change its answer.
+_SURELY = 1.0 + 1e-9
+
+
+def _surely_moving(
+    velocity: np.ndarray,
+    position: np.ndarray,
+    before: np.ndarray | None,
+    span_s: float,
+    limits: tuple[float, float],
+) -> bool:
+    """True only where the settle's rest test (velocity, then net motion) would find this
+    box moving: its free-joint ``velocity`` (6,: linear, angular) and, with ``before``
+    (the position, m, ``span_s`` seconds ago; None while no net motion is known), its net
+    linear motion to ``position`` (3,) both past the squared ``limits`` (linear, angular) by
+    ``_SURELY``. False says nothing: the full test decides then. The net turn is left to the
+    full test (an arccos near 1 amplifies rounding far beyond any margin)."""
+    vx, vy, vz, wx, wy, wz = velocity.tolist()
+    linear, angular = limits
+    if not (vx * vx + vy * vy + vz * vz >= linear * _SURELY) and not (
+        wx * wx + wy * wy + wz * wz >= angular * _SURELY
+    ):
+        return False
+    if before is None:
+        return True
+    (x, y, z), (x0, y0, z0) = position.tolist(), before.tolist()
+    dx, dy, dz = x - x0, y - y0, z - z0
+    return (dx * dx + dy * dy + dz * dz) / (span_s * span_s) >= linear * _SURELY
 
 
 def _stillest(speed2: np.ndarray, net2: np.ndarray, limits: np.ndarray) -> np.ndarray:
@@ -352,6 +426,8 @@ class MujocoBackend:
         self._unmasked = np.zeros(0, dtype=np.int32)
         self._pose_idx = np.zeros((0, 7), dtype=int)
         self._dof_idx = np.zeros((0, 6), dtype=int)
+        #: Elliptic friction cones (``_normal_forces`` reads the normal forces as one gather).
+        self._elliptic = False
 
     def reset(self, container: Container, boxes: Sequence[Box]) -> np.ndarray:
         model = mujoco.MjModel.from_xml_string(build_model_xml(container, boxes, self.config))
@@ -376,6 +452,7 @@ class MujocoBackend:
         joints = model.body_jntadr[self._body_ids]
         self._pose_idx = model.jnt_qposadr[joints][:, None] + np.arange(7)
         self._dof_idx = model.jnt_dofadr[joints][:, None] + np.arange(6)
+        self._elliptic = model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
         mujoco.mj_forward(model, self._data)
         return np.zeros(container.cells, dtype=np.int32)
 
@@ -563,14 +640,15 @@ class MujocoBackend:
         g1, g2 = contact.geom1[side], contact.geom2[side]
         return {int(g) for g in np.where(g1 == geom, g2, g1)}
 
-    def _touching_back(self, geom: int, axis: int) -> float:
+    def _touching_back(self, geom: int, axis: int, collided: bool = False) -> float:
         """How far (m) a box pressed into what it met along ``axis`` must back off for its true
         faces to touch: its deepest collision penetration across the axis plus the collision
         insets between (``PhysicsConfig.collision_inset_mm``: one for a wall, two for a box).
         The insets are a simulator device, so stopping at the collision boxes' contact would
         leave every seated box that much too far (1 mm against a box), and rows seated one box
-        after another would creep into the room planned for later boxes."""
-        deepest, _ = self._deepest_across(geom, axis)
+        after another would creep into the room planned for later boxes. ``collided``: as
+        ``_deepest_across``."""
+        deepest, _ = self._deepest_across(geom, axis, collided)
         contact = self._data.contact
         across = self._contacts_with(geom) & (np.abs(contact.frame[:, axis]) > 0.5)
         g1, g2 = contact.geom1[across], contact.geom2[across]
@@ -580,7 +658,11 @@ class MujocoBackend:
         return deepest + insets * self.config.collision_inset_mm * _MM
 
     def _wrench(
-        self, geom: int, address: int, axis_xy: np.ndarray
+        self,
+        geom: int,
+        address: int,
+        axis_xy: np.ndarray,
+        contacts: _SolvedContacts | None | _Unread = _UNREAD,
     ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
         """Force (N, world x, y, z) of every contact on ``geom``, their torque about the
         vertical line through ``axis_xy`` (m: the wrist's axis; N m) and the centres of
@@ -588,22 +670,17 @@ class MujocoBackend:
         support contacts (mostly vertical), at the current positions: what a wrist force-torque
         sensor resolves of a held box (its weight carried), as ``_side_load`` reads side
         contacts apart from the support. A centre with no contact of its kind is the box's
-        centre; no solve when the box touches nothing."""
-        model, data = self._model, self._data
-        centre = data.qpos[address : address + 2].copy()
+        centre; no solve when the box touches nothing. ``contacts``: the box's contacts as
+        ``_touch_solved`` gives them at the current positions, if already read."""
+        centre = self._data.qpos[address : address + 2].copy()
         force, torque = np.zeros(3), 0.0
         pressure, total = np.zeros((2, 2)), np.zeros(2)  # rows: side, support
-        if self._penetration(geom) <= 0.0:
+        if isinstance(contacts, _Unread):
+            contacts = self._touch_solved(geom)
+        if contacts is None:
             return force, torque, centre, centre.copy()
-        self._whole_scene()
-        mujoco.mj_forward(model, data)
-        contacts = data.contact
-        mine = np.flatnonzero(self._contacts_with(geom))
-        normal, frames = self._normal_forces(mine), contacts.frame[mine]
-        positions = contacts.pos[mine, :2]
-        # The normal points from geom1 to geom2; the force pushes geom2 along it.
-        sign = np.where(contacts.geom2[mine] == geom, 1.0, -1.0)[:, None]
-        on_box = normal[:, None] * frames[:, :3] * sign
+        normal, frames, positions = contacts.normal, contacts.frames, contacts.positions
+        on_box = normal[:, None] * frames[:, :3] * contacts.sign
         force = _added_in_order(on_box)
         r = positions - axis_xy
         torque = float(_added_in_order(r[:, 0] * on_box[:, 1] - r[:, 1] * on_box[:, 0]))
@@ -614,10 +691,13 @@ class MujocoBackend:
         side, support = (pressure[k] / total[k] if total[k] > 0 else centre for k in (0, 1))
         return force, torque, side, support
 
-    def _deepest_across(self, geom: int, axis: int) -> tuple[float, float]:
+    def _deepest_across(self, geom: int, axis: int, collided: bool = False) -> tuple[float, float]:
         """Deepest penetration (m) of ``geom`` in a contact whose normal lies along ``axis``,
-        and the sign (+1, -1) of the way out of it along the axis (0, 0 if none)."""
-        self._penetration(geom)  # runs the collision
+        and the sign (+1, -1) of the way out of it along the axis (0, 0 if none).
+        ``collided``: ``data.contact`` already lists ``geom``'s contacts at the current
+        positions (a collision or a solve there was the last), so it is not collided again."""
+        if not collided:
+            self._penetration(geom)  # runs the collision
         contact = self._data.contact
         depth = -contact.dist
         across = self._contacts_with(geom) & (np.abs(contact.frame[:, axis]) > 0.5) & (depth > 0.0)
@@ -629,25 +709,31 @@ class MujocoBackend:
         out = math.copysign(1.0, contact.frame[i, axis]) * side
         return float(depth[i]), out
 
-    def _side_load(self, geom: int, address: int) -> tuple[np.ndarray, float, np.ndarray]:
+    def _side_load(
+        self, geom: int, address: int, contacts: _SolvedContacts | None | _Unread = _UNREAD
+    ) -> tuple[np.ndarray, float, np.ndarray]:
         """Force (N, world x and y), torque about z (N m, about the box's centre) and centre
         of pressure (m, x and y) of the contacts on ``geom`` whose normal is mostly horizontal
         (what it is pushed against, not its support), at the current positions, with every
         velocity as it is: what a wrist force sensor would read. Zero force and torque (and
-        the box's centre), without solving, when the box touches nothing."""
-        model, data = self._model, self._data
-        centre = data.qpos[address : address + 2].copy()
+        the box's centre), without solving, when the box touches nothing or nothing across a
+        side (what the solve's side contacts would sum then). ``contacts``: as ``_wrench``;
+        None also when the box touches nothing across a side."""
+        centre = self._data.qpos[address : address + 2].copy()
         force, torque, pressure, total = np.zeros(2), 0.0, np.zeros(2), 0.0
-        if self._penetration(geom) <= 0.0:
+        if isinstance(contacts, _Unread):
+            contacts = None
+            if self._penetration(geom) > 0.0:
+                if self._side_contact(geom):
+                    contacts = self._solved_contacts(geom)
+                else:
+                    self._position_stage()  # what the solve leaves that matters: see there
+        if contacts is None:
             return force, torque, centre
-        self._whole_scene()
-        mujoco.mj_forward(model, data)
-        contacts = data.contact
-        side = np.flatnonzero(self._contacts_with(geom) & (np.abs(contacts.frame[:, 2]) <= 0.5))
-        normal, positions = self._normal_forces(side), contacts.pos[side, :2]
+        side = np.abs(contacts.frames[:, 2]) <= 0.5
+        normal, positions = contacts.normal[side], contacts.positions[side]
         # The normal points from geom1 to geom2; the force pushes geom2 along it.
-        sign = np.where(contacts.geom2[side] == geom, 1.0, -1.0)[:, None]
-        on_box = normal[:, None] * contacts.frame[side, :2] * sign
+        on_box = normal[:, None] * contacts.frames[side, :2] * contacts.sign[side]
         force = _added_in_order(on_box)
         r = positions - centre
         torque = float(_added_in_order(r[:, 0] * on_box[:, 1] - r[:, 1] * on_box[:, 0]))
@@ -655,10 +741,57 @@ class MujocoBackend:
         total = float(_added_in_order(np.abs(normal)))
         return force, torque, pressure / total if total > 0 else centre
 
+    def _side_contact(self, geom: int) -> bool:
+        """Whether ``geom`` touches anything across a side (a contact normal mostly
+        horizontal), as last collided. A contact's frame comes from the collision, so a solve
+        there lists the same side contacts: without one, ``_side_load`` reads nothing."""
+        contact = self._data.contact
+        return bool((self._contacts_with(geom) & (np.abs(contact.frame[:, 2]) <= 0.5)).any())
+
+    def _touch_solved(self, geom: int) -> _SolvedContacts | None:
+        """``geom``'s contacts solved at the current positions (``_solved_contacts``), or None
+        without a solve when it touches nothing (penetration 0 or less)."""
+        if self._penetration(geom) <= 0.0:
+            return None
+        return self._solved_contacts(geom)
+
+    def _position_stage(self) -> None:
+        """What a solve (``mj_forward``) leaves behind that anything later reads, without the
+        solve: MuJoCo's position stage (``mj_fwdPosition``), which wakes the sleeping boxes
+        that the awake ones touch. The rest a solve writes (accelerations, constraint forces)
+        the next step or solve computes afresh; none of it is state (``qacc_warmstart`` is
+        written by ``mj_step`` only). A reading answered without a solve calls this in its
+        place, so the sleep state, and with it every later step, is the one the solve leaves."""
+        self._whole_scene()
+        mujoco.mj_fwdPosition(self._model, self._data)
+
+    def _solved_contacts(self, geom: int) -> _SolvedContacts:
+        """Solve the whole scene at the current positions (``mj_forward``) and read the
+        contacts on ``geom``, in ``data.contact``'s order: what the wrist readings sum."""
+        model, data = self._model, self._data
+        self._whole_scene()
+        mujoco.mj_forward(model, data)
+        contacts = data.contact
+        mine = np.flatnonzero(self._contacts_with(geom))
+        # The normal points from geom1 to geom2; the force pushes geom2 along it.
+        sign = np.where(contacts.geom2[mine] == geom, 1.0, -1.0)[:, None]
+        return _SolvedContacts(
+            self._normal_forces(mine), contacts.frame[mine], contacts.pos[mine, :2], sign
+        )
+
     def _normal_forces(self, contacts: np.ndarray) -> np.ndarray:
         """The normal force (N) of each of ``contacts`` (indices into ``data.contact``), as
-        ``mj_contactForce`` gives it after a solve (``mj_forward``)."""
-        model, data, wrench = self._model, self._data, np.zeros(6)
+        ``mj_contactForce`` gives it after a solve (``mj_forward``). On elliptic cones that is
+        the contact's first constraint force (``efc_force`` at its ``efc_address``; 0 for a
+        contact without constraints), read here as one gather; on pyramidal cones the
+        function decodes the pyramid, one contact at a time."""
+        model, data = self._model, self._data
+        if self._elliptic:
+            address = data.contact.efc_address[contacts]
+            if not (address >= 0).any():
+                return np.zeros(len(contacts))
+            return np.where(address >= 0, data.efc_force[np.maximum(address, 0)], 0.0)
+        wrench = np.zeros(6)
         out = np.empty(len(contacts))
         for k, i in enumerate(contacts.tolist()):
             mujoco.mj_contactForce(model, data, i, wrench)
@@ -697,7 +830,8 @@ class MujocoBackend:
         model, data = self._model, self._data
         mujoco.mj_kinematics(model, data)  # also wakes a tree whose qpos was just set
         self._collide_with(geom)  # every contact listed is one of geom's
-        return float(-data.contact.dist.min()) if data.ncon else 0.0
+        # ``np.minimum.reduce``: ``ndarray.min`` without its Python layer (one call per move).
+        return float(-np.minimum.reduce(data.contact.dist)) if data.ncon else 0.0
 
     def _collide_with(self, geom: int) -> None:
         """MuJoCo's collision detection for the pairs that involve box geom ``geom`` only.
@@ -746,19 +880,16 @@ class MujocoBackend:
         return top
 
     def _settle(self, window: int, cap: int, dropped: int | None = None) -> Transition:
-        """Step until every placed box stays still for ``window`` consecutive steps. A box is
-        still when its speed is under the thresholds, measured either from its velocity now or
-        from its net motion over the last ``rest_motion_steps`` steps (``PhysicsConfig``). The
-        test runs every ``rest_check_steps`` steps: the settle stops at the first check where
-        the still checks in a row span ``window`` steps (one check per step is the test step by
-        step). Stops at ``cap`` steps with ``capped`` set; the transition carries, when it
-        stopped either way, the largest speeds of any box, each box measured by whichever of
-        the two is stiller.
+        """Step until every placed box stays still for ``window`` consecutive steps: its speed
+        under the thresholds by its velocity now or by its net motion over the last
+        ``rest_motion_steps`` steps (``PhysicsConfig``). The test runs every
+        ``rest_check_steps`` steps; the settle stops at the first check where the still checks
+        in a row span ``window`` steps, or at ``cap`` steps with ``capped`` set. The transition
+        carries the largest speeds of any box, each measured by whichever of the two is stiller.
 
-        With ``PhysicsConfig.freeze`` and a ``dropped`` box (the box just let go, moving from
-        the start) only the settle region is simulated: boxes away from the motion are frozen
-        while it lasts (``_SettleRegion``); a frozen box is still by construction. Without a
-        dropped box (the final settle, a box set aside) every box is simulated.
+        With ``PhysicsConfig.freeze`` and a ``dropped`` box (just let go) only the settle
+        region is simulated: boxes away from the motion are frozen while it lasts
+        (``_SettleRegion``). Without one (the final settle, a box set aside) every box is.
         """
         self._whole_scene()
         model, data, cfg = self._model, self._data, self.config
@@ -777,6 +908,12 @@ class MujocoBackend:
         calm = limits * cfg.freeze_speed_fraction**2  # under these a box may be frozen
         region = self._region(placed, dropped, np.all(speed2 < calm, axis=1), every * dt)
         step, check, still_checks, steps, capped = 0, 0, 0, cap, True
+        # The quick test (``_surely_moving``) of one box found moving at the last full check
+        # (-1: none) stands in for the full test while it says that box still moves (never
+        # with a settle region, which needs every box's measure).
+        witness, quick = -1, False
+        dof_start, pose_start = dof_idx[:, 0].tolist(), pose_idx[:, 0].tolist()
+        speed_limits = (float(limits[0]), float(limits[1]))
         try:
             while step < cap:
                 if region is not None:
@@ -788,22 +925,25 @@ class MujocoBackend:
                 now, then = check % (lag + 1), (check + 1) % (lag + 1)
                 qpos.take(pose_idx, out=history[now])
                 history_step[now] = step
+                span_s = (step - history_step[then]) * dt
+                w, past = witness, step > k  # only past step k is a net motion over k known
+                quick = w >= 0 and _surely_moving(
+                    qvel[dof_start[w] : dof_start[w] + 6],
+                    qpos[pose_start[w] : pose_start[w] + 3],
+                    history[then, w, :3] if past else None,
+                    span_s,
+                    speed_limits,
+                )
+                if quick:
+                    still_checks = 0
+                    continue
                 speed2 = _squared_speeds(qvel, dof_idx, velocity)
-                moving = (speed2 >= limits).any(axis=1)
-                # Moving by the rest test, or not calm enough to freeze (a superset).
-                restless = moving if region is None else (speed2 >= calm).any(axis=1)
-                if step > k and restless.any():  # only then is a net motion over k steps known
-                    # Every box's (the others' are moot: still by velocity already).
-                    net2 = _net_squared_speeds(
-                        history[then], history[now], (step - history_step[then]) * dt
-                    )
-                    moving &= (net2 >= limits).any(axis=1)
-                    if region is not None:
-                        restless &= (net2 >= calm).any(axis=1)
-                if region is not None:
-                    region.moved(np.asarray(restless), n)
+                motion = (history[then], history[now], span_s) if past else None
+                moving = _rest_test(speed2, motion, limits, calm, region, n)
                 if moving.any():
                     still_checks = 0
+                    if region is None:  # the fastest of the moving boxes
+                        witness = int(np.argmax(np.where(moving, speed2[:, 0], -1.0)))
                 else:
                     still_checks += 1
                     if (still_checks - 1) * every + 1 >= window:
@@ -812,11 +952,16 @@ class MujocoBackend:
         finally:
             if region is not None:
                 region.thaw_all()
-        if steps > k:
-            net2 = _net_squared_speeds(
-                history[then], history[now], (steps - history_step[then]) * dt
-            )
+        if quick:  # capped after a quick check: every box's speeds at the last one
+            speed2 = _squared_speeds(qvel, dof_idx, velocity)
+        if steps > k:  # each box by whichever of velocity and net motion is stiller
+            span_s = (steps - history_step[then]) * dt
+            net2 = _net_squared_speeds(history[then], history[now], span_s)
             speed2 = _stillest(speed2, net2, limits)
+        return self._transition(steps, capped, speed2)
+
+    def _transition(self, steps: int, capped: bool, speed2: np.ndarray) -> Transition:
+        """A settle's transition: the heightmap, and the largest residual speeds of any box."""
         residual = np.sqrt(speed2.max(axis=0))
         return Transition(
             self._rasterise(),
@@ -1023,16 +1168,42 @@ class _SettleRegion:
 class _HeldBox:
     """The box in the gripper, as the place skill senses and moves it (``place_skill.HeldBox``):
     relative moves of its free-joint pose and the backend's contact readings. The skill never
-    reads the pose itself; the snapshot is an opaque token it hands back."""
+    reads the pose itself; the snapshot is an opaque token it hands back.
+
+    While the skill runs nothing moves but the held box (no step: its moves are kinematic), so
+    a reading is a function of the held box's pose (and of which trees sleep), and two readings
+    at one pose are the same reading. It keeps two memos, neither of which changes a result:
+
+    * the held box's pose at its last collision (``_collided``) and the depth it read there:
+      asked again at that pose (the descent's test, then its wrench; a side load, then how far
+      to back off), the depth is that one, and ``data.contact`` still lists the box's contacts
+      at that pose (those of a collision of the box alone, or of the solve there that followed
+      it: the same contacts, bit for bit, ``MujocoBackend._collide_with``);
+    * the contacts each solve (``mj_forward``) read, by the state the solve started from: the
+      held box's pose and the sleep state (``_solves``). The only state a solve writes is the
+      sleep state (it wakes the sleeping boxes the held box touches; ``qacc_warmstart`` is
+      written by ``mj_step`` only), so one started from the same state reads the same forces,
+      bit for bit, and wakes nothing more: the wrench the descent reads and the side load its
+      flush turn reads next at the same pose, a pose a search or a bisection comes back to.
+
+    A side load with nothing across a side, or one the skill does not need (``skip_side_load``),
+    reads no solve; the position stage stands in for it (``_unsolved``), so the sleep state
+    stays the one the solve would have left.
+    """
 
     def __init__(self, backend: MujocoBackend, index: int) -> None:
         self._backend = backend
+        self._data = backend._data
         self._qpos = backend._data.qpos  # a view of the episode's state, updated in place
         self._geom = int(backend._geom_ids[index])
         self._address = backend._qpos_slice(index).start
         self._pose = backend._qpos_slice(index)
         body = backend._body_ids[index]
         self._weight = float(backend._model.body_mass[body]) * abs(backend.config.gravity)
+        self._collided: bytes | None = None  # the pose (qpos bytes) of the last collision
+        self._depth = 0.0  # the penetration read there
+        self._solves: dict[bytes, _SolvedContacts] = {}
+        self._positioned: set[bytes] = set()  # states a position stage started from
 
     @property
     def weight(self) -> float:
@@ -1061,19 +1232,67 @@ class _HeldBox:
         self._qpos[self._pose] = out
 
     def penetration(self) -> float:
-        return self._backend._penetration(self._geom)
+        pose = self._qpos[self._pose].tobytes()
+        if pose != self._collided:
+            self._depth = self._backend._penetration(self._geom)
+            self._collided = pose
+        return self._depth
+
+    def _state(self) -> bytes:
+        """The state a solve at the held box's pose starts from: its pose (as last collided)
+        and which trees sleep."""
+        assert self._collided is not None
+        data = self._data
+        return self._collided + data.tree_asleep.tobytes() + data.body_awake.tobytes()
+
+    def _contacts(self) -> _SolvedContacts | None:
+        """The held box's contacts solved at its pose (None: it touches nothing), from the
+        memo where a solve started from this state before."""
+        if self.penetration() <= 0.0:
+            return None
+        state = self._state()
+        solved = self._solves.get(state)
+        if solved is None:
+            solved = self._solves[state] = self._backend._solved_contacts(self._geom)
+        return solved
+
+    def _unsolved(self) -> None:
+        """A reading that a solve at this pose would have preceded but needs none: where the
+        box touches something, the position stage stands in for the solve
+        (``MujocoBackend._position_stage``: the sleep state it leaves). Not where a solve or
+        a position stage started from this very state before: that one woke nothing (a woken
+        tree stays awake while the skill runs, so the state could not recur), and neither
+        would this."""
+        if self.penetration() <= 0.0:
+            return
+        state = self._state()
+        if state not in self._solves and state not in self._positioned:
+            self._backend._position_stage()
+            self._positioned.add(state)
 
     def deepest_across(self, axis: int) -> tuple[float, float]:
-        return self._backend._deepest_across(self._geom, axis)
+        self.penetration()
+        return self._backend._deepest_across(self._geom, axis, collided=True)
 
     def side_load(self) -> tuple[np.ndarray, float, np.ndarray]:
-        return self._backend._side_load(self._geom, self._address)
+        backend = self._backend
+        if self.penetration() > 0.0 and not backend._side_contact(self._geom):
+            self._unsolved()  # nothing across a side: the solve's reading would sum nothing
+            return backend._side_load(self._geom, self._address, None)
+        return backend._side_load(self._geom, self._address, self._contacts())
+
+    def skip_side_load(self) -> None:
+        """The skill does not read the side load it would have read here (its answer is
+        known): the state is left as that reading leaves it."""
+        self._unsolved()
 
     def wrench(self, axis: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-        return self._backend._wrench(self._geom, self._address, axis)
+        return self._backend._wrench(self._geom, self._address, axis, self._contacts())
 
     def touching(self) -> set[int]:
+        self.penetration()  # the contacts at the pose now (no collision if they are listed)
         return self._backend._touching(self._geom)
 
     def touching_back(self, axis: int) -> float:
-        return self._backend._touching_back(self._geom, axis)
+        self.penetration()
+        return self._backend._touching_back(self._geom, axis, collided=True)

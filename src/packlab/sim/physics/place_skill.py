@@ -269,11 +269,18 @@ class HeldBox(Protocol):
         ...
 
     def touching(self) -> set[int]:
-        """Which contacts across a side the box touches (a new one shows as a new element)."""
+        """Which contacts across a side the box touches (a new one shows as a new element), at
+        its pose now."""
         ...
 
     def touching_back(self, axis: int) -> float:
         """How far (m) the box pressed into what it met along ``axis`` backs off to touch."""
+        ...
+
+    def skip_side_load(self) -> None:
+        """The skill would read the side load here but knows its answer already: the
+        simulator leaves its state as that reading would (sensing has no effect on a robot;
+        the simulator's solve wakes the sleeping boxes the held box touches)."""
         ...
 
 
@@ -674,10 +681,13 @@ def flush_turn(held: HeldBox, axis: int, torque: float, pivot: np.ndarray) -> np
     met = held.touching()
 
     def stopped_at(angle: float) -> bool:
-        """The torque reversed, or the turn ran into something else."""
+        """The turn ran into something else, or the torque reversed (read only when it did
+        not run into anything: the contacts alone answer the first)."""
         held.turned_from(pressed, sense * angle, pivot, axis)
-        reversed_ = held.side_load()[1] * sense < 0.0
-        return reversed_ or not held.touching() <= met
+        if not held.touching() <= met:
+            held.skip_side_load()
+            return True
+        return held.side_load()[1] * sense < 0.0
 
     low, high = 0.0, math.radians(WRIST_YAW_YIELD_DEG)
     if torque == 0.0 or not stopped_at(high):
