@@ -66,9 +66,9 @@ def test_reference_parquet_rows(tmp_path):
             "-25",
         ),
         (
-            lambda r: r["object_sequence"][0].update(size_cm=[26, 40, 10]),
+            lambda r: r["object_sequence"][0].update(size_cm=[26.05, 40, 10]),
             "object_sequence[0].size_cm[0]",
-            "26",
+            "26.05",
         ),
         (
             lambda r: r["object_sequence"][0].update(size_cm=[25, 40, 35]),
@@ -92,6 +92,18 @@ def test_malformed_case_names_file_line_field_value(tmp_path, mutate, field, val
         load_cases(path)
     message = str(info.value)
     assert f"{path}:2" in message and f"'{field}'" in message and value_text in message
+
+
+def test_sizes_off_the_grid_load_in_whole_millimetres(tmp_path):
+    """A carton's sides need not lie on the 2.5 cm / 0.2 cm grid: whole millimetres load (a
+    footprint then covers every cell it touches); a tenth of a millimetre does not."""
+    record = _record()
+    record["object_sequence"][0]["size_cm"] = [26, 14, 9.7]
+    path = tmp_path / "off.jsonl"
+    path.write_text(json.dumps(record) + "\n")
+    [case] = load_cases(path)
+    assert case.objects[0].size_mm == (260, 140, 97)
+    assert case_to_dict(case)["object_sequence"][0]["size_cm"] == [26, 14, 9.7]
 
 
 def test_bad_json_line_is_reported_with_its_line(tmp_path):

@@ -116,7 +116,10 @@ def test_documented_ablations_are_labelled_rows():
     )
     assert merged.policies == (
         "e (observation exact, sides catalogue)",
-        "p (observation perceived, noise structured-light, segmentation depth, sides longer-first)",
+        (
+            "p (observation perceived, noise structured-light, segmentation depth, sides "
+            "longer-first, size prior grid)"
+        ),
     )
     # ... against an exact run of this version (longer first by default) only the modes do.
     merged = merge_summaries(
@@ -125,7 +128,7 @@ def test_documented_ablations_are_labelled_rows():
     assert merged.policies == (
         "e (observation exact): DBLF",
         "e (observation exact): HM",
-        "p (observation perceived, noise structured-light, segmentation depth)",
+        "p (observation perceived, noise structured-light, segmentation depth, size prior grid)",
     )
 
 

@@ -95,6 +95,7 @@ def test_modes_enter_the_identity(tiny_suite):
         "execution": "exact",
         "noise": "stereo",
         "segmentation": "depth",
+        "size_prior": "grid",
         "sides": "longer-first",
     }
     assert perceived.episode_modes().perceiver is not None
@@ -171,13 +172,16 @@ def test_perceived_runs_record_replans_and_compare_labels_their_rows(tiny_suite,
         "noise": "none",
         "segmentation": "depth",
         "sides": "longer-first",
+        "size_prior": "grid",
     }
     exact_sensing = json.loads((tmp_path / "exact" / "summary.json").read_text())["sensing"]
     assert exact_sensing["sides"] == "longer-first"
     # Exact against perceived is an ablation of the same cases and seeds: rows say which is which.
     both = compare_markdown([tmp_path / "exact", tmp_path / "seen"])
     assert "| exact (observation exact) |" in both
-    assert "| seen (observation perceived, noise none, segmentation depth) |" in both
+    assert (
+        "| seen (observation perceived, noise none, segmentation depth, size prior grid) |" in both
+    )
     assert "seen2" in compare_markdown([tmp_path / "seen", tmp_path / "seen2"])
 
 

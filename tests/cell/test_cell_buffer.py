@@ -51,3 +51,37 @@ def test_boxes_seen_by_a_tilted_pinhole_are_measured_to_the_grid():
     for estimate in found.boxes:  # each top-face centre lies over its box's centre
         distance = np.hypot(*(scene.positions_mm[:, :2] - estimate.top_centre_mm[:2]).T)
         assert distance.min() < 15.0
+
+
+@pytest.mark.parametrize("prior", ["grid", "none"])
+def test_a_session_measures_boxes_under_its_size_prior(prior):
+    """``sensing.size_prior``: with ``grid`` cartons off the grid are shown their cell multiples,
+    with ``none`` their measured sides in whole mm (a noise-free camera: within two 2 mm
+    pixels)."""
+    from packlab.cell import schema
+    from packlab.cell.convert import cell_config
+    from packlab.cell.simulated import planned_steps, session_request
+    from packlab.cell.step import StepInput, _boxes
+
+    case = generated_case("medium", 5)
+    steps = planned_steps(case, "none", 1)
+    request = session_request(case, "none", steps[0])
+    request.sensing = schema.Sensing(preset="none", size_prior=prior)
+    config = cell_config(request, "dblf")
+    # the scan's image of the case's first boxes, re-measured with sizes made off the grid
+    off = np.array([b.size_mm for b in case.objects[: case.buffer_size]]) - (7, 11, 3)
+    scan = perceive_buffer(off, sensor_preset("none"), np.random.default_rng(1), "depth", (1, 1))
+    step = StepInput(
+        steps[0].container_image.depth_mm,
+        buffer_depth_mm=scan.image.depth_mm,
+        buffer_camera=calibration(simulated_camera(scan.image), "buffer_camera"),
+    )
+    boxes, _dropped = _boxes(config, step)
+    measured = sorted(b.size_mm for b in boxes)
+    truth = sorted(tuple(int(v) for v in (max(s[:2]), min(s[:2]), s[2])) for s in off)
+    assert len(measured) == len(truth)
+    for got, want in zip(measured, truth, strict=True):
+        if prior == "grid":
+            assert got[0] % 25 == got[1] % 25 == got[2] % 2 == 0
+        else:
+            assert max(abs(g - w) for g, w in zip(got, want, strict=True)) <= 4  # two pixels

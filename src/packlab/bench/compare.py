@@ -66,13 +66,16 @@ MUST_MATCH: dict[str, tuple[str, str]] = {
 #: ablations, each run's rows labelled with its value. Field -> its value when not recorded
 #: (None: the setting does not apply to that run, e.g. segmentation of an exact observation).
 #: ``sides`` not recorded is the catalogue's in exact observation (runs made before it was
-#: always recorded, ``UNRECORDED_SIDES``) and longer first in perceived observation.
+#: always recorded, ``UNRECORDED_SIDES``) and longer first in perceived observation;
+#: ``size_prior`` not recorded is ``grid`` in perceived observation (perception snapped every
+#: size to the grids before the prior was a choice) and does not apply to exact observation.
 ABLATIONS: dict[str, str | None] = {
     "observation": "exact",
     "execution": "exact",
     "noise": None,
     "segmentation": None,
     "sides": UNRECORDED_SIDES,
+    "size_prior": None,
 }
 #: Fewest paired cases per level for an interval to be read: below it the bootstrap over cases
 #: resamples too few units (1 case: a point) and a difference is not called significant.
@@ -116,6 +119,8 @@ def sensing_settings(summary: RunSummary) -> dict[str, str | None]:
         value = recorded.get(name, msgspec.UNSET)
         if name == "sides" and out["observation"] == "perceived":
             default = "longer-first"  # perception always named them so
+        if name == "size_prior" and out["observation"] == "perceived":
+            default = "grid"  # perception snapped every size before the prior was a choice
         out[name] = default if value is msgspec.UNSET or value is None else str(value)
     if out["observation"] == "exact" and out["execution"] == "exact":
         out["noise"] = None  # a preset only the perceived and noisy modes use
@@ -173,7 +178,10 @@ def _ablation_settings(summaries: Sequence[RunSummary]) -> list[list[str]]:
         st["protocol"] = summary_protocol(s).label
     names = [*ABLATIONS, "protocol"]
     varying = [name for name in names if len({str(st[name]) for st in settings}) > 1]
-    return [[f"{name} {st[name]}" for name in varying if st[name] is not None] for st in settings]
+    return [
+        [f"{name.replace('_', ' ')} {st[name]}" for name in varying if st[name] is not None]
+        for st in settings
+    ]
 
 
 def _ablation_labels(summaries: Sequence[RunSummary], labels: Sequence[str]) -> list[str]:

@@ -24,6 +24,7 @@ from packlab.bench.options import (
     DEFAULT_EPISODE_TIMEOUT_S,
     DEFAULT_MAX_TRANSPORT_FAILURES,
     DEFAULT_POLICIES,
+    DEFAULT_SIZE_PRIOR,
     DEFAULT_SUITE,
     LEARNED_DEFAULTS,
     MAX_SEED_VALUE,
@@ -110,13 +111,14 @@ def local_cores() -> int:
 
 
 def sensing_identity(config: RunConfig) -> dict[str, str]:
-    """config.json's ``sensing`` entry: the modes, the noise preset, ``segmentation`` in
-    perceived runs and always ``sides`` (see :func:`saved_sensing` for entries written before
-    it was always there)."""
+    """config.json's ``sensing`` entry: the modes, the noise preset, ``segmentation`` and
+    ``size_prior`` in perceived runs and always ``sides`` (see :func:`saved_sensing` for entries
+    written before they were always there)."""
     identity: dict[str, str] = {"observation": config.observation, "execution": config.execution}
     identity["noise"] = config.noise
     if config.observation == "perceived":
         identity["segmentation"] = config.segmentation
+        identity["size_prior"] = config.size_prior
     identity["sides"] = config.sides
     if config.remaining != DEFAULT_REMAINING:  # absent: shown, as every run before the switch
         identity["remaining"] = config.remaining
@@ -128,11 +130,15 @@ def saved_sensing(entry: object) -> dict[str, str]:
     (runs made before the modes existed, or exact runs made before side names were always
     recorded) it was both modes exact; ``sides`` left out was the catalogue's in exact observation
     (:data:`UNRECORDED_SIDES`) and longer first in perceived observation (perception always
-    named them so). ``noise`` is dropped where both modes are exact: nothing used it."""
+    named them so). ``size_prior`` left out of a perceived entry was ``grid`` (perception
+    snapped every size to the grids before the prior was a choice). ``noise`` is dropped where
+    both modes are exact: nothing used it."""
     out = {str(k): str(v) for k, v in entry.items()} if isinstance(entry, dict) else {}
     out.setdefault("observation", "exact")
     out.setdefault("execution", "exact")
     out.setdefault("sides", UNRECORDED_SIDES if out["observation"] == "exact" else "longer-first")
+    if out["observation"] == "perceived":
+        out.setdefault("size_prior", DEFAULT_SIZE_PRIOR)
     if out["observation"] == "exact" and out["execution"] == "exact":
         out.pop("noise", None)
     return out
@@ -164,6 +170,8 @@ def default_out(label: str, config: RunConfig) -> Path:
         suffix = [] if config.sides == DEFAULT_SIDES else [config.sides]
         return Path("runs") / "-".join(["bench", label, *suffix, *hidden])
     ablation = ["truth-masks"] if config.segmentation == "truth" else []
+    if config.observation == "perceived" and config.size_prior != DEFAULT_SIZE_PRIOR:
+        ablation.append(f"size-prior-{config.size_prior}")
     return Path("runs") / "-".join(["bench", label, *modes, config.noise, *ablation, *hidden])
 
 
@@ -220,7 +228,13 @@ class ResolvedRun:
         the protocol."""
         c = self.config
         modes = episode_modes(
-            c.observation, c.execution, c.noise, c.segmentation, c.sides, c.remaining
+            c.observation,
+            c.execution,
+            c.noise,
+            c.segmentation,
+            c.sides,
+            c.remaining,
+            size_prior=c.size_prior,
         )
         return dataclasses.replace(modes, protocol=c.packing_protocol())
 

@@ -22,6 +22,7 @@ from packlab.core.choices import (
     DEFAULT_REMAINING,
     DEFAULT_SEGMENTATION,
     DEFAULT_SIDES,
+    DEFAULT_SIZE_PRIOR,
     HEURISTICS,
     EpisodeProtocol,
     ExecutionMode,
@@ -32,6 +33,7 @@ from packlab.core.choices import (
     RemainingMode,
     Segmentation,
     SideNames,
+    SizePrior,
     did_you_mean,
     require_choice,
 )
@@ -209,6 +211,12 @@ class RunConfig:
     #: a robot must) or by the simulator's masks (``truth``, an ablation). Part of the identity
     #: of perceived runs.
     segmentation: Segmentation = DEFAULT_SEGMENTATION
+    #: Perceived observation: what perception assumes of box sizes. ``grid`` (the default)
+    #: snaps lengths and widths to the container's cell and heights to its height step, the
+    #: grids every generated case's sizes lie on (a prior of the generator, not of real
+    #: cartons); ``none`` shows the raw estimates rounded to whole millimetres. Part of the
+    #: identity of perceived runs.
+    size_prior: SizePrior = DEFAULT_SIZE_PRIOR
     #: Exact observation: how a box's sides are named, longer side first (as perception does:
     #: no hint of the layout's orientation) or as the catalogue does (the reference paper's
     #: protocol). Always part of the identity; a run directory without it used the catalogue's.
@@ -316,6 +324,7 @@ def _check_sensing(config: RunConfig) -> None:
     require_choice(config.segmentation, Segmentation, "segmentation")
     require_choice(config.sides, SideNames, "sides")
     require_choice(config.remaining, RemainingMode, "remaining")
+    require_choice(config.size_prior, SizePrior, "size-prior")
     if config.observation == "perceived" and config.sides != "longer-first":
         raise ConfigError(
             f"sides = {config.sides!r}: perceived observation always names sides longer first "
@@ -324,6 +333,11 @@ def _check_sensing(config: RunConfig) -> None:
     if config.observation == "exact" and config.segmentation != DEFAULT_SEGMENTATION:
         raise ConfigError(
             f"segmentation = {config.segmentation!r}: only used with --observation perceived"
+        )
+    if config.observation == "exact" and config.size_prior != DEFAULT_SIZE_PRIOR:
+        raise ConfigError(
+            f"size-prior = {config.size_prior!r}: only used with --observation perceived "
+            "(exact observation shows the true sizes)"
         )
     if config.execution == "noisy" and config.backend != "mujoco":
         raise ConfigError(
@@ -399,6 +413,7 @@ __all__ = [
     "DEFAULT_EPISODE_TIMEOUT_S",
     "DEFAULT_MAX_TRANSPORT_FAILURES",
     "DEFAULT_POLICIES",
+    "DEFAULT_SIZE_PRIOR",
     "DEFAULT_SUITE",
     "LEARNED_DEFAULTS",
     "MAX_SEEDS",
@@ -408,6 +423,7 @@ __all__ = [
     "NEEDS_PLAN",
     "REPORT_HTML",
     "RunConfig",
+    "SizePrior",
     "check_out_dir",
     "parse_names",
     "parse_physics",

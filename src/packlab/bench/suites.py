@@ -24,7 +24,7 @@ from pathlib import Path
 
 from packlab.bench.options import DEFAULT_SUITE
 from packlab.cases import cases_sha256, load_cases, save_cases
-from packlab.core.choices import ArrivalOrder, LayoutFamily, require_choice
+from packlab.core.choices import ArrivalOrder, CaseSizes, LayoutFamily, require_choice
 from packlab.core.errors import ConfigError, PacklabError
 from packlab.core.fileio import file_sha256
 from packlab.core.types import Case
@@ -53,10 +53,14 @@ class SuiteSpec:
     description: str = ""
     order: ArrivalOrder = "removal"
     layout: LayoutFamily = "layered"
+    #: ``CaseConfig.sizes``: every shipped suite's boxes fill their layout (``grid``); a fresh
+    #: set may take ``off-grid`` cartons, each a drawn clearance smaller than its slot.
+    sizes: CaseSizes = "grid"
 
     def __post_init__(self) -> None:
         require_choice(self.order, ArrivalOrder, f"suite {self.name!r}: order")
         require_choice(self.layout, LayoutFamily, f"suite {self.name!r}: layout")
+        require_choice(self.sizes, CaseSizes, f"suite {self.name!r}: sizes")
         if not self.counts or any(n < 1 for _, n in self.counts):
             raise ConfigError(
                 f"suite {self.name!r}: counts = {self.counts!r}: "
@@ -70,7 +74,7 @@ class SuiteSpec:
     @property
     def case_config(self) -> CaseConfig:
         """The data engine's case settings of this suite."""
-        return CaseConfig(layout=self.layout, order=self.order)
+        return CaseConfig(layout=self.layout, order=self.order, sizes=self.sizes)
 
 
 #: The registered suites. Never edit an entry whose file has shipped: add a new version.
@@ -210,25 +214,32 @@ def build_suite(
     return cases
 
 
-def fresh_spec(name: str, seed: int, per_level: int | None = None) -> SuiteSpec:
+def fresh_spec(
+    name: str, seed: int, per_level: int | None = None, sizes: CaseSizes = "grid"
+) -> SuiteSpec:
     """A set made like suite ``name`` (its layout family, arrival order and cases per level, or
     ``per_level`` of each) from user ``seed`` of the training seed domain: cases the suite has
     never held, to see whether a figure measured on the suite holds on the distribution it was
-    drawn from. Its ids carry the seed (``train-s4721-easy-00000``)."""
+    drawn from. Its ids carry the seed (``train-s4721-easy-00000``). ``sizes="off-grid"``
+    makes the same layouts with cartons off the grid (``CaseConfig.sizes``)."""
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"seed = {seed!r}: must be a whole number >= 0")
     if per_level is not None and (isinstance(per_level, bool) or per_level < 1):
         raise ConfigError(f"per_level = {per_level!r}: must be a whole number >= 1")
     like = suite_spec(name)
     counts = like.counts if per_level is None else tuple((d, per_level) for d, _ in like.counts)
+    require_choice(sizes, CaseSizes, "sizes")
+    off = "-off-grid" if sizes == "off-grid" else ""
     return SuiteSpec(
-        f"fresh-{name}-s{seed}",
+        f"fresh-{name}-s{seed}{off}",
         counts=counts,
         seed=seed,
         domain="train",
-        description=f"made like {name} from training-domain user seed {seed}",
+        description=f"made like {name} from training-domain user seed {seed}"
+        + (", boxes off the grid" if off else ""),
         order=like.order,
         layout=like.layout,
+        sizes=sizes,
     )
 
 

@@ -16,7 +16,7 @@ from msgspec import UNSET, UnsetType
 
 from packlab.bench.decision_times import decision_time_table
 from packlab.bench.summary import RESAMPLED_CASES, RunIntervals, run_intervals
-from packlab.core.records import AnswerFormats, Cell, JsonObject, RunSummary
+from packlab.core.records import AnswerFormats, Cell, JsonObject, RunSummary, SensingModes
 from packlab.metrics import AVERAGE, METRICS, UTILIZATION
 from packlab.viz.labels import METRIC_SHORT, group_title, policy_label
 
@@ -296,6 +296,17 @@ def reuse_note(summary: RunSummary) -> str:
     )
 
 
+def size_prior_note(summary: RunSummary) -> str:
+    """``", size prior grid"`` for a run with perceived observation (the prior on box sizes
+    perception was given; absent from its summary: ``grid``, the only one before it was a
+    choice), empty otherwise: a prior the robot is given is named wherever its figures are."""
+    sensing = summary.sensing
+    if not isinstance(sensing, SensingModes) or sensing.observation != "perceived":
+        return ""
+    prior = sensing.size_prior if isinstance(sensing.size_prior, str) else "grid"
+    return f", size prior {prior}"
+
+
 def headline(summary: RunSummary) -> str:
     seeds = ",".join(str(s) for s in summary.seeds)
     n_cases = summary.n_cases if isinstance(summary.n_cases, int) else None
@@ -311,7 +322,7 @@ def headline(summary: RunSummary) -> str:
     elif summary.protocol == "offline":
         protocol = ", protocol offline (every box shown)"
     return (
-        f"{suite}: backend {backend}{protocol}, seeds {seeds}{cases}; "
+        f"{suite}: backend {backend}{protocol}{size_prior_note(summary)}, seeds {seeds}{cases}; "
         f"mean over seeds [95 % bootstrap interval over cases]"
     )
 

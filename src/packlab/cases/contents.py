@@ -72,13 +72,13 @@ def objects_from_record(
 def _box_size(
     item: Mapping[str, Any], f: str, r: Reader, container: Container
 ) -> tuple[int, int, int]:
-    """One object's ``size_cm`` in mm: on the grid, and fitting the container lying flat."""
+    """One object's ``size_cm`` in mm: whole millimetres (on the grid or off it: a box off the
+    grid covers every cell it touches), fitting the container lying flat."""
     dims = r.triple(item, "size_cm", f"{f}.size_cm")
     side_mm = MAX_CONTAINER_SIDE_CM * 10
-    xy_mm, z_mm = container.cell_xy_mm, container.cell_z_mm
-    length = r.mm(dims[0], f"{f}.size_cm[0]", multiple_of=xy_mm, max_mm=side_mm)
-    width = r.mm(dims[1], f"{f}.size_cm[1]", multiple_of=xy_mm, max_mm=side_mm)
-    height = r.mm(dims[2], f"{f}.size_cm[2]", multiple_of=z_mm, max_mm=side_mm)
+    length = r.mm(dims[0], f"{f}.size_cm[0]", max_mm=side_mm)
+    width = r.mm(dims[1], f"{f}.size_cm[1]", max_mm=side_mm)
+    height = r.mm(dims[2], f"{f}.size_cm[2]", max_mm=side_mm)
     cx, cy, cz = container.size_mm
     fits_flat = (length <= cx and width <= cy) or (width <= cx and length <= cy)
     if not fits_flat or height > cz:

@@ -52,6 +52,7 @@ def cell_config(request: schema.SessionRequest, default_policy: str) -> CellConf
         policy=request.policy or default_policy,
         policy_options=dict(request.policy_options),
         seed=request.seed,
+        size_prior=request.sensing.size_prior,
     )
 
 

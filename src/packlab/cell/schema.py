@@ -16,6 +16,7 @@ from packlab.cell.limits import (
     MAX_IMAGE_SIDE,
     MAX_TRANSLATION_MM,
 )
+from packlab.core.choices import SizePrior
 from packlab.core.types import DEFAULT_CELL_XY_MM, DEFAULT_CELL_Z_MM
 
 #: The sensing presets a session may name (``packlab.sim.sensing.presets``).
@@ -120,6 +121,11 @@ class Sensing(Request):
     place skill's settings (approach, slides, seating) are the preset's robot's."""
 
     preset: PresetName = "structured-light"
+    size_prior: SizePrior = Field(
+        default="grid",
+        description="grid: measured sizes snap to the container's cell (l, w) and height step "
+        "(h), for cartons made on that grid; none: the measured sizes in whole mm",
+    )
 
 
 class SessionRequest(Request):

@@ -23,6 +23,7 @@ from packlab.cell.buffer import measure_boxes
 from packlab.cell.errors import CellInputError
 from packlab.cell.geometry import Calibration, buffer_image, container_heightmap, container_image
 from packlab.cell.limits import MAX_BOXES
+from packlab.core.choices import DEFAULT_SIZE_PRIOR, SizePrior
 from packlab.core.errors import ConfigError
 from packlab.core.feasibility import footprint_fits, placement_height
 from packlab.core.protocols import EpisodeStart, Policy
@@ -40,6 +41,7 @@ from packlab.sim.execution import ExecutedDrop, ExecutionNoise, full_faces, plac
 from packlab.sim.execution import seat_sides as skill_seat_sides
 from packlab.sim.physics.place_skill import APPROACH_MM, PLACE_RETRIES, PlaceCommand
 from packlab.sim.placement import believed_footprint
+from packlab.sim.sensing.perception import size_quanta
 from packlab.sim.sensing.presets import SensorPreset
 
 #: Why a step sets its box aside instead of placing it: the policy chose to (``set_aside``),
@@ -80,6 +82,7 @@ class CellConfig:
     policy: str
     policy_options: Mapping[str, Any] = field(default_factory=dict)
     seed: int = 0
+    size_prior: SizePrior = DEFAULT_SIZE_PRIOR  # what the measured sizes snap to
 
 
 @dataclass(slots=True)
@@ -314,7 +317,8 @@ def _boxes(config: CellConfig, step: StepInput) -> tuple[tuple[MeasuredBox, ...]
         )
     depth = _check_shape("buffer_image", step.buffer_depth_mm, calibration)
     image = buffer_image(depth, calibration, config.sensor.buffer_pixel_mm)
-    grid = (config.container.cell_xy_mm, config.container.cell_z_mm)
+    container = config.container
+    grid = size_quanta(config.size_prior, container.cell_xy_mm, container.cell_z_mm)
     found = measure_boxes(image, config.sensor, grid)
     boxes = tuple(
         MeasuredBox(i, e.size_mm, PickPose(*e.top_centre_mm, yaw_deg=e.yaw_deg))

@@ -38,6 +38,7 @@ import packlab
 from packlab.cell import schema
 from packlab.cell.client import CellClient, CellServiceError
 from packlab.cell.simulated import simulated_camera
+from packlab.core.choices import DEFAULT_SIZE_PRIOR, SizePrior
 from packlab.core.errors import ConfigError, EndpointUnavailable
 from packlab.core.types import Action, Container, Observation, Unparsable
 from packlab.sim.modes import EpisodeModes, SensingPerceiver, perception_of
@@ -106,12 +107,14 @@ class CellPolicy:
         options: Mapping[str, Any],
         tap: SensorTap,
         preset: schema.PresetName,
+        size_prior: SizePrior = DEFAULT_SIZE_PRIOR,
     ):
         self.name = name
         self._client = client
         self._options = dict(options)
         self._tap = tap
         self._preset = preset
+        self._size_prior = size_prior
         self._start: CellStart | None = None
         self._seed = 0
         self._session: str | None = None
@@ -159,7 +162,7 @@ class CellPolicy:
             buffer_size=self._start.buffer_size,
             container_camera=simulated_camera(state.container_image),
             buffer_camera=buffer_camera,
-            sensing=schema.Sensing(preset=self._preset),
+            sensing=schema.Sensing(preset=self._preset, size_prior=self._size_prior),
             policy=self.name,
             policy_options=self._options,
             seed=self._seed,
@@ -255,7 +258,8 @@ def served_policy(
     tapped, tap = tapped_modes(modes)
     assert isinstance(tap.perceiver, SensingPerceiver)
     with cell_client(url) as client:
-        policy = CellPolicy(client, name, options, tap, tap.perceiver.preset)
+        perceiver = tap.perceiver
+        policy = CellPolicy(client, name, options, tap, perceiver.preset, perceiver.size_prior)
         try:
             yield policy, tapped
         finally:

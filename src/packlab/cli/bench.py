@@ -152,6 +152,17 @@ def _add_sensing_options(p: argparse.ArgumentParser) -> None:
     add_field(
         p,
         RunConfig,
+        "size_prior",
+        "--size-prior",
+        help="with --observation perceived: what perception assumes of box sizes; grid: "
+        "lengths and widths snap to the container's cell (25 mm), heights to its height step "
+        "(2 mm), the grids every generated case lies on (a prior real cartons do not share); "
+        "none: the raw estimates rounded to the nearest whole mm (ties to even); "
+        "default {default}",
+    )
+    add_field(
+        p,
+        RunConfig,
         "sides",
         "--sides",
         help="exact observation: name a box's sides longer side first, as perception does, or "

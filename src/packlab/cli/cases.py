@@ -7,7 +7,7 @@ import argparse
 import importlib
 
 from packlab.cli.options import add_field
-from packlab.datagen.config import ValidationConfig
+from packlab.datagen.config import CaseConfig, ValidationConfig
 
 #: What the commands do (loading, checking and writing cases), imported when one runs.
 RUN_MODULE = "packlab.cli.cases_run"
@@ -64,6 +64,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="cases per difficulty; default: as many as the suite has",
+    )
+    add_field(
+        f,
+        CaseConfig,
+        "sizes",
+        "--sizes",
+        help="grid: boxes fill the suite's layouts exactly (sides on the 2.5 cm grid); off-grid: "
+        "cartons, each box 2-12 mm smaller across and 0-4 mm lower than its slot of the same "
+        "layout (sides off the grid; the plan leaves the clearance empty); default {default}",
     )
     add_field(
         f,

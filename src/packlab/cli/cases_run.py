@@ -59,7 +59,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_fresh(args: argparse.Namespace) -> int:
     out = _new_out(args.out)
-    spec = fresh_spec(args.suite, args.seed, args.per_level)
+    spec = fresh_spec(args.suite, args.seed, args.per_level, sizes=args.sizes)
     # Progress per level on stderr; the file is written once every level is made, so a crash
     # leaves no partial file to mistake for a set (a rerun regenerates the same cases).
     validation = ValidationConfig(**config_kwargs(args, "cases fresh", ValidationConfig))
@@ -68,6 +68,7 @@ def run_fresh(args: argparse.Namespace) -> int:
     levels = ", ".join(f"{d} {n}" for d, n in spec.counts)
     print(
         f"{len(cases)} cases made like {args.suite} (user seed {args.seed}, training domain; "
-        f"{levels}; validated on {validation.backend}) -> {out}; sha256 {cases_sha256(cases)}"
+        f"{levels}{'; boxes off the grid' if spec.sizes == 'off-grid' else ''}; validated on "
+        f"{validation.backend}) -> {out}; sha256 {cases_sha256(cases)}"
     )
     return 0

@@ -116,6 +116,16 @@ def _add_case_options(p: argparse.ArgumentParser) -> None:
     )
     add_field(
         p,
+        CaseConfig,
+        "sizes",
+        "--sizes",
+        help="grid: boxes fill their layout exactly (sides on the 2.5 cm grid); off-grid: "
+        "cartons, each box 2-12 mm smaller across and 0-4 mm lower than its slot (layered, "
+        "stepped and cut layouts; replays are kept at --min-overall times the boxes' fill of "
+        "their slots); default {default}",
+    )
+    add_field(
+        p,
         AnchorConfig,
         "corner_prob",
         "--corner-prob",

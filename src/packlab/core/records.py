@@ -434,6 +434,7 @@ class SensingModes(Struct, frozen=True):
     noise: str  # core.choices.NoisePreset
     segmentation: str | UnsetType = UNSET  # core.choices.Segmentation, perceived runs
     sides: str | UnsetType = UNSET  # core.choices.SideNames, when not the catalogue's
+    size_prior: str | UnsetType = UNSET  # bench.options.SizePrior, perceived runs (absent: grid)
 
 
 class RunSummary(Struct, frozen=True, kw_only=True):

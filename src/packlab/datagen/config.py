@@ -18,6 +18,7 @@ from typing import Any
 from packlab.core.choices import (
     DEFAULT_SIDES,
     ArrivalOrder,
+    CaseSizes,
     Executor,
     LayoutFamily,
     PhysicsBackend,
@@ -166,6 +167,21 @@ class AnchorConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class ClearanceConfig:
+    """How much smaller than its slot of the layout an ``off-grid`` box is (inclusive ranges,
+    whole mm, drawn uniformly per box and side from the case's clearance stream): ``xy_mm`` off
+    each of the footprint's sides, ``z_mm`` off its height."""
+
+    xy_mm: tuple[int, int] = (2, 12)
+    z_mm: tuple[int, int] = (0, 4)
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in (("xy_mm", self.xy_mm), ("z_mm", self.z_mm)):
+            if not 0 <= lo <= hi:
+                raise ConfigError(f"clearance.{name} = {(lo, hi)!r}: need 0 <= low <= high")
+
+
+@dataclass(frozen=True, slots=True)
 class CaseConfig:
     """Everything that decides what case a case seed turns into (besides the difficulty)."""
 
@@ -189,6 +205,10 @@ class CaseConfig:
     cell_z_mm: int = DEFAULT_CELL_Z_MM
     #: Distinct colour ids given to objects (``type_id`` only picks a colour).
     n_types: int = 8
+    #: Box sizes of the layout families (``CaseSizes``): ``grid`` fills the layout exactly,
+    #: ``off-grid`` makes every box ``clearance`` smaller than its slot (sides off the grid).
+    sizes: CaseSizes = "grid"
+    clearance: ClearanceConfig = field(default_factory=ClearanceConfig)
 
     def __post_init__(self) -> None:
         require_choice(self.layout, LayoutFamily, "layout")
@@ -221,11 +241,29 @@ class CaseConfig:
             )
         if self.n_types < 1:
             raise ConfigError(f"n_types = {self.n_types}: must be at least 1")
+        require_choice(self.sizes, CaseSizes, "sizes")
+        if self.sizes == "off-grid" and self.layout in NO_LAYOUT_FAMILIES:
+            raise ConfigError(
+                f"sizes = 'off-grid': layout {self.layout!r} has no layout whose slots the boxes "
+                "could be made smaller than; use layered, stepped or cut"
+            )
+        if self.sizes == "off-grid" and self.clearance.xy_mm[1] >= self.cell_xy_mm:
+            raise ConfigError(
+                f"clearance.xy_mm = {self.clearance.xy_mm!r}: must stay under the "
+                f"{self.cell_xy_mm} mm cell (a box keeps the cells of its slot)"
+            )
+        if self.sizes == "off-grid" and self.clearance.z_mm[1] >= self.objects.layer_height_mm[0]:
+            raise ConfigError(
+                f"clearance.z_mm = {self.clearance.z_mm!r}: must stay under the lowest layer "
+                f"height ({self.objects.layer_height_mm[0]} mm)"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
         if self.order == "removal":  # configs saved before the field existed stay equal
             del out["order"]
+        if self.sizes == "grid":  # likewise: grid configs keep the bytes they always had
+            del out["sizes"], out["clearance"]
         return out
 
 

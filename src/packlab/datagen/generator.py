@@ -49,6 +49,9 @@ class Blueprint:
     rotated: tuple[bool, ...]  # per layout box: presented at rotation 1
     type_ids: tuple[int, ...]  # per layout box
     cut: CutDraw | None = None  # the cut family's draw (side range), None for other families
+    #: Off-grid sizes: per layout box (off x extent, off y extent, off height) mm of its slot,
+    #: in the layout's frame; None: every box fills its slot (grid sizes).
+    clearance: tuple[tuple[int, int, int], ...] | None = None
 
 
 def draw_blueprint(seed: int, difficulty: str, cfg: CaseConfig) -> Blueprint:
@@ -64,7 +67,19 @@ def draw_blueprint(seed: int, difficulty: str, cfg: CaseConfig) -> Blueprint:
     rotated = tuple(bool(r) for r in present_rng.random(n) < cfg.objects.rotated_fraction)
     type_ids = tuple(int(t) for t in present_rng.integers(cfg.n_types, size=n))
     order = _draw_order(layout, cfg, order_rng)
-    return Blueprint(scenario, layout, order, rotated, type_ids, cut)
+    clearance = _draw_clearance(seed, n, cfg) if cfg.sizes == "off-grid" else None
+    return Blueprint(scenario, layout, order, rotated, type_ids, cut, clearance)
+
+
+def _draw_clearance(seed: int, n: int, cfg: CaseConfig) -> tuple[tuple[int, int, int], ...]:
+    """Per layout box, how much smaller than its slot an off-grid box is: (x, y, z) mm, each
+    uniform in ``cfg.clearance``'s inclusive range, from the case seed's fifth stream (the four
+    stages' streams and draws stay those of the grid case: same layout, order and colours)."""
+    rng = case_streams(seed, 5)[4]
+    (xy_lo, xy_hi), (z_lo, z_hi) = cfg.clearance.xy_mm, cfg.clearance.z_mm
+    xy = rng.integers(xy_lo, xy_hi + 1, size=(n, 2))
+    z = rng.integers(z_lo, z_hi + 1, size=n)
+    return tuple((int(a), int(b), int(c)) for (a, b), c in zip(xy, z))
 
 
 def _draw_order(layout: Layout, cfg: CaseConfig, rng: np.random.Generator) -> PlacementOrder:
@@ -98,6 +113,20 @@ def _family_fields(bp: Blueprint) -> dict[str, Any]:
     }
 
 
+def _clearance_fields(bp: Blueprint) -> dict[str, Any]:
+    """``Case.generator`` fields of an off-grid case: ``sizes`` and ``fill``, the boxes' volume
+    over their slots' (the layout's), the Compactness of the plan packed at its slots' heights.
+    Each box's own clearance is its plan step's cells minus its size."""
+    assert bp.clearance is not None
+    c = bp.scenario.container
+    slots = boxes = 0
+    for b, off in zip(bp.layout.boxes, bp.clearance):
+        fx, fy, h = b.dx * c.cell_xy_mm, b.dy * c.cell_xy_mm, b.dz * c.cell_z_mm
+        slots += fx * fy * h
+        boxes += (fx - off[0]) * (fy - off[1]) * (h - off[2])
+    return {"sizes": "off-grid", "fill": round(boxes / slots, 6)}
+
+
 def _cm(mm: int) -> float | int:
     cm = mm / 10
     return int(cm) if cm.is_integer() else cm
@@ -123,6 +152,9 @@ def case_from_blueprint(
         b = bp.layout.boxes[i]
         rotation = int(bp.rotated[i])
         fx, fy, h = b.dx * c.cell_xy_mm, b.dy * c.cell_xy_mm, b.dz * c.cell_z_mm
+        if bp.clearance is not None:  # off-grid: smaller than its slot, which the plan names
+            off = bp.clearance[i]
+            fx, fy, h = fx - off[0], fy - off[1], h - off[2]
         size = (fy, fx, h) if rotation else (fx, fy, h)
         objects.append(Box(internal_id=i, size_mm=size, gt_index=gt_index, type_id=bp.type_ids[i]))
         plan.append(
@@ -148,6 +180,7 @@ def case_from_blueprint(
         "first_cell": [first.x, first.y],
         **_family_fields(bp),
         "base_size_cm": [_cm(v) for v in bp.scenario.base_size_mm],
+        **(_clearance_fields(bp) if bp.clearance is not None else {}),
         **(provenance or {}),
     }
     return Case(

@@ -33,8 +33,18 @@ from packlab.sim.episode import run_episode
 from packlab.sim.heightmap import place_box
 
 
+def off_grid(case: Case) -> bool:
+    """The case is of the off-grid sizes (``CaseConfig.sizes``): each box smaller than the
+    slot its plan step names (``target_box_cells``), as its generator records."""
+    return (case.generator or {}).get("sizes") == "off-grid"
+
+
 def plan_problems(case: Case) -> list[str]:
-    """Why ``case.gt_plan`` is not a perfect, fully supported packing (empty when it is)."""
+    """Why ``case.gt_plan`` is not a perfect, fully supported packing (empty when it is).
+
+    Off-grid cases (:func:`off_grid`) are checked on their slots: each box lies within its
+    slot's cells (less than a cell smaller across, at most its height), and the slots tile the
+    stack cuboid as a grid case's boxes do."""
     if case.gt_plan is None:
         return ["case has no gt_plan"]
     c = case.container
@@ -43,12 +53,25 @@ def plan_problems(case: Case) -> list[str]:
     if [p.internal_id for p in case.gt_plan] != [b.internal_id for b in case.objects]:
         problems.append("arrival order differs from plan order")
     boxes = {b.internal_id: b for b in case.objects}
+    slots = off_grid(case)
+    filled = 0
     for p in case.gt_plan:
         box = boxes[p.internal_id]
         fx_mm, fy_mm = box.footprint_mm(p.rotation)
-        fx, fy = fx_mm // c.cell_xy_mm, fy_mm // c.cell_xy_mm
         where = f"object {p.internal_id} (plan step {p.gt_index})"
-        if (fx, fy, box.size_mm[2] // c.cell_z_mm) != p.cell_size or (p.x, p.y) != p.cell_min[:2]:
+        if slots:
+            fx, fy = p.cell_size[0], p.cell_size[1]
+            height = p.cell_size[2] * c.cell_z_mm
+            inside = (
+                (fx - 1) * c.cell_xy_mm < fx_mm <= fx * c.cell_xy_mm
+                and (fy - 1) * c.cell_xy_mm < fy_mm <= fy * c.cell_xy_mm
+                and box.size_mm[2] <= height
+            )
+        else:
+            fx, fy = fx_mm // c.cell_xy_mm, fy_mm // c.cell_xy_mm
+            height = box.size_mm[2]
+            inside = (fx, fy, box.size_mm[2] // c.cell_z_mm) == p.cell_size
+        if not inside or (p.x, p.y) != p.cell_min[:2]:
             problems.append(
                 f"{where}: cells {p.cell_min}+{p.cell_size} disagree with size {box.size_mm}"
             )
@@ -63,13 +86,28 @@ def plan_problems(case: Case) -> list[str]:
                 f"{where}: drops to {z} mm over {int(under.min())}..{z} mm, plan says "
                 f"{p.cell_min[2] * c.cell_z_mm} mm"
             )
-        hm = place_box(hm, p.x, p.y, fx, fy, z + box.size_mm[2])
+        hm = place_box(hm, p.x, p.y, fx, fy, z + height)
+        filled += fx * fy * c.cell_xy_mm**2 * height
     top = int(hm.max())
     if int(hm.min()) != top:
         problems.append(f"final surface is not flat ({int(hm.min())}..{top} mm)")
-    if case.total_volume_mm3 != c.size_mm[0] * c.size_mm[1] * top:
+    volume = filled if slots else case.total_volume_mm3
+    if volume != c.size_mm[0] * c.size_mm[1] * top:
         problems.append("object volumes do not fill X * Y * stack height")
     return problems
+
+
+def plan_fill(case: Case) -> float:
+    """The boxes' volume over their plan slots' volume: 1 for a grid case, less off the grid
+    (the Compactness the plan reaches with every box at its slot's height)."""
+    if case.gt_plan is None or not off_grid(case):
+        return 1.0
+    c = case.container
+    slots = sum(
+        p.cell_size[0] * p.cell_size[1] * c.cell_xy_mm**2 * p.cell_size[2] * c.cell_z_mm
+        for p in case.gt_plan
+    )
+    return case.total_volume_mm3 / slots if slots else 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,11 +203,13 @@ class Verdict:
 
 
 def judge(trajectory: Trajectory, min_overall: float) -> str:
-    """The rejection reason of a replay ("" when it is kept)."""
+    """The rejection reason of a replay ("" when it is kept). Off the grid the bar is
+    ``min_overall`` times the plan's fill (:func:`plan_fill`): the boxes leave their slots'
+    clearance empty, so a perfect replay scores that fill, not 1."""
     for valid, reason in zip(trajectory.valid, trajectory.reasons):
         if not valid:
             return f"invalid_step:{reason}"
-    if trajectory.metrics.overall < min_overall:
+    if trajectory.metrics.overall < min_overall * plan_fill(trajectory.case):
         return "overall_below_min"
     return ""
 

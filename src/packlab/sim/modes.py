@@ -18,12 +18,14 @@ from packlab.core.choices import (
     DEFAULT_REMAINING,
     DEFAULT_SEGMENTATION,
     DEFAULT_SIDES,
+    DEFAULT_SIZE_PRIOR,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
     RemainingMode,
     Segmentation,
     SideNames,
+    SizePrior,
     require_choice,
 )
 from packlab.core.packing_protocol import BUFFER, PackingProtocol
@@ -36,10 +38,12 @@ from packlab.sim.sensing import PerceivedState, perceive_state
 class SensingPerceiver:
     """A ``Perceiver`` over ``packlab.sim.sensing.perceive_state``: one sensor preset, and how
     the buffer's boxes are told apart (``depth``: from the depth image alone, the robot's
-    default; ``truth``: the simulator's masks, an ablation)."""
+    default; ``truth``: the simulator's masks, an ablation), and the size prior (``grid``:
+    sizes snap to the container's grids; ``none``: raw estimates in whole mm)."""
 
     preset: NoisePreset
     segmentation: Segmentation = DEFAULT_SEGMENTATION
+    size_prior: SizePrior = DEFAULT_SIZE_PRIOR
 
     def __call__(self, scene: Scene, rng: np.random.Generator) -> Perception:
         return perception_of(self.perceived_state(scene, rng))
@@ -58,6 +62,7 @@ class SensingPerceiver:
             self.preset,
             rng,
             self.segmentation,
+            size_prior=self.size_prior,
         )
 
 
@@ -103,6 +108,7 @@ def episode_modes(
     segmentation: Segmentation = DEFAULT_SEGMENTATION,
     sides: SideNames = DEFAULT_SIDES,
     remaining: RemainingMode = DEFAULT_REMAINING,
+    size_prior: SizePrior = DEFAULT_SIZE_PRIOR,
 ) -> EpisodeModes:
     """The modes by name (ConfigError naming the field for an unknown value)."""
     require_choice(observation, ObservationMode, "observation")
@@ -111,7 +117,10 @@ def episode_modes(
     require_choice(segmentation, Segmentation, "segmentation")
     require_choice(sides, SideNames, "sides")
     require_choice(remaining, RemainingMode, "remaining")
-    perceiver = SensingPerceiver(noise, segmentation) if observation == "perceived" else None
+    require_choice(size_prior, SizePrior, "size_prior")
+    perceiver = (
+        SensingPerceiver(noise, segmentation, size_prior) if observation == "perceived" else None
+    )
     return EpisodeModes(
         perceiver=perceiver,
         execution=execution_noise(noise) if execution == "noisy" else None,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from packlab.core.choices import Segmentation, require_choice
+from packlab.core.choices import DEFAULT_SIZE_PRIOR, Segmentation, SizePrior, require_choice
 from packlab.core.types import Container
 from packlab.sim.heightmap import rasterise_poses
 from packlab.sim.sensing.buffer import BufferPerception, perceive_buffer
@@ -33,6 +33,7 @@ from packlab.sim.sensing.perception import (
     heightmap_from_depth,
     segment_depth,
     segment_truth,
+    size_quanta,
 )
 from packlab.sim.sensing.presets import SENSOR_PRESETS, SensorPreset, sensor_preset
 
@@ -82,6 +83,7 @@ def perceive_state(
     rng: np.random.Generator,
     segmentation: Segmentation = "depth",
     arrangement: str = "touching",
+    size_prior: SizePrior = DEFAULT_SIZE_PRIOR,
 ) -> PerceivedState:
     """Perceive the container and the shown buffer through the preset's cameras.
 
@@ -90,7 +92,9 @@ def perceive_state(
     ignored). ``shown_sizes_mm`` (k, 3) are the shown objects' true (l, w, h): they place the
     boxes in the buffer scene and score the estimates, nothing else. Noise and the buffer layout
     are drawn from ``rng``. With a noise-free preset the heightmap equals the rasterised one and
-    the sizes are exact (longer side first).
+    the sizes are exact (longer side first). ``size_prior`` (``perception.SizePrior``): the
+    shown sizes snap to the container's grids (``grid``) or are the raw estimates in whole mm
+    (``none``).
     """
     require_choice(segmentation, Segmentation, "segmentation")
     preset = sensor_preset(preset)
@@ -109,7 +113,7 @@ def perceive_state(
         container.cells, container.cell_xy_mm, sizes[placed], positions[placed], quats[placed]
     )
     shown = np.asarray(shown_sizes_mm, dtype=np.int64).reshape(-1, 3)
-    grid = (container.cell_xy_mm, container.cell_z_mm)
+    grid = size_quanta(size_prior, container.cell_xy_mm, container.cell_z_mm)
     buffer = perceive_buffer(shown, preset, buffer_rng, segmentation, grid, arrangement)
     sizes_out, swapped, grasp, errors = _compare_to_truth(shown, buffer)
     hm_error = float(np.mean(np.abs(heightmap.astype(np.int64) - exact))) if exact.size else 0.0
