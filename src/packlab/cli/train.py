@@ -189,6 +189,18 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
         "--no-line-vectors",
         help="ablation: the head reads the lines' hidden states only, no line vectors",
     )
+    field(
+        "line_fields",
+        "--line-fields",
+        help="what each listed line names: full (with z, support, flushness, gap) or cell "
+        "(box, rotation, cell only); default {default}",
+    )
+    field("image_tokens", "--image-tokens", help="image tokens per side; default {default}")
+    field(
+        "footprint_pool",
+        "--footprint-pool",
+        help="the head also pools the image tokens under each line's footprint (torch only)",
+    )
     field("k", "--k", help="placements listed per state; default {default}")
     field("shuffle", "--no-shuffle", help="ablation: list placements in the proposer's order")
     field("pool", "--pool", choices=("last", "mean"), help="default {default}")

@@ -15,6 +15,12 @@ map; ``"image"`` and ``"blank"`` put one image entry (``{"type": "image"}``, whi
 template writes as ``<|vision_start|><|image_pad|><|vision_end|>``) before the user text and
 leave the digit map out; ``"both"`` shows the image and the digit map. The image itself is made
 by :mod:`.image` when the prompt is encoded (:mod:`.pointer`).
+
+``line_fields`` (:data:`packlab.core.choices.LineFields`): ``"full"`` writes each listed line
+as :func:`packlab.vlm.prompt.compact.candidate_line` (box, rotation, cell, then the resting
+height z, support s, flushness f and gap v the proposer computed from the heightmap);
+``"cell"`` (:func:`cell_line`) keeps the index, box, rotation and cell only, so nothing about
+the container's surface reaches the model except through the map it is shown.
 """
 
 from __future__ import annotations
@@ -27,12 +33,12 @@ from typing import Any, Literal
 
 import numpy as np
 
-from packlab.core.choices import PointerMap, PromptInstructions, choices
+from packlab.core.choices import LineFields, PointerMap, PromptInstructions, choices
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container, Observation
 from packlab.policies.candidates import Candidate
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
-from packlab.vlm.prompt.compact import CompactOptions, state_text, system_text
+from packlab.vlm.prompt.compact import CompactOptions, candidate_line, state_text, system_text
 from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
 Instructions = PromptInstructions
@@ -46,6 +52,30 @@ MAPS: tuple[str, ...] = choices(PointerMap)
 #: The map modes that show the heightmap as an image (``"blank"``: an all-zero one).
 IMAGE_MAPS = ("image", "both", "blank")
 DEFAULT_OPTIONS = CompactOptions()
+LINE_FIELDS: tuple[str, ...] = choices(LineFields)
+
+
+def cell_line(c: Candidate) -> str:
+    """A listed placement without geometry: its index, box, rotation and cell."""
+    return f"{c.index}: b{c.object_index} r{c.rotation} x{c.x} y{c.y}"
+
+
+def line_text(c: Candidate, line_fields: LineFields = "full") -> str:
+    """The text of one listed line under ``line_fields`` (module docstring)."""
+    if line_fields == "cell":
+        return cell_line(c)
+    if line_fields != "full":
+        raise ConfigError(f"line_fields = {line_fields!r}: expected one of {LINE_FIELDS}")
+    return candidate_line(c)
+
+
+def _with_lines(user: str, listed: Sequence[Candidate], line_fields: LineFields) -> str:
+    """The user turn with its listed lines (its last ``len(listed)`` lines) in ``line_fields``."""
+    if line_fields == "full" or not listed:
+        return user
+    lines = user.split("\n")
+    lines[-len(listed) :] = [line_text(c, line_fields) for c in listed]
+    return "\n".join(lines)
 
 
 def short_system_text(container: Container) -> str:
@@ -60,10 +90,12 @@ def observation_messages(
     options: CompactOptions = DEFAULT_OPTIONS,
     blank_map: bool = False,
     map: PointerMap = "text",
+    line_fields: LineFields = "full",
 ) -> list[dict[str, Any]]:
     """[system, user] messages of one step; ``blank_map`` shows an empty heightmap (ablation:
     the model then sees the boxes and the listed placements but not the container's surface),
-    ``map`` how the heightmap is shown (module docstring)."""
+    ``map`` how the heightmap is shown, ``line_fields`` what each listed line names (module
+    docstring)."""
     if instructions not in INSTRUCTIONS:
         raise ConfigError(f"instructions = {instructions!r}: expected one of {INSTRUCTIONS}")
     if map not in MAPS:
@@ -77,6 +109,7 @@ def observation_messages(
         else short_system_text(container)
     )
     user = state_text(observation, listed, options, show_map=map in ("text", "both"))
+    user = _with_lines(user, listed, line_fields)
     image = [{"type": "image"}] if map in IMAGE_MAPS else []
     return [
         {"role": "system", "content": [{"type": "text", "text": system}]},
@@ -90,11 +123,13 @@ def state_messages(
     options: CompactOptions = DEFAULT_OPTIONS,
     blank_map: bool = False,
     map: PointerMap = "text",
+    line_fields: LineFields = "full",
 ) -> list[dict[str, Any]]:
     """:func:`observation_messages` of a stored state (what training and the export read)."""
     return observation_messages(
-        observation_of(state), listed_of(state), instructions, options, blank_map, map
-    )
+        observation_of(state), listed_of(state), instructions, options, blank_map, map,
+        line_fields,
+    )  # fmt: skip
 
 
 def answer_text(state: LabelledState, answer: Answer = "index") -> str:

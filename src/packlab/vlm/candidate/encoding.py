@@ -1,6 +1,6 @@
 """A state as the pointer model reads it: prompt text, token ids, the tokens of each listed
-line, the heightmap image and the line vectors (:class:`Encoded`), for training and for both
-runtimes (torch and ONNX).
+line, the heightmap image, the line vectors and each line's footprint on the image's token grid
+(:class:`Encoded`), for training and for both runtimes (torch and ONNX).
 
 Torch-free: the tokenizer is anything with the transformers tokenizer's calls used here
 (``__call__`` with offsets, ``convert_tokens_to_ids``, ``apply_chat_template``): the
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from packlab.core.choices import PointerMap
+from packlab.core.choices import LineFields, PointerMap
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
 from packlab.policies.line_vector import LINE_VECTOR_SIZE, line_vectors
@@ -27,13 +27,16 @@ from packlab.vlm.candidate.compose import (
     Answer,
     Instructions,
     answer_text,
+    line_text,
     observation_messages,
     state_messages,
 )
 from packlab.vlm.candidate.image import (
     QWEN3_MEAN,
     QWEN3_STD,
+    TOKENS_PER_SIDE,
     blank_image,
+    footprint_tokens,
     heightmap_image,
     image_side,
     patchify,
@@ -41,7 +44,6 @@ from packlab.vlm.candidate.image import (
 )
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
 from packlab.vlm.model.chatml import IM_END, IMAGE_PAD
-from packlab.vlm.prompt.compact import candidate_line
 from packlab.vlm.prompt.parse import ACTION_KEYS
 
 
@@ -54,16 +56,26 @@ class PromptSettings:
     answer: Answer = "index"
     map: PointerMap = "text"
     line_vectors: bool = False
+    #: What each listed line names (:mod:`.compose`): the full geometry, or its cell only.
+    line_fields: LineFields = "full"
+    #: Merged visual tokens per image side (:mod:`.image`).
+    image_tokens: int = TOKENS_PER_SIDE
+    #: Each line's footprint on the visual token grid is encoded (the head pools there).
+    footprint_pool: bool = False
 
     @classmethod
     def of(cls, meta: dict[str, Any], blank_map: bool = False) -> PromptSettings:
-        """The settings of a model card; ``blank_map`` forces the blank-map ablation on."""
+        """The settings of a model card; ``blank_map`` forces the blank-map ablation on. A card
+        written before line fields, image tokens and footprint pooling has their defaults."""
         return cls(
             meta["instructions"],
             bool(meta.get("blank_map", False)) or blank_map,
             meta.get("answer", "index"),
             meta.get("map", "text"),  # a model card written before maps: the text map
             bool(meta.get("line_vectors", False)),  # a card before line vectors: text only
+            meta.get("line_fields", "full"),
+            int(meta.get("image_tokens", TOKENS_PER_SIDE)),
+            bool(meta.get("footprint_pool", False)),
         )
 
 
@@ -94,15 +106,18 @@ def image_norm(vlm: Any) -> tuple[tuple[float, ...], tuple[float, ...]]:
 @dataclass(frozen=True, slots=True)
 class ImageGrid:
     """A vision tower's patch geometry (from its config): pixels per patch side, patches per
-    merged token side, frames per patch; and the normalisation of its pixels (mean and std per
-    RGB channel). The ONNX card stores it whole (``extra.grid``), so both runtimes patchify
-    and normalise alike; a card without ``mean`` and ``std`` was exported with Qwen3-VL's."""
+    merged token side, frames per patch; the normalisation of its pixels (mean and std per
+    RGB channel); and the merged tokens per image side (``per_side``, a model card's
+    ``image_tokens``). The ONNX card stores it whole (``extra.grid``), so both runtimes patchify
+    and normalise alike; a card without ``mean`` and ``std`` was exported with Qwen3-VL's, one
+    without ``per_side`` with :data:`.image.TOKENS_PER_SIDE`."""
 
     patch: int = 16
     merge: int = 2
     temporal: int = 2
     mean: tuple[float, ...] = QWEN3_MEAN
     std: tuple[float, ...] = QWEN3_STD
+    per_side: int = TOKENS_PER_SIDE
 
     def __post_init__(self) -> None:
         # A card read from JSON gives lists: tuples compare equal to the torch side's grid.
@@ -113,11 +128,13 @@ class ImageGrid:
 
     @classmethod
     def of(cls, vlm: Any) -> ImageGrid:
-        """The grid of a loaded :class:`~packlab.vlm.model.checkpoint.VLM` (:func:`image_norm`)."""
+        """The grid of a loaded :class:`~packlab.vlm.model.checkpoint.VLM` (:func:`image_norm`;
+        tokens per side: its model card's ``image_tokens``, else the default)."""
         v = vlm.model.config.vision_config
         mean, std = image_norm(vlm)
+        per_side = int((getattr(vlm, "meta", None) or {}).get("image_tokens", TOKENS_PER_SIDE))
         return cls(int(v.patch_size), int(v.spatial_merge_size), int(v.temporal_patch_size),
-                   mean, std)  # fmt: skip
+                   mean, std, per_side)  # fmt: skip
 
     @classmethod
     def from_config(
@@ -138,7 +155,12 @@ class ImageGrid:
 
     @property
     def side(self) -> int:
-        return image_side(self.patch, self.merge)
+        return image_side(self.patch, self.merge, self.per_side)
+
+    @property
+    def token_px(self) -> int:
+        """Pixels per merged visual token side."""
+        return self.patch * self.merge
 
     @property
     def tokens(self) -> int:
@@ -177,6 +199,9 @@ class Encoded:
     vectors: np.ndarray = field(
         default_factory=lambda: np.zeros((0, LINE_VECTOR_SIZE), dtype=np.float32)
     )
+    #: Which visual tokens lie under each listed line's footprint (bool (K, visual tokens),
+    #: :func:`footprints`); empty: the head does not pool the image.
+    footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
 
 def prompt_text(tokenizer: Any, messages: list[dict[str, Any]]) -> str:
@@ -212,14 +237,20 @@ def answer_tokens(tokenizer: Any, text: str) -> tuple[np.ndarray, tuple[str, ...
     return np.asarray(ids, dtype=np.int64), (*fields, "end")
 
 
-def _encode_text(tokenizer: Any, text: str, listed: Sequence[Candidate], label: int) -> Encoded:
+def _encode_text(
+    tokenizer: Any,
+    text: str,
+    listed: Sequence[Candidate],
+    label: int,
+    line_fields: LineFields = "full",
+) -> Encoded:
     """Token ids of a prompt text and the tokens holding each listed line's first and last
     character."""
     enc = tokenizer(text, add_special_tokens=False, return_offsets_mapping=True)
     owner = np.full(len(text), -1, dtype=np.int64)
     for t, (a, b) in enumerate(enc["offset_mapping"]):
         owner[a:b] = t
-    firsts, lasts = line_chars(text, [candidate_line(c) for c in listed])
+    firsts, lasts = line_chars(text, [line_text(c, line_fields) for c in listed])
     ends = owner[np.array(lasts, dtype=np.int64)]
     starts = owner[np.array(firsts, dtype=np.int64)]
     if (ends < 0).any() or (starts < 0).any():
@@ -234,15 +265,17 @@ def _encode_prompt(
     label: int,
     image: np.ndarray | None,
     grid: ImageGrid,
+    line_fields: LineFields = "full",
 ) -> Encoded:
     """:func:`_encode_text` of the messages' prompt; with an image, its one ``<|image_pad|>``
     repeated once per merged visual token first."""
     text = prompt_text(tokenizer, messages)
     if image is None:
-        return _encode_text(tokenizer, text, listed, label)
+        return _encode_text(tokenizer, text, listed, label, line_fields)
     if text.count(IMAGE_PAD) != 1:
         raise ValueError(f"expected one image placeholder, found {text.count(IMAGE_PAD)}")
-    enc = _encode_text(tokenizer, text.replace(IMAGE_PAD, IMAGE_PAD * grid.tokens), listed, label)
+    text = text.replace(IMAGE_PAD, IMAGE_PAD * grid.tokens)
+    enc = _encode_text(tokenizer, text, listed, label, line_fields)
     pad_id = int(tokenizer.convert_tokens_to_ids(IMAGE_PAD))
     pads = int((enc.ids == pad_id).sum())
     if pads != grid.tokens:
@@ -268,6 +301,48 @@ def soft_of(state: LabelledState) -> np.ndarray:
     return np.asarray(getattr(state, "soft", ()), dtype=np.float32)
 
 
+def footprints(
+    observation: Observation, listed: Sequence[Candidate], grid: ImageGrid
+) -> np.ndarray:
+    """bool (K, visual tokens): the merged visual tokens under each listed line's footprint
+    (:func:`.image.footprint_tokens`): its cell and its box's size at its rotation, both named
+    by the line, placed on the image's layout; no height of the container is read."""
+    out = np.zeros((len(listed), grid.tokens), dtype=bool)
+    cells = tuple(observation.heightmap.shape)
+    for n, c in enumerate(listed):
+        out[n, footprint_tokens(cells, c.x, c.y, c.fx, c.fy, grid.side, grid.token_px)] = True
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Extras:
+    """What :func:`encode` adds beside the prompt: line vectors, the lines' fields and the
+    footprints on the image (``footprint`` needs an image ``map``)."""
+
+    lines: bool = False
+    line_fields: LineFields = "full"
+    footprint: bool = False
+
+    @classmethod
+    def of(cls, settings: PromptSettings) -> Extras:
+        return cls(settings.line_vectors, settings.line_fields, settings.footprint_pool)
+
+
+NO_EXTRAS = Extras()
+
+
+def _with_extras(
+    enc: Encoded, observation: Observation, listed: Sequence[Candidate], extras: Extras
+) -> Encoded:
+    if extras.lines:
+        enc = replace(enc, vectors=line_vectors(observation, listed))
+    if extras.footprint:
+        if enc.grid is None:
+            raise ValueError("footprint pooling needs an image map")
+        enc = replace(enc, footprint=footprints(observation, listed, enc.grid))
+    return enc
+
+
 def encode(
     tokenizer: Any,
     state: LabelledState,
@@ -277,20 +352,24 @@ def encode(
     map: PointerMap = "text",
     grid: ImageGrid = QWEN3_GRID,
     lines: bool = False,
+    extras: Extras | None = None,
 ) -> Encoded:
     """Tokens of a state's prompt (the same text as the export for ``map`` = text), its listed
     lines' ends, its soft target, (``map`` with an image) its heightmap image and (``lines``)
-    each listed line's numeric vector."""
-    messages = state_messages(state, instructions, blank_map=blank_map, map=map)
+    each listed line's numeric vector; ``extras``, when given, replaces ``lines`` and adds the
+    lines' fields and footprints (:class:`Extras`)."""
+    extras = Extras(lines=lines) if extras is None else extras
+    messages = state_messages(state, instructions, blank_map=blank_map, map=map,
+                              line_fields=extras.line_fields)  # fmt: skip
     observation, listed = observation_of(state), listed_of(state)
     image = map_image(observation, map, grid, blank_map)
     try:
-        enc = _encode_prompt(tokenizer, messages, listed, state.label, image, grid)
+        enc = _encode_prompt(tokenizer, messages, listed, state.label, image, grid,
+                             extras.line_fields)  # fmt: skip
+        enc = _with_extras(enc, observation, listed, extras)
     except ValueError as exc:
         raise ValueError(f"{state.case_id} step {state.step}: {exc}") from None
     enc = replace(enc, soft=soft_of(state))
-    if lines:
-        enc = replace(enc, vectors=line_vectors(observation, listed))
     if answer == "json" and state.label >= 0:
         answer_ids, fields = answer_tokens(tokenizer, answer_text(state, "json"))
         return replace(enc, answer_ids=answer_ids, answer_fields=fields)
@@ -306,10 +385,32 @@ def encode_observation(
     map: PointerMap = "text",
     grid: ImageGrid = QWEN3_GRID,
     lines: bool = False,
+    extras: Extras | None = None,
 ) -> Encoded:
     """:func:`encode` of a live step (inference): the same prompt, unlabelled."""
+    extras = Extras(lines=lines) if extras is None else extras
     messages = observation_messages(observation, listed, instructions, blank_map=blank_map,
-                                    map=map)  # fmt: skip
+                                    map=map, line_fields=extras.line_fields)  # fmt: skip
     image = map_image(observation, map, grid, blank_map)
-    enc = _encode_prompt(tokenizer, messages, listed, -1, image, grid)
-    return replace(enc, vectors=line_vectors(observation, listed)) if lines else enc
+    enc = _encode_prompt(tokenizer, messages, listed, -1, image, grid, extras.line_fields)
+    return _with_extras(enc, observation, listed, extras)
+
+
+def settings_grid(grid: ImageGrid, settings: PromptSettings) -> ImageGrid:
+    """A model's grid with the tokens per side its settings name (a model in training has no
+    card yet: its settings carry them)."""
+    return replace(grid, per_side=settings.image_tokens)
+
+
+def encode_settings(
+    tokenizer: Any,
+    observation: Observation,
+    listed: Sequence[Candidate],
+    settings: PromptSettings,
+    grid: ImageGrid,
+) -> Encoded:
+    """:func:`encode_observation` under a model card's settings (both runtimes)."""
+    return encode_observation(
+        tokenizer, observation, listed, settings.instructions, settings.blank_map, settings.map,
+        settings_grid(grid, settings), extras=Extras.of(settings),
+    )  # fmt: skip

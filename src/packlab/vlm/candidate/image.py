@@ -13,7 +13,8 @@ checkpoint's own per-channel mean and std (its image processor's ``image_mean`` 
 :class:`.encoding.ImageGrid`; :data:`QWEN3_MEAN` and :data:`QWEN3_STD` only where a model names
 none.
 
-Image side: :data:`TOKENS_PER_SIDE` merged tokens per side, each ``patch_size *
+Image side: :data:`TOKENS_PER_SIDE` merged tokens per side (a model card's ``image_tokens``
+sets another count, ``packlab train candidate --image-tokens``), each ``patch_size *
 spatial_merge_size`` pixels (16 * 2 = 32 for Qwen3-VL), so 4 -> a 128 x 128 image, 8 x 8 = 64
 patches merged to 16 visual tokens. Why 16: the bench's largest containers have about 57 cells
 per side, which then get 2 pixels per cell and about 7 x 7 cells per patch (8 x 8 patches,
@@ -40,9 +41,12 @@ QWEN3_MEAN = (0.5, 0.5, 0.5)
 QWEN3_STD = (0.5, 0.5, 0.5)
 
 
-def image_side(patch_size: int, merge_size: int) -> int:
-    """Pixels per side of the fixed-size image for a vision tower."""
-    return TOKENS_PER_SIDE * patch_size * merge_size
+def image_side(patch_size: int, merge_size: int, per_side: int = TOKENS_PER_SIDE) -> int:
+    """Pixels per side of the fixed-size image for a vision tower, ``per_side`` merged tokens
+    per side (:data:`TOKENS_PER_SIDE` unless a model card names its own, ``image_tokens``)."""
+    if per_side < 1:
+        raise ValueError(f"image tokens per side = {per_side}: must be >= 1")
+    return per_side * patch_size * merge_size
 
 
 def visual_tokens(side: int, patch_size: int, merge_size: int) -> int:
@@ -69,6 +73,33 @@ def heightmap_image(heightmap: np.ndarray, container: Container, side: int) -> n
     out = np.full((side, side), FULL, dtype=np.uint8)
     out[: cells.shape[0], : cells.shape[1]] = cells
     return out
+
+
+def _cell_pixels(cells: int, start: int, length: int, block: int, scale: int) -> tuple[int, int]:
+    """The first and one-past-last pixel of cells [start, start + length) along one axis, as
+    :func:`heightmap_image` draws them (``block`` cells per pooled cell, ``scale`` pixels each)."""
+    first = min(start, cells - 1) // block
+    last = min(start + max(length, 1) - 1, cells - 1) // block
+    return first * scale, (last + 1) * scale
+
+
+def footprint_tokens(
+    cells: tuple[int, int], x: int, y: int, fx: int, fy: int, side: int, token_px: int
+) -> np.ndarray:
+    """Indices of the merged visual tokens (row-major: y rows, x columns, as :func:`patchify`
+    orders them) whose pixels hold some cell of the footprint ``x .. x + fx - 1``, ``y .. y +
+    fy - 1`` in an image of :func:`heightmap_image` (``cells``: the container's cells per side;
+    ``token_px``: pixels per merged token side). Only the image's layout is used: where
+    :func:`heightmap_image` draws each cell, never a height."""
+    nx, ny = cells
+    block = -(-max(nx, ny) // side)
+    scale = side // max(-(-nx // block), -(-ny // block))
+    x0, x1 = _cell_pixels(nx, x, fx, block, scale)
+    y0, y1 = _cell_pixels(ny, y, fy, block, scale)
+    per_side = side // token_px
+    cols = np.arange(x0 // token_px, (x1 - 1) // token_px + 1)
+    rows = np.arange(y0 // token_px, (y1 - 1) // token_px + 1)
+    return (rows[:, None] * per_side + cols[None, :]).ravel().astype(np.int64)
 
 
 def blank_image(side: int) -> np.ndarray:

@@ -195,6 +195,12 @@ EXPORTABLE_FAMILIES = ("qwen3_vl", "qwen2_5_vl")
 
 def _model(directory: Path) -> tuple[PointerModel, OnnxPointer]:
     model = load_pointer(directory)
+    if model.footprint:
+        raise ConfigError(
+            f"{directory}: a pointer model with footprint pooling (footprint_pool = true); "
+            "its head gathers visual tokens per listed line, which the ONNX text graph does not "
+            "take: play it with runtime=torch"
+        )
     if model.vlm.family not in EXPORTABLE_FAMILIES:
         raise ConfigError(
             f"{directory}: a {model.vlm.family} pointer model; ONNX export supports "

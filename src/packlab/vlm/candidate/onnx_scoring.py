@@ -26,7 +26,7 @@ from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
 from packlab.policies.onnx_model import OnnxGraph, open_graphs
 from packlab.vlm.candidate.compose import IMAGE_MAPS
-from packlab.vlm.candidate.encoding import Encoded, ImageGrid, PromptSettings, encode_observation
+from packlab.vlm.candidate.encoding import Encoded, ImageGrid, PromptSettings, encode_settings
 from packlab.vlm.candidate.files import CANDIDATE_FORMAT
 from packlab.vlm.candidate.json_tokenizer import JsonTokenizer
 from packlab.vlm.candidate.rope import rope_positions
@@ -107,10 +107,7 @@ def encode_step(
     listed: Sequence[Candidate],
     settings: PromptSettings,
 ) -> Encoded:
-    return encode_observation(
-        model.tokenizer, observation, listed, settings.instructions, settings.blank_map,
-        settings.map, model.grid, settings.line_vectors,
-    )  # fmt: skip
+    return encode_settings(model.tokenizer, observation, listed, settings, model.grid)
 
 
 def score_listed(

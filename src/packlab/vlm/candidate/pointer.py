@@ -10,7 +10,19 @@ gives them 2-D positions. A linear head maps each listed line's state to a score
 is the highest score over the listed lines (a softmax over them in training, against the
 teacher's soft targets when a state has them, :func:`soft_loss`). The answer is therefore
 always one of the listed placements: nothing is decoded that could fail to parse or to fit.
-The same model also plays as ONNX graphs without torch (:mod:`.onnx_graphs`).
+The same model also plays as ONNX graphs without torch (:mod:`.onnx_graphs`), except with
+footprint pooling (``footprint``), which plays under torch only.
+
+**Footprint pooling** (``footprint``, ``packlab train candidate --footprint-pool``): for each
+listed line the last hidden states of the visual tokens that lie under its footprint are
+mean-pooled and joined to the line's own state before the head (:class:`LineHead`, an MLP, so
+the two can interact). This is learned reading of the image, not hand geometry: which tokens
+are pooled follows only from what the line itself names (its cell, and its box's size at its
+rotation, from the ``Boxes`` line) and from where the image draws each cell; nothing of the
+container's surface (heights, support, gaps, flushness) is computed. What those tokens hold is
+whatever the vision tower and the decoder learned to put there from the pixels, and a blank
+image gives the same pooling over tokens that carry no surface. It only lets a line's score
+look at its own part of the image in one step, instead of having to learn to attend there.
 
 Why not train the index digit as a generated answer: from random weights, the loss on the digit
 alone stays at chance for hundreds of steps (measured on a prototype), while the pointer loss reads
@@ -65,12 +77,16 @@ def _gather(hidden: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
 class LineHead(nn.Module):
     """The pointer head of a model that reads line vectors: an MLP over each line's pooled
     hidden state, its numeric vector and the mean vector of the listed lines (what the others
-    offer), so a line's score can depend on how it compares with the rest of the list."""
+    offer), so a line's score can depend on how it compares with the rest of the list.
+    ``vector_size`` 0: an MLP over the line's state alone (footprint pooling without line
+    vectors)."""
 
-    def __init__(self, hidden_size: int, width: int = LINE_HEAD_WIDTH) -> None:
+    def __init__(
+        self, hidden_size: int, width: int = LINE_HEAD_WIDTH, vector_size: int = LINE_VECTOR_SIZE
+    ) -> None:
         super().__init__()
         self.mlp = nn.Sequential(
-            nn.Linear(hidden_size + 2 * LINE_VECTOR_SIZE, width),
+            nn.Linear(hidden_size + 2 * vector_size, width),
             nn.ReLU(),
             nn.Linear(width, width),
             nn.ReLU(),
@@ -87,10 +103,17 @@ class LineHead(nn.Module):
 
 class PointerModel(nn.Module):
     """``scores = head(pooled hidden states of each listed line)``, -inf where padded; with
-    ``lines`` the head also reads each line's numeric vector (:class:`LineHead`)."""
+    ``lines`` the head also reads each line's numeric vector (:class:`LineHead`); with
+    ``footprint`` it also reads the mean final state of the visual tokens under each line's
+    footprint (module docstring; an image ``map`` only)."""
 
     def __init__(
-        self, vlm: VLM, pool: str = "last", map: PointerMap = "text", lines: bool = False
+        self,
+        vlm: VLM,
+        pool: str = "last",
+        map: PointerMap = "text",
+        lines: bool = False,
+        footprint: bool = False,
     ) -> None:
         super().__init__()
         if pool not in POOLS:
@@ -102,9 +125,17 @@ class PointerModel(nn.Module):
             # A submodule, so that the optimizer trains it and checkpoints hold it (``vlm`` is
             # not a module); text-map models leave it out and keep their state dict's keys.
             self.visual = vlm.model.model.visual
+        if footprint and map not in IMAGE_MAPS:
+            raise ValueError(f"footprint pooling needs an image map, not map = {map!r}")
         self.lines = lines
+        self.footprint = footprint
         hidden_size = self.text.config.hidden_size
-        self.head = LineHead(hidden_size) if lines else nn.Linear(hidden_size, 1)
+        self.head: nn.Module
+        if footprint:
+            vector_size = LINE_VECTOR_SIZE if lines else 0
+            self.head = LineHead(2 * hidden_size, vector_size=vector_size)
+        else:
+            self.head = LineHead(hidden_size) if lines else nn.Linear(hidden_size, 1)
 
     def hidden(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Last hidden states (B, T, H): the text stack alone for text-only batches, the whole
@@ -125,8 +156,11 @@ class PointerModel(nn.Module):
             picked = (_gather(total, ends) - before) / (ends - starts + 1).unsqueeze(-1)
         else:
             picked = _gather(hidden, ends)
-        if self.lines:
-            scores = self.head(picked, batch["vectors"], valid)
+        if self.footprint:
+            picked = torch.cat([picked, footprint_pool(hidden, batch)], -1)
+        if isinstance(self.head, LineHead):
+            vectors = batch["vectors"] if self.lines else picked[..., :0]
+            scores = self.head(picked, vectors, valid)
         else:
             scores = self.head(picked)
         return scores.squeeze(-1).masked_fill(~valid, float("-inf"))
@@ -151,6 +185,17 @@ class PointerModel(nn.Module):
     def device(self) -> torch.device:
         """Where the parameters are (the batches go there: :func:`to_device`)."""
         return next(self.parameters()).device
+
+
+def footprint_pool(hidden: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B, K, H): for each listed line, the mean of the hidden states (B, T, H) of the visual
+    tokens its footprint covers (``footprint`` (B, K, V) 0/1 over the V visual tokens, whose
+    positions in the sequence are ``visual_at`` (B, V)); zeros for a line that covers none."""
+    if "footprint" not in batch:
+        raise ValueError("a footprint-pooling model needs states encoded with their footprints")
+    visual = _gather(hidden, batch["visual_at"])  # (B, V, H)
+    weights = batch["footprint"].to(visual.dtype)
+    return torch.bmm(weights, visual) / weights.sum(-1, keepdim=True).clamp(min=1)
 
 
 def to_device(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict:
@@ -218,8 +263,25 @@ def collate(batch: Sequence[Encoded], pad_id: int) -> dict[str, torch.Tensor]:
     return {
         "ids": ids, "mask": mask, "ends": ends, "starts": starts, "valid": valid,
         "labels": labels, "targets": _targets(batch, k), "answer": answer,
-        **_images(batch, ids, mask), **_vectors(batch, k),
+        **_images(batch, ids, mask), **_vectors(batch, k), **_footprints(batch, k),
     }  # fmt: skip
+
+
+def _footprints(batch: Sequence[Encoded], k: int) -> dict[str, torch.Tensor]:
+    """``footprint`` (B, K, V) 0/1 and ``visual_at`` (B, V), the positions of each state's V
+    visual tokens, when the states carry footprints (:func:`footprint_pool`)."""
+    if not any(e.footprint.size for e in batch):
+        return {}
+    v = batch[0].footprint.shape[1]
+    out = torch.zeros((len(batch), k, v), dtype=torch.float32)
+    at = torch.zeros((len(batch), v), dtype=torch.long)
+    for n, e in enumerate(batch):
+        places = np.flatnonzero(e.ids == e.image_token)
+        if e.footprint.shape[1] != v or len(places) != v:
+            raise ValueError(f"footprints over {e.footprint.shape[1]} tokens, {len(places)} shown")
+        out[n, : len(e.footprint)] = torch.from_numpy(e.footprint.astype(np.float32))
+        at[n] = torch.from_numpy(places)
+    return {"footprint": out, "visual_at": at}
 
 
 def _vectors(batch: Sequence[Encoded], k: int) -> dict[str, torch.Tensor]:

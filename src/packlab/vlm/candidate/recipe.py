@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from packlab.core.choices import TEACHERS, AutocastDType, PointerMap, require_choice
+from packlab.core.choices import TEACHERS, AutocastDType, LineFields, PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.policies.candidates import STUDENT_K
 from packlab.vlm.candidate.compose import Instructions
+from packlab.vlm.candidate.image import TOKENS_PER_SIDE
 from packlab.vlm.candidate.precision import check_device, check_dtype
 
 #: The recipe's module (vlm extra), imported when ``packlab train candidate`` runs.
@@ -32,6 +33,14 @@ class DaggerConfig:
     map: PointerMap = "image"
     #: The head also reads each listed line's numeric vector (level fit, geometry).
     line_vectors: bool = True
+    #: What each listed line names: its box, rotation, cell and geometry (full) or no geometry
+    #: (cell).
+    line_fields: LineFields = "full"
+    #: Merged visual tokens per side of the heightmap image (image maps).
+    image_tokens: int = TOKENS_PER_SIDE
+    #: The head also pools the visual tokens under each listed line's footprint (image maps;
+    #: such a model plays under torch only).
+    footprint_pool: bool = False
     #: Placements listed per state, in collection and at play time.
     k: int = STUDENT_K
     #: List the placements in a random order per state, so position says nothing.
@@ -58,6 +67,11 @@ class DaggerConfig:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} = {getattr(self, name)}: must be >= 1")
         require_choice(self.map, PointerMap, "map")
+        require_choice(self.line_fields, LineFields, "line_fields")
+        if self.image_tokens < 1:
+            raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
+        if self.footprint_pool and self.map == "text":
+            raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
         if self.rounds < 0:
             raise ConfigError(f"rounds = {self.rounds}: must be >= 0")
         check_device("DaggerConfig", self.device)

@@ -11,14 +11,13 @@ import torch
 
 from packlab.core.types import Observation
 from packlab.policies.candidates import Candidate
-from packlab.vlm.candidate.encoding import PromptSettings
+from packlab.vlm.candidate.encoding import PromptSettings, encode_settings
 from packlab.vlm.candidate.pointer import (
     IMAGE_KEYS,
     Encoded,
     ImageGrid,
     PointerModel,
     collate,
-    encode_observation,
     to_device,
 )
 from packlab.vlm.model.chatml import IM_END
@@ -30,10 +29,8 @@ def _encode(
     listed: Sequence[Candidate],
     settings: PromptSettings,
 ) -> Encoded:
-    return encode_observation(
-        model.vlm.tokenizer, observation, listed, settings.instructions, settings.blank_map,
-        settings.map, ImageGrid.of(model.vlm), settings.line_vectors,
-    )  # fmt: skip
+    return encode_settings(model.vlm.tokenizer, observation, listed, settings,
+                           ImageGrid.of(model.vlm))  # fmt: skip
 
 
 def score_listed(

@@ -25,15 +25,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from packlab.core.choices import AutocastDType, PointerMap, require_choice
+from packlab.core.choices import AutocastDType, LineFields, PointerMap, require_choice
 from packlab.core.errors import ConfigError
 from packlab.core.types import Case
 from packlab.policies.candidates import STUDENT_K, ProposerConfig
 from packlab.policies.provenance import card_path, provenance, selection_record
 from packlab.vlm.candidate.compose import Answer, Instructions
 from packlab.vlm.candidate.device import autocast, placement
+from packlab.vlm.candidate.encoding import Extras, PromptSettings, settings_grid
 from packlab.vlm.candidate.evaluate import Heldout, closed_loop, heldout_metrics
 from packlab.vlm.candidate.files import is_pointer_dir
+from packlab.vlm.candidate.image import TOKENS_PER_SIDE
 from packlab.vlm.candidate.onnx_export import export_onnx
 from packlab.vlm.candidate.pointer import (
     QWEN3_GRID,
@@ -67,6 +69,13 @@ class PointerTrainConfig:
     pool: str = "last"  # pointer.POOLS
     #: The head also reads each listed line's numeric vector (pointer.LineHead).
     line_vectors: bool = True
+    #: What each listed line names: full geometry, or its cell only (compose.cell_line).
+    line_fields: LineFields = "full"
+    #: Merged visual tokens per image side (image maps; the card's ``image_tokens``).
+    image_tokens: int = TOKENS_PER_SIDE
+    #: The head also reads the visual tokens under each line's footprint (pointer module
+    #: docstring; image maps; plays under torch only, no ONNX export).
+    footprint_pool: bool = False
     #: Placements the states list (the proposer's K the policy will list at play time).
     k: int = STUDENT_K
     answer: Answer = "index"  # pointer over the listed lines, or free JSON tokens
@@ -96,6 +105,11 @@ class PointerTrainConfig:
     def __post_init__(self) -> None:
         require_choice(self.map, PointerMap, "map")
         require_choice(self.answer, Answer, "answer")
+        require_choice(self.line_fields, LineFields, "line_fields")
+        if self.image_tokens < 1:
+            raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
+        if self.footprint_pool and self.map == "text":
+            raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
         check_device("PointerTrainConfig", self.device)
         check_dtype("PointerTrainConfig", self.dtype, self.device)
 
@@ -114,17 +128,44 @@ def load_encoded(
     """The labelled states encoded, split into (training, held-out)."""
     train: list[Encoded] = []
     held: list[Encoded] = []
+    settings = settings_of(cfg)
+    grid, extras = settings_grid(grid, settings), Extras.of(settings)
     for path in cfg.states:
         for s in read_states(Path(path)):
             if s.label < 0:
                 continue
             s = shuffled(s, cfg.seed) if cfg.shuffle else s
             e = encode(tokenizer, s, cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, grid,
-                       cfg.line_vectors)  # fmt: skip
+                       extras=extras)  # fmt: skip
             (held if is_heldout(s.case_id, cfg.heldout_every) else train).append(e)
     if not train:
         raise ValueError(f"{', '.join(cfg.states)}: no labelled training states")
     return train, held
+
+
+def settings_of(cfg: PointerTrainConfig) -> PromptSettings:
+    """The prompt settings the model is trained with (what its card will record)."""
+    return PromptSettings(cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, cfg.line_vectors,
+                          cfg.line_fields, cfg.image_tokens, cfg.footprint_pool)  # fmt: skip
+
+
+#: The card fields a pointer directory continued in training must share with the config.
+_KEPT = ("map", "line_fields", "image_tokens")
+
+
+def _check_continued(cfg: PointerTrainConfig, model: PointerModel) -> None:
+    settings = PromptSettings.of(model.vlm.meta)
+    for name in _KEPT:
+        if getattr(settings, name) != getattr(cfg, name):
+            raise ConfigError(
+                f"model = {cfg.model!r} was trained with {name} = "
+                f"{getattr(settings, name)!r}, not {getattr(cfg, name)!r}"
+            )
+    for name, have in (("line_vectors", model.lines), ("footprint_pool", model.footprint)):
+        if have != getattr(cfg, name):
+            raise ConfigError(
+                f"model = {cfg.model!r} was trained with {name} = {have}, not {getattr(cfg, name)}"
+            )
 
 
 def _model(cfg: PointerTrainConfig) -> PointerModel:
@@ -133,21 +174,12 @@ def _model(cfg: PointerTrainConfig) -> PointerModel:
     torch.manual_seed(cfg.seed)
     if is_pointer_dir(cfg.model):
         model = load_pointer(cfg.model)
-        if model.vlm.meta["map"] != cfg.map:
-            raise ConfigError(
-                f"model = {cfg.model!r} was trained with map = {model.vlm.meta['map']!r}, "
-                f"not {cfg.map!r}"
-            )
-        if model.lines != cfg.line_vectors:
-            raise ConfigError(
-                f"model = {cfg.model!r} was trained with line_vectors = {model.lines}, "
-                f"not {cfg.line_vectors}"
-            )
+        _check_continued(cfg, model)
         return model.train()
     if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
         raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
     vlm = make_model(cfg.model, seed=cfg.seed)
-    return PointerModel(vlm, cfg.pool, cfg.map, cfg.line_vectors).train()
+    return PointerModel(vlm, cfg.pool, cfg.map, cfg.line_vectors, cfg.footprint_pool).train()
 
 
 def _schedule(cfg: PointerTrainConfig):
@@ -292,6 +324,9 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
     return {
         "proposer": asdict(ProposerConfig(k=cfg.k)),
         "line_vectors": cfg.line_vectors,
+        "line_fields": cfg.line_fields,
+        "image_tokens": cfg.image_tokens,
+        "footprint_pool": cfg.footprint_pool,
         "instructions": cfg.instructions,
         "blank_map": cfg.blank_map,
         "map": cfg.map,
@@ -307,7 +342,7 @@ def train_pointer(
     cfg: PointerTrainConfig, eval_cases: Sequence[Case] = (), on_log: OnLog | None = None
 ) -> Path:
     """Train (or resume) and write ``out/final`` with its ONNX export (index answers; the
-    free-JSON ablation plays under torch only); returns that directory."""
+    free-JSON ablation and footprint pooling play under torch only); returns that directory."""
     torch.set_num_threads(cfg.threads) if cfg.threads else None
     # "auto" resolved once (the card records the device used); refused here before any work.
     cfg = replace(cfg, device=placement("PointerTrainConfig", cfg.device, cfg.dtype))
@@ -339,6 +374,6 @@ def train_pointer(
             "train_states": len(train), "heldout_states": len(held_list),
             **_provenance(cfg, eval_cases)}  # fmt: skip
     final = save_pointer(st.model, out / "final", card)
-    if cfg.answer == "index":  # so that the model plays under the default runtime (ONNX)
+    if cfg.answer == "index" and not cfg.footprint_pool:  # plays under the default runtime
         export_onnx(final, check_states=TRAIN_CHECK_STATES)
     return final
