@@ -78,6 +78,15 @@ def pointer():
     return PointerModel(build_tiny_model("qwen3_vl", "tiny"), map="image", footprint=True).eval()
 
 
+def _states_file(states, tmp_path):
+    """``states`` written under four case ids, the first held out (by a hash of the case id:
+    every third), as a trainer's states file."""
+    path = tmp_path / "states.jsonl"
+    append_states(path, [msgspec.structs.replace(s, case_id=f"{s.case_id}-{n % 4}")
+                         for n, s in enumerate(states)])  # fmt: skip
+    return path
+
+
 def _places(text: str) -> list[str]:
     after = text[text.rindex("Places:") :].split("\n")[1:]
     return [line for line in after if re.match(r"\d+: b", line)]
@@ -195,10 +204,7 @@ def test_footprint_pooling_reads_the_image_and_needs_one(pointer, states):
 
 
 def test_a_tiny_model_trains_with_all_three_and_its_card_round_trips(states, cases, tmp_path):
-    path = tmp_path / "states.jsonl"
-    # four case ids, the first held out (by a hash of the case id: every third)
-    append_states(path, [msgspec.structs.replace(s, case_id=f"{s.case_id}-{n % 4}")
-                         for n, s in enumerate(states)])  # fmt: skip
+    path = _states_file(states, tmp_path)
     cfg = PointerTrainConfig(states=(str(path),), out=str(tmp_path / "run"),
                              model="tiny:qwen3_vl:tiny", line_vectors=False, line_fields="cell",
                              image_tokens=8, footprint_pool=True, k=8, steps=3, batch=4, warmup=1,
@@ -242,9 +248,7 @@ def test_the_cli_sets_the_three_options():
 
 
 def test_cell_lines_on_another_grid_export_to_onnx_and_play_alike(states, cases, tmp_path):
-    path = tmp_path / "states.jsonl"
-    append_states(path, [msgspec.structs.replace(s, case_id=f"{s.case_id}-{n % 4}")
-                         for n, s in enumerate(states)])  # fmt: skip
+    path = _states_file(states, tmp_path)
     cfg = PointerTrainConfig(states=(str(path),), out=str(tmp_path / "run"),
                              model="tiny:qwen3_vl:tiny", line_vectors=False, line_fields="cell",
                              image_tokens=2, k=8, steps=2, batch=4, warmup=1, eval_every=2,
