@@ -68,9 +68,12 @@ def test_prediction_is_eq2_and_deviation_follows_the_rule():
     ],
 )
 def test_noise_free_perceived_episodes_equal_exact_episodes(backend, policy):
-    """A perfect sensor replays the exact episode, on a case whose catalogue lists every box
-    longer side first (perception lists the sides that way, as exact observation does by
-    default; with ``sides="catalogue"`` other cases would show l and w the other way round)."""
+    """A perfect sensor replays the exact episode: the perceived episode's placements, made in
+    exact mode on the same boxes, leave the same poses and scores, and at every step the robot
+    listed exactly the buffered boxes, with their true sizes. (The robot lists them in its own
+    order, the segments' in the buffer image, so the policy's picks are replayed by box.) The
+    case's catalogue lists every box longer side first, as perception names sides (with
+    ``sides="catalogue"`` other cases would show l and w the other way round)."""
     case = make_layered_case(2, pieces=5)
     objects = tuple(
         replace(b, size_mm=(max(b.size_mm[:2]), min(b.size_mm[:2]), b.size_mm[2]))
@@ -78,12 +81,27 @@ def test_noise_free_perceived_episodes_equal_exact_episodes(backend, policy):
     )
     assert objects != case.objects  # the case does list some boxes shorter side first
     case = replace(case, objects=objects, gt_plan=None)
-    exact = run_episode(case, make_policy(policy), 1, backend=backend)
     modes = episode_modes("perceived", "exact", "none")
     seen = run_episode(case, make_policy(policy), 1, backend=backend, perceiver=modes.perceiver)
     if backend == "geometric":  # Eq. 2 is exact there; physics may topple a random pile
         assert seen.replans == 0
-    assert _record(seen, drop_mode_keys=True) == _record(exact)
+    assert seen.missed == 0 and seen.looked_again == 0
+    sizes = {b.internal_id: b.size_mm for b in case.objects}
+    exact = Episode(backend)
+    observation = exact.reset(case, 1)
+    for step in seen.steps:
+        listed = sorted(sizes[i] for i in step.shown_ids)
+        assert sorted(item.size_mm for item in step.shown) == listed  # the true sizes
+        assert sorted(sizes[item.internal_id] for item in observation.shown) == listed
+        by_box = [item.internal_id for item in observation.shown].index(step.internal_id)
+        action = step.action
+        assert isinstance(action, Action)
+        exact.step(replace(action, object_id=by_box))
+        if not exact.done:
+            observation = exact.observe()
+    assert exact.done
+    assert exact.final_poses() == seen.poses
+    assert exact.metrics().overall == seen.metrics.overall
 
 
 def test_exact_mode_records_have_no_mode_keys():
@@ -152,16 +170,22 @@ def test_bench_task_records_with_modes_are_valid_records():
     assert 0.0 <= errors["heightmap_mae_mm"] < 10.0  # stereo over an empty container
 
 
+def _unidentified(exact: Perception, scene: Scene, hidden: tuple[int, ...]) -> Perception:
+    """``exact`` with the buffered boxes at positions ``hidden`` left unlisted, as a look that
+    fails the robot's check (each hidden box under a segment that was not box-like)."""
+    listed = tuple(i for i in range(len(scene.shown)) if i not in hidden)
+    sizes = tuple(exact.sizes_mm[i] for i in listed)
+    return replace(exact, sizes_mm=sizes, picks=listed, missed=hidden, clean=False, cleared=hidden)
+
+
 def _missing_first_box(scene: Scene, rng: np.random.Generator) -> Perception:
-    """A stub perceiver: never finds the case's first box while it is shown."""
+    """A stub perceiver: never identifies the case's first box while it is buffered."""
     exact = exact_perceiver(scene, rng)
-    missed = tuple(i for i, index in enumerate(scene.shown) if index == 0)
-    sizes = tuple((0, 0, 0) if i in missed else s for i, s in enumerate(exact.sizes_mm))
-    return replace(exact, sizes_mm=sizes, missed=missed)
+    return _unidentified(exact, scene, tuple(i for i, j in enumerate(scene.shown) if j == 0))
 
 
 def _missing_first_box_once():
-    """A stub perceiver: does not find the case's first box the first time it is shown."""
+    """A stub perceiver: does not identify the case's first box the first time it is buffered."""
     looks = []
 
     def perceiver(scene: Scene, rng: np.random.Generator) -> Perception:
@@ -169,9 +193,7 @@ def _missing_first_box_once():
         if 0 not in scene.shown or looks:
             return exact
         looks.append(1)
-        missed = (scene.shown.index(0),)
-        sizes = tuple((0, 0, 0) if i in missed else s for i, s in enumerate(exact.sizes_mm))
-        return replace(exact, sizes_mm=sizes, missed=missed)
+        return _unidentified(exact, scene, (scene.shown.index(0),))
 
     return perceiver
 
@@ -180,9 +202,10 @@ def test_an_object_not_found_once_stays_in_the_buffer_and_is_packed_after_anothe
     case = make_layered_case(0, pieces=5)
     episode = Episode("geometric", perceiver=_missing_first_box_once())
     observation = episode.reset(case, 0)
-    # Held back, not set aside: the policy is shown the rest of the window.
+    # Left in the buffer, not set aside and not replaced: the policy is shown the rest of the
+    # buffer, and no box from further down the stream.
     assert episode.looked_again == 1 and episode.missed == 0
-    assert len(observation.shown) == min(case.buffer_size, len(case.objects) - 1)
+    assert len(observation.shown) == min(case.buffer_size, len(case.objects)) - 1
     result = run_episode(case, make_policy("dblf"), 0, "geometric",
                          perceiver=_missing_first_box_once())  # fmt: skip
     assert result.missed == 0 and result.looked_again == 1
@@ -214,6 +237,52 @@ def test_missed_objects_are_set_aside_counted_and_never_shown():
     assert result.missed == 1 and result.to_record()["metrics"]["missed"] == 1
     # Looked at again at the observations before it was given up.
     assert result.looked_again == LOOKS_BEFORE_SET_ASIDE - 1
+
+
+def _blob_over_the_next_box(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver: never identifies the case's first box, and the segment it could not
+    identify lies over another buffered box (the first one after box 0 in the scene)."""
+    exact = exact_perceiver(scene, rng)
+    if 0 not in scene.shown:
+        return exact
+    hidden = scene.shown.index(0)
+    others = [i for i in range(len(scene.shown)) if i != hidden]
+    unidentified = _unidentified(exact, scene, (hidden,))
+    return replace(unidentified, cleared=(others[0],) if others else (hidden,))
+
+
+def test_the_robot_clears_the_box_under_what_it_could_not_identify():
+    """After three looks that fail the robot's check it clears the segment it could not
+    identify: the box under it leaves, which need not be the box it failed to identify."""
+    case = make_layered_case(0, pieces=5)
+    result = run_episode(case, make_policy("dblf"), 0, "geometric",
+                         perceiver=_blob_over_the_next_box)  # fmt: skip
+    processed = [s.internal_id for s in result.steps]
+    first = case.objects[0].internal_id
+    # Box 0 was never identified, so every clearing took another box until box 0 was alone.
+    assert first not in processed and result.missed >= 2
+    assert len(processed) == len(case.objects) - result.missed
+
+
+def _reads_nothing_while_box_0_is_buffered(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver: lists nothing and sees no segment it could clear while box 0 is in the
+    buffer."""
+    exact = exact_perceiver(scene, rng)
+    if 0 not in scene.shown:
+        return exact
+    everything = tuple(range(len(scene.shown)))
+    return replace(_unidentified(exact, scene, everything), cleared=())
+
+
+def test_a_buffer_the_robot_cannot_read_is_cleared_after_three_looks():
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_reads_nothing_while_box_0_is_buffered)
+    observation = episode.reset(case, 0)
+    buffered = min(case.buffer_size, len(case.objects))
+    # Looked three times at once (nothing to pick), then the whole buffer was cleared.
+    assert episode.missed == buffered
+    assert episode.looked_again == (LOOKS_BEFORE_SET_ASIDE - 1) * buffered
+    assert len(observation.shown) == min(case.buffer_size, len(case.objects) - buffered)
 
 
 def _swapped_sides(scene: Scene, rng: np.random.Generator) -> Perception:

@@ -14,14 +14,10 @@ bench maps the answer back onto the episode and carries it out as the in-process
   another packlab version, or one that cannot serve a policy the bench runs.
 
 Which true box the service's answer names is the simulator's bookkeeping, as in perceived mode:
-the service names a box by its segment in the buffer image, the simulator knows which shown box
-each segment lies on (``sensing.buffer``'s assignment), and the robot picks that one.
-
-The service lists the buffer's boxes in the order of their segments in the image, the
-in-process perceived mode in the simulator's order of the buffer window. Where a policy breaks a
-tie by a box's place in the list (two cartons of the same measured size, or two choices it
-scores the same), the two runs may take the other one; otherwise their records are the same,
-times aside (docs/cell.md).
+the service names a box by its segment in the buffer image, and the robot picks the box under
+that segment (``sensing.buffer``). The service and the in-process perceived mode list the
+buffer's box-like segments in the same order, their labels' in the image, so the two runs' records
+are the same, times aside (docs/cell.md).
 """
 
 from __future__ import annotations
@@ -192,9 +188,10 @@ class CellPolicy:
 def episode_action(answer: schema.StepAnswer, state: PerceivedState) -> Action | Unparsable:
     """The episode's action for the service's ``answer`` to the step ``state`` perceived: the
     policy's own answer, its ``object_id`` (an index into the service's ``boxes``, the buffer
-    image's box-like segments in order) turned into the index of the shown box that segment
-    lies on. An index the service's boxes do not have stays out of range; a segment that lies
-    on no shown box (or on two) names none, an index past the shown ones."""
+    image's box-like segments in label order) turned into the index of that segment among the
+    boxes the episode shows (the same segments, less any that lies on no box: it names none,
+    an index past the shown ones). An index the service's boxes do not have stays out of
+    range."""
     action = answer.action
     if action is None:
         return Unparsable(text="", error="the cell service's policy gave no readable answer")
@@ -203,14 +200,12 @@ def episode_action(answer: schema.StepAnswer, state: PerceivedState) -> Action |
             f"the cell service found {len(answer.boxes)} boxes on the buffer image where the "
             f"simulated robot found {len(state.buffer.found)}: not the same perception"
         )
-    shown = len(state.buffer.estimates)
+    listed = state.buffer.listed
     object_id = action.object_id
     if 0 <= object_id < len(answer.boxes):
-        segment = state.buffer.found[object_id]
-        lies_on = [i for i, e in enumerate(state.buffer.estimates) if e is segment]
-        object_id = lies_on[0] if lies_on else shown
+        object_id = listed.index(object_id) if object_id in listed else len(listed)
     elif object_id >= 0:
-        object_id += shown  # out of range there, out of range here
+        object_id += len(listed)  # out of range there, out of range here
     return Action(object_id=object_id, rotation=action.rotation, x=action.x, y=action.y)
 
 

@@ -74,9 +74,10 @@ from packlab.sim.placement import (
 )
 from packlab.sim.replan import Perceiver, Perception, ReplanRule, deviates
 
-#: Observations at which an object must go unfound before it is set aside (perceived mode): the
-#: first, and two more after the boxes beside it changed. Each observation's perception already
-#: scans the buffer twice (``sensing.buffer.MAX_SCANS``).
+#: Looks in a row that fail the robot's own check (as many box-like segments as the buffer holds
+#: and no other) before it clears what it could not identify (perceived mode): the first, and
+#: two more after the boxes beside it changed. Each look already scans the buffer twice
+#: (``sensing.buffer.MAX_SCANS``).
 LOOKS_BEFORE_SET_ASIDE = 3
 
 #: The re-plan threshold of perceived-mode episodes (``packlab.sim.replan.ReplanRule``).
@@ -100,6 +101,7 @@ class Episode:
     _case: Case
     _backend: TransitionBackend
     _shown_indices: list[int]
+    _buffered: list[int]  # perceived mode: the case indices in the buffer, as it was looked at
     _shown: tuple[ShownItem, ...]
     _perception: Perception
 
@@ -160,11 +162,11 @@ class Episode:
         self._heightmap = self._backend.reset(case.container, case.objects)
         self._pending = list(range(len(case.objects)))
         self._set_aside: set[int] = set()
-        self.missed = 0  # objects perception did not find, set aside (perceived mode)
-        #: Perceived mode: observations at which each object was not found (case index -> n);
-        #: one that reaches ``LOOKS_BEFORE_SET_ASIDE`` is set aside.
-        self._not_found: dict[int, int] = {}
-        self.looked_again = 0  # objects left in the buffer unidentified for another look
+        self.missed = 0  # boxes the robot cleared off the buffer unidentified (perceived mode)
+        #: Perceived mode: looks in a row that failed the robot's check of the buffer; at
+        #: ``LOOKS_BEFORE_SET_ASIDE`` it clears what it could not identify.
+        self._unclear_looks = 0
+        self.looked_again = 0  # boxes left in the buffer unidentified for another look
         self._next_seen_id = 0  # the next fresh id a perceived box is shown under
         self._history: list[HistoryEntry] = []
         self.steps = []
@@ -178,23 +180,26 @@ class Episode:
         self._stop_if_stuck()
         return self.observe()
 
-    def _perceive(self) -> list[int]:
-        """Perceived mode: look at the scene after the buffer was refilled (no-op otherwise).
-        Returns the case indices of the shown objects perception missed."""
+    def _perceive(self) -> None:
+        """Perceived mode: look at the buffer (``_shown_indices``, as refilled) and the
+        container, and show the boxes the robot lists, in its order (no-op otherwise)."""
         if self._perceiver is None:
-            return []
+            return
+        self._buffered = self._shown_indices
         self._perception = perceive(
             self._perceiver,
             self._case,
             self._heightmap,
             self._backend.poses(),
-            self._shown_indices,
+            self._buffered,
             self._perception_rng,
         )
+        listed = self._perception.listed_boxes(len(self._buffered))
+        self._shown_indices = [self._buffered[p] for p in listed]
         first_id = self._next_seen_id
-        self._next_seen_id += len(self._shown)
-        self._shown = seen_items(self._shown, self._perception, self._case, first_id)
-        return [self._shown_indices[i] for i in self._perception.missed]
+        self._next_seen_id += len(listed)
+        items = exact_items(self._case, self._shown_indices, self._sides)
+        self._shown = seen_items(items, self._perception, self._case, first_id)
 
     def _turned(self, object_id: int, rotation: int) -> int:
         """The box's own rotation that does what the policy chose: the policy's rotation refers
@@ -230,30 +235,35 @@ class Episode:
         return self._heightmap
 
     def _reshuffle(self) -> int:
-        """Show the next objects and perceive them. An object perception did not find stays in
-        the buffer, not shown to the policy, and is looked at again at the next observation,
-        when the boxes beside it have changed (a robot cell picks what it can identify and
-        scans again); the window is refilled meanwhile. One not found at
-        ``LOOKS_BEFORE_SET_ASIDE`` observations is set aside (as a robot cell passes it on) and
-        counted as missed. Returns the final settle's steps when that emptied the stream, else
-        0."""
-        held_back: set[int] = set()
+        """Refill the buffer and show it (perceived mode: look at it).
+
+        In perceived mode the policy is shown the boxes the robot lists. A buffered box it did
+        not identify keeps its place in the buffer, unshown, and is looked at again at the next
+        observation, when the boxes beside it have changed (a cell picks what it can identify
+        and scans again; the buffer refills only for what left it). The robot checks each look
+        itself (as many box-like segments as the buffer holds, and no other); after
+        ``LOOKS_BEFORE_SET_ASIDE`` looks in a row that fail it, it clears what it could not
+        identify: the boxes under its segments that were not box-like leave the buffer (set
+        aside, counted as missed); where it saw no such segment and can list nothing, the
+        buffer's remaining boxes do (a person clears a buffer the robot cannot read). Returns
+        the final settle's steps when that emptied the stream, else 0."""
         while True:
-            self._show_window(held_back)
-            if not self._shown_indices and held_back:
-                # Only unidentified objects are left: look at them again now. Terminates: every
-                # miss counts towards a set-aside.
-                held_back.clear()
-                continue
-            missed = self._perceive()
-            if not missed:
+            self._show_window()
+            self._perceive()
+            if self._perceiver is None:
                 return 0
-            for index in missed:
-                self._not_found[index] = self._not_found.get(index, 0) + 1
-                if self._not_found[index] < LOOKS_BEFORE_SET_ASIDE:
-                    held_back.add(index)
-                    self.looked_again += 1
-                    continue
+            perception = self._perception
+            self._unclear_looks = 0 if perception.clean else self._unclear_looks + 1
+            if self._unclear_looks < LOOKS_BEFORE_SET_ASIDE:
+                self.looked_again += len(perception.missed)
+                if self._shown:
+                    return 0
+                continue  # nothing to pick: look again now
+            self._unclear_looks = 0
+            cleared = [self._buffered[p] for p in perception.cleared]
+            if not cleared and not self._shown:
+                cleared = [self._buffered[p] for p in perception.missed]
+            for index in dict.fromkeys(cleared):  # each box once, in order
                 self._set_aside.add(index)
                 self._pending.remove(index)
                 self.missed += 1
@@ -261,13 +271,14 @@ class Episode:
                 settle_steps = self._final_settle()
                 self._show_nothing()
                 return settle_steps
+            if not cleared:
+                return 0  # listed boxes and nothing to clear: the policy acts on them
 
-    def _show_window(self, held_back: set[int] | frozenset[int] = frozenset()) -> None:
-        """Show the window of the stream, without the objects ``held_back`` (perceived mode:
-        in the buffer but not identified at this observation)."""
-        candidates = [i for i in self._pending if i not in held_back]
-        shown = self._protocol.shown_count(self._case.buffer_size, len(candidates))
-        window = visible_window(candidates, shown)
+    def _show_window(self) -> None:
+        """Show the window of the stream: in perceived mode the buffer's boxes, which the
+        robot then looks at (``_perceive``)."""
+        shown = self._protocol.shown_count(self._case.buffer_size, len(self._pending))
+        window = visible_window(self._pending, shown)
         # Online: shown in arrival order (the first is the one to place), no shuffle drawn.
         self._shown_indices = window if self._protocol.online else shuffled_view(window, self._rng)
         self._shown = exact_items(self._case, self._shown_indices, self._sides)
@@ -410,7 +421,8 @@ class Episode:
         z = placement_height(seen, x, y, fx, fy)
         cell = self._case.container.cell_xy_mm
         drop = (x * cell, y * cell, z)
-        executed = self._executed_drop(index, (fx, fy), drop)
+        position = int(action.object_id)
+        executed = self._executed_drop(position, (fx, fy), drop)
         command = (
             None if executed is None else place_command(item.size_mm, chosen, drop, seen, executed)
         )
@@ -418,7 +430,7 @@ class Episode:
         redraw = (
             None
             if self._execution is None
-            else arm_redraw(self._execution, self._execution_rng, self._grasp_error(index))
+            else arm_redraw(self._execution, self._execution_rng, self._grasp_error(position))
         )
         placed, skill = carry_out(self._backend, index, rotation, drop, executed, command, redraw)
         self._last_settle = placed
@@ -447,25 +459,26 @@ class Episode:
         """The heightmap the policy sees: the perceived one in perceived mode, else the exact."""
         return self._heightmap if self._perceiver is None else self._perception.heightmap
 
-    def _grasp_error(self, index: int) -> tuple[float, float, float]:
-        """The grasped box's pose-estimate error (perceived mode; none otherwise)."""
+    def _grasp_error(self, position: int) -> tuple[float, float, float]:
+        """The pose-estimate error of the shown box at ``position`` (perceived mode; none
+        otherwise)."""
         if self._perceiver is None:
             return NO_GRASP_ERROR
-        return grasp_error(self._perception, self._shown_indices, index)
+        return grasp_error(self._perception, position)
 
     def _executed_drop(
-        self, index: int, footprint_cells: tuple[int, int], drop: tuple[int, int, int]
+        self, position: int, footprint_cells: tuple[int, int], drop: tuple[int, int, int]
     ) -> ExecutedDrop | None:
         """Noisy execution: the drop as the robot executes it (None in exact execution), with,
-        in perceived mode, the grasped box's pose-estimate error; ``footprint_cells`` is the
-        footprint the robot believes in (of the size it was shown)."""
+        in perceived mode, the pose-estimate error of the shown box at ``position``;
+        ``footprint_cells`` is the footprint the robot believes in (of the size it was shown)."""
         if self._execution is None:
             return None
         cell = self._case.container.cell_xy_mm
         return robot_drop(
             self._execution,
             self._execution_rng,
-            self._grasp_error(index),
+            self._grasp_error(position),
             self.observed_heightmap,
             drop,
             footprint_cells,

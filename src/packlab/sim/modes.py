@@ -77,7 +77,10 @@ def perception_of(state: PerceivedState) -> Perception:
         yaw_error_deg=tuple(float(v) for v in state.stats.yaw_error_deg),
         heightmap_mae_mm=float(state.stats.heightmap_mae_mm),
         grasp_errors=grasp,  # type: ignore[arg-type]
+        picks=state.picks,
         missed=state.missed,
+        clean=state.buffer.clean,
+        cleared=tuple(sorted({row for row in state.buffer.blobs if row >= 0})),
         axis_swapped=tuple(bool(v) for v in state.axis_swapped),
         scans=state.stats.scans,
     )

@@ -40,17 +40,21 @@ def perceive(
         shown=tuple(shown),
     )
     perception = perceiver(scene, rng)
-    if len(perception.sizes_mm) != len(shown):
+    listed = perception.listed_boxes(len(shown))
+    if len(perception.sizes_mm) != len(listed):
         raise ValueError(
-            f"perceiver returned {len(perception.sizes_mm)} sizes for {len(shown)} shown objects"
+            f"perceiver returned {len(perception.sizes_mm)} sizes for {len(listed)} listed boxes"
         )
+    if any(not 0 <= p < len(shown) for p in listed):
+        raise ValueError(f"perceiver picks {listed} outside the {len(shown)} buffered boxes")
     return perception
 
 
 def seen_items(
     shown: tuple[ShownItem, ...], perception: Perception, case: Case, first_id: int
 ) -> tuple[ShownItem, ...]:
-    """The buffer as the policy is shown it in perceived mode: the perceived sizes (cells
+    """The buffer as the policy is shown it in perceived mode: ``shown`` the listed boxes' exact
+    items (``Perception.listed_boxes``), given the perceived sizes (cells
     rounded up, as for exact sizes) under ids ``seen-<n>`` counted from ``first_id``, and no
     catalogue type.
 
@@ -81,15 +85,10 @@ def perceived_rotation(perception: Perception, object_id: int, rotation: int) ->
     return rotation ^ int(perception.axis_swapped[object_id])
 
 
-def grasp_error(
-    perception: Perception, shown: Sequence[int], index: int
-) -> tuple[float, float, float]:
-    """The error (dx mm, dy mm, dyaw deg) of the estimated pose of the object at case index
-    ``index`` among the ``shown`` ones; zeros when it is not shown or none is reported."""
-    if index not in shown:
-        return NO_GRASP_ERROR
+def grasp_error(perception: Perception, position: int) -> tuple[float, float, float]:
+    """The error (dx mm, dy mm, dyaw deg) of the estimated pose of the listed box at
+    ``position``; zeros where none is reported."""
     errors = perception.grasp_errors
-    position = list(shown).index(index)
     if position >= len(errors):
         return NO_GRASP_ERROR
     dx, dy, dyaw = errors[position]

@@ -39,29 +39,44 @@ class Perception:
     """What the perceiver recovered: the policy's observation in ``perceived`` mode."""
 
     heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, perceived container heightmap
-    sizes_mm: tuple[tuple[int, int, int], ...]  # perceived (l, w, h) mm per shown object, in order
+    #: Perceived (l, w, h) mm per listed box, in the order the robot lists them. Without
+    #: ``picks``, one per buffered box, in the scene's ``shown`` order.
+    sizes_mm: tuple[tuple[int, int, int], ...]
     #: Errors against the truth, where the perceiver reports them (for the robustness tables):
-    #: per shown object the largest size error (mm) and the yaw error (degrees), and the mean
+    #: per listed box the largest size error (mm) and the yaw error (degrees), and the mean
     #: absolute heightmap error over the container's cells (mm).
     dims_error_mm: tuple[float, ...] = ()
     yaw_error_deg: tuple[float, ...] = ()
     heightmap_mae_mm: float | None = None
-    #: Per shown object, how far the estimated pose of the box on the buffer is from its true
+    #: Per listed box, how far the estimated pose of the box on the buffer is from its true
     #: pose: (dx mm, dy mm, dyaw degrees), estimated minus true, world frame, yaw wrapped to the
     #: box's symmetry. A robot grasps and turns the box by its estimate, so this error travels
     #: into the placement: the estimated pose is put at the plan, the true box lands off by the
     #: error with its sign reversed (``execution.perturb_drop``). Empty: no error (exact).
     grasp_errors: tuple[tuple[float, float, float], ...] = ()
-    #: Shown objects the perceiver could not find or split after a re-scan (positions in the
-    #: scene's ``shown``): the episode leaves them in the buffer unshown and looks again at the
-    #: next observation, and sets one aside (counted) after ``LOOKS_BEFORE_SET_ASIDE`` misses.
+    #: Simulator bookkeeping per listed box: the buffered box a pick at it takes (its position
+    #: in the scene's ``shown``). None: the listed boxes are the buffered ones, in order.
+    picks: tuple[int, ...] | None = None
+    #: Buffered boxes no listed box stands for (positions in the scene's ``shown``): they stay
+    #: in the buffer, unshown, and are looked at again at the next observation.
     missed: tuple[int, ...] = ()
-    #: Simulator bookkeeping per shown object: True where the perceived first side (the longer
+    #: The robot's own check of the look: as many box-like segments as the buffer holds and no
+    #: other. After ``LOOKS_BEFORE_SET_ASIDE`` looks in a row that fail it the episode clears
+    #: ``cleared``.
+    clean: bool = True
+    #: The buffered boxes (positions in the scene's ``shown``) under the segments the robot could
+    #: not identify (not box-like): what it takes off the buffer when it clears it.
+    cleared: tuple[int, ...] = ()
+    #: Simulator bookkeeping per listed box: True where the perceived first side (the longer
     #: one: a camera cannot see which side a catalogue calls l) is the box's own w side, so the
     #: episode turns the box by the other rotation to do what the policy chose. Empty: none.
     axis_swapped: tuple[bool, ...] = ()
     #: Looks at the buffer this perception took (2: one re-scan; None: not reported).
     scans: int | None = None
+
+    def listed_boxes(self, shown: int) -> tuple[int, ...]:
+        """Per listed box, its position among the ``shown`` buffered boxes."""
+        return tuple(range(shown)) if self.picks is None else self.picks
 
 
 class Perceiver(Protocol):

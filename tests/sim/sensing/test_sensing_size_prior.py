@@ -32,7 +32,9 @@ def _sizes(prior: str | None, preset: str = "structured-light", seed: int = 0) -
         **kwargs,
     )
     assert not state.missed
-    return np.asarray(state.shown_sizes_mm)
+    # Listed in the segments' order: row j is the buffered box a pick at it takes.
+    order = np.argsort(state.picks)
+    return np.asarray(state.shown_sizes_mm)[order]
 
 
 def test_the_quanta_of_each_prior():

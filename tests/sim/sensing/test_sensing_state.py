@@ -10,7 +10,7 @@ from sensing_scenes import packed_layered_case
 
 import packlab.sim.sensing.buffer as buffer_module
 from packlab.core.errors import ConfigError
-from packlab.sim.sensing import SENSOR_PRESETS, perceive_state
+from packlab.sim.sensing import SENSOR_PRESETS, DepthImage, perceive_state
 from packlab.sim.sensing.perception import EstimatedBox
 
 SHOWN = np.array([[400, 300, 100], [75, 100, 80], [200, 200, 90], [1000, 450, 200], [125, 75, 88]])
@@ -40,8 +40,11 @@ def test_zero_noise_perception_is_exact(segmentation):
     assert state.heightmap.dtype == np.int32 and state.heightmap.shape == case.container.cells
     # Longer side first: which side the catalogue calls l is not something a camera sees.
     long_first = np.column_stack([SHOWN[:, :2].max(axis=1), SHOWN[:, :2].min(axis=1), SHOWN[:, 2]])
-    np.testing.assert_array_equal(state.shown_sizes_mm, long_first)
-    np.testing.assert_array_equal(state.axis_swapped, SHOWN[:, 0] < SHOWN[:, 1])
+    # Listed in the segments' order, each box once; row j is the box a pick at it takes.
+    picks = list(state.picks)
+    assert sorted(picks) == list(range(len(SHOWN))) and state.buffer.clean
+    np.testing.assert_array_equal(state.shown_sizes_mm, long_first[picks])
+    np.testing.assert_array_equal(state.axis_swapped, (SHOWN[:, 0] < SHOWN[:, 1])[picks])
     assert state.stats.heightmap_mae_mm == 0.0 and state.stats.missed == 0
     assert np.all(state.stats.dims_error_mm == 0) and np.all(state.stats.yaw_error_deg < 2.0)
     # centres within a few pixels (a groove pixel or two may go to the neighbour)
@@ -162,9 +165,9 @@ def test_the_sizes_shown_are_the_estimates_never_the_true_sizes(monkeypatch):
     assert np.all(state.stats.dims_error_mm > 0)
 
 
-def test_missed_objects_are_rescanned_then_reported_with_no_size(monkeypatch):
-    """A box the estimator never returns is looked for again, then reported missed: its size
-    row is zero (nothing leaks) and its errors NaN."""
+def test_missed_objects_are_rescanned_then_left_unlisted(monkeypatch):
+    """A box the estimator never returns is looked for again, then reported missed: it is not
+    listed (nothing of it leaks), and the look fails the robot's own check."""
     case, sizes, positions, quats, _ = _packed()
     real = buffer_module.estimate_objects
 
@@ -177,8 +180,10 @@ def test_missed_objects_are_rescanned_then_reported_with_no_size(monkeypatch):
     )
     assert state.missed == (1,) and state.stats.missed == 1
     assert state.stats.scans == buffer_module.MAX_SCANS  # looked again before giving up
-    assert not state.shown_sizes_mm[1].any() and np.isnan(state.stats.dims_error_mm[1])
-    assert state.shown_sizes_mm[[0, 2, 3, 4]].all()
+    # Not listed at all (nothing leaks), and the robot's own check of the look failed.
+    assert 1 not in state.picks and len(state.picks) == len(SHOWN) - 1
+    assert state.shown_sizes_mm.shape == (len(SHOWN) - 1, 3) and state.shown_sizes_mm.all()
+    assert np.isfinite(state.stats.dims_error_mm).all() and not state.buffer.clean
 
 
 def test_touching_boxes_are_found_and_measured_from_depth_alone():
@@ -222,3 +227,23 @@ def test_empty_container_and_empty_buffer():
     assert (
         state.heightmap.shape == case.container.cells and state.heightmap.max() < 10
     )  # floor noise only
+
+
+def test_a_pick_takes_the_box_under_the_segments_estimated_centre():
+    """The simulator's side of a pick: the true box at the segment's pixel nearest the centre
+    the robot estimated; a segment over no box picks nothing (-1)."""
+    ids = np.full((8, 4), -1, dtype=np.int32)
+    ids[0:4, :] = 0  # box 0 under x = 0-4 mm
+    ids[4:6, :] = 1  # box 1 under x = 4-6 mm
+    labels = np.full((8, 4), -1, dtype=np.int32)
+    labels[0:6, :] = 0  # one segment over both boxes (merged)
+    labels[6:8, :] = 1  # one over the table only (noise)
+    image = DepthImage(np.zeros((8, 4)), ids, (0.0, 0.0), 1.0, 100.0)
+
+    def segment(label, x_mm):
+        return EstimatedBox(label, (25, 25, 2), (6.0, 4.0, 2.0), (x_mm, 2.0, 2.0), 0.0)
+
+    assert buffer_module._picks(image, labels, (segment(0, 5.2), segment(1, 7.0))) == (1, -1)
+    assert buffer_module._picks(image, labels, (segment(0, 1.0),)) == (0,)
+    # A centre off the segment: its nearest pixel on a box decides.
+    assert buffer_module._picks(image, labels, (segment(0, 30.0),)) == (1,)

@@ -42,11 +42,12 @@ from packlab.sim.sensing.presets import SENSOR_PRESETS, SensorPreset, sensor_pre
 class PerceptionStats:
     """How far perception was from the truth at one step (NaN for a missed object)."""
 
-    dims_error_mm: np.ndarray  # (k,) float64 max |estimated - true| over (l, w, h), snapped sizes
-    raw_dims_error_mm: np.ndarray  # (k,) float64 the same before snapping to the grids
-    yaw_error_deg: np.ndarray  # (k,) float64 |estimated - true| yaw of the long axis, degrees
+    #: Per listed box (``PerceivedState.picks``), against the box a pick at it takes:
+    dims_error_mm: np.ndarray  # (m,) float64 max |estimated - true| over (l, w, h), snapped sizes
+    raw_dims_error_mm: np.ndarray  # (m,) float64 the same before snapping to the grids
+    yaw_error_deg: np.ndarray  # (m,) float64 |estimated - true| yaw of the long axis, degrees
     heightmap_mae_mm: float  # mean |perceived - exact| over the container's cells, mm
-    missed: int  # shown objects no box-like segment was found for (the episode sets them aside)
+    missed: int  # buffered boxes no listed segment takes (left in the buffer, unidentified)
     scans: int = 1  # looks at the buffer this step took (2: one re-scan)
 
 
@@ -55,22 +56,26 @@ class PerceivedState:
     """What a policy sees in perceived mode, and the intermediate data (for figures)."""
 
     heightmap: np.ndarray  # (x_cells, y_cells) int32 mm, perceived
-    #: (k, 3) int64 estimated (long side, short side, height) mm per shown object; 0 if missed.
-    #: Longer side first: which side a catalogue calls l is a label no camera can see.
+    #: (m, 3) int64 estimated (long side, short side, height) mm per listed box: the buffer's
+    #: box-like segments in label order (``BufferPerception.listed``). Longer side first: which
+    #: side a catalogue calls l is a label no camera can see.
     shown_sizes_mm: np.ndarray
     stats: PerceptionStats
     container_image: DepthImage  # noisy depth image over the container
     buffer: BufferPerception  # the last scan of the buffer and its segments
-    #: Simulator bookkeeping per shown object: the estimated long axis is the true box's w axis
+    #: Simulator bookkeeping per listed box: the buffered box (its row in the ``shown`` sizes) a
+    #: pick at it takes; two entries are the same box where a box was cut in two pieces.
+    picks: tuple[int, ...]
+    #: Simulator bookkeeping per listed box: the estimated long axis is the true box's w axis
     #: (so the episode turns the box by the other rotation to do what the policy chose).
-    axis_swapped: np.ndarray  # (k,) bool
-    #: Per shown object (dx mm, dy mm, dyaw deg), estimated minus true pose on the buffer.
-    grasp_errors: np.ndarray  # (k, 3) float64; zeros for a missed object
+    axis_swapped: np.ndarray  # (m,) bool
+    #: Per listed box (dx mm, dy mm, dyaw deg), estimated minus true pose on the buffer.
+    grasp_errors: np.ndarray  # (m, 3) float64
 
     @property
     def missed(self) -> tuple[int, ...]:
-        """Positions (in shown order) of the objects perception did not find."""
-        return tuple(i for i, e in enumerate(self.buffer.estimates) if e is None)
+        """Rows of the buffered boxes no listed segment takes (not identified at this look)."""
+        return self.buffer.unpicked
 
 
 def perceive_state(
@@ -117,9 +122,12 @@ def perceive_state(
     buffer = perceive_buffer(shown, preset, buffer_rng, segmentation, grid, arrangement)
     sizes_out, swapped, grasp, errors = _compare_to_truth(shown, buffer)
     hm_error = float(np.mean(np.abs(heightmap.astype(np.int64) - exact))) if exact.size else 0.0
-    missed = sum(e is None for e in buffer.estimates)
+    missed = len(buffer.unpicked)
     stats = PerceptionStats(*errors, heightmap_mae_mm=hm_error, missed=missed, scans=buffer.scans)
-    return PerceivedState(heightmap, sizes_out, stats, container_image, buffer, swapped, grasp)
+    picks = tuple(buffer.picks[i] for i in buffer.listed)
+    return PerceivedState(
+        heightmap, sizes_out, stats, container_image, buffer, picks, swapped, grasp
+    )
 
 
 def _wrap(angle_deg: float, period: float) -> float:
@@ -130,33 +138,34 @@ def _wrap(angle_deg: float, period: float) -> float:
 def _compare_to_truth(
     shown: np.ndarray, buffer: BufferPerception
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(sizes, axis_swapped, grasp errors, (dims, raw dims, yaw errors)) per shown object.
+    """(sizes, axis_swapped, grasp errors, (dims, raw dims, yaw errors)) per listed box, each
+    compared with the buffered box a pick at it takes.
 
     The sizes are the estimates as measured (longer side first). Which true axis the estimated
     long axis is, and the errors, are the simulator's: the long axis is the true l axis when the
     two lie within 45 degrees, else the true w axis (a square box: always its l axis, yaws
     compared modulo 90 degrees).
     """
-    k = len(shown)
-    sizes = np.zeros((k, 3), dtype=np.int64)
-    swapped = np.zeros(k, dtype=bool)
-    grasp = np.zeros((k, 3))
-    dims, raw_dims, yaw = np.full(k, np.nan), np.full(k, np.nan), np.full(k, np.nan)
-    for i, est in enumerate(buffer.estimates):
-        if est is None:
-            continue
-        sizes[i] = est.size_mm
+    listed = buffer.listed
+    m = len(listed)
+    sizes = np.zeros((m, 3), dtype=np.int64)
+    swapped = np.zeros(m, dtype=bool)
+    grasp = np.zeros((m, 3))
+    dims, raw_dims, yaw = np.full(m, np.nan), np.full(m, np.nan), np.full(m, np.nan)
+    for j, segment in enumerate(listed):
+        est, i = buffer.found[segment], buffer.picks[segment]
+        sizes[j] = est.size_mm
         true_yaw = float(np.degrees(buffer.scene.yaws_rad[i]))
         square = shown[i, 0] == shown[i, 1]
-        swapped[i] = not square and abs(_wrap(est.yaw_deg - true_yaw, 180.0)) > 45.0
-        axis_yaw = true_yaw + (90.0 if swapped[i] else 0.0)
+        swapped[j] = not square and abs(_wrap(est.yaw_deg - true_yaw, 180.0)) > 45.0
+        axis_yaw = true_yaw + (90.0 if swapped[j] else 0.0)
         dyaw = _wrap(est.yaw_deg - axis_yaw, 90.0 if square else 180.0)
-        truth = shown[i][[1, 0, 2]] if swapped[i] else shown[i]
-        dims[i] = np.max(np.abs(sizes[i] - truth))
-        raw_dims[i] = np.max(np.abs(np.asarray(est.raw_size_mm) - truth))
-        yaw[i] = abs(dyaw)
+        truth = shown[i][[1, 0, 2]] if swapped[j] else shown[i]
+        dims[j] = np.max(np.abs(sizes[j] - truth))
+        raw_dims[j] = np.max(np.abs(np.asarray(est.raw_size_mm) - truth))
+        yaw[j] = abs(dyaw)
         centre = buffer.scene.positions_mm[i, :2]
-        grasp[i] = (est.top_centre_mm[0] - centre[0], est.top_centre_mm[1] - centre[1], dyaw)
+        grasp[j] = (est.top_centre_mm[0] - centre[0], est.top_centre_mm[1] - centre[1], dyaw)
     return sizes, swapped, grasp, (dims, raw_dims, yaw)
 
 

@@ -8,11 +8,17 @@ not the count of boxes, it looks again after the boxes were moved (a new random 
 tote shaken or a conveyor advanced), up to ``MAX_SCANS`` scans, and keeps the box-like
 segments of the last one.
 
-The simulator's side, ``_assign``, then decides which true box each kept segment stands for:
-the box under the segment's centre, where a gripper aimed at that segment would pick. A box no
-kept segment lies on, or more than one does, is *missed*: the episode sets it aside and counts
-it (a robot cell would pass it to a person). Ground truth is used only there and for the error
-statistics, never by the estimate.
+The robot lists the box-like segments of the last scan in the order of their labels, the
+order in which the segmentation numbers them in the image (what ``packlab cell serve`` lists
+for the same image). A gripper aimed at a listed segment takes the box physically under it:
+the simulator's side, ``_picks``, reads the true id of the segment's pixel nearest the centre
+the robot estimated. So a box the segmentation cut into two box-like pieces is listed twice
+(either pick takes the whole box), and of two boxes merged into one box-like segment only the
+one under its centre is listed. A segment lying on no box at all (sensor noise over the
+table) is left out: a cell's pick there finds nothing. The segments that are not box-like are
+the ones a robot clears when it cannot identify the buffer (``BufferPerception.blobs``: the
+box under each one's centre, taken the same way). Ground truth is used only for what a pick
+physically takes and for the error statistics, never by the estimate or the list.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from packlab.core.choices import Segmentation
 from packlab.sim.sensing.camera import (
@@ -55,9 +62,29 @@ class BufferPerception:
     scene: BufferScene  # the true layout of that scan (figures, statistics)
     image: DepthImage  # its noisy depth image
     labels: np.ndarray  # (nx, ny) int32 segmentation, -1 none
-    found: tuple[EstimatedBox, ...]  # every box-like segment's estimate (what the robot has)
-    estimates: tuple[EstimatedBox | None, ...]  # per shown object: the segment it is picked by
+    found: tuple[EstimatedBox, ...]  # every box-like segment's estimate, in label order
+    #: Per ``found`` segment, the scene row of the box a gripper aimed at it takes (the
+    #: simulator's side); -1: no box lies under the segment.
+    picks: tuple[int, ...]
+    #: Per segment that was not box-like, the scene row of the box under its centre (-1: none):
+    #: what a robot clearing the segments it could not identify takes off the buffer.
+    blobs: tuple[int, ...]
+    #: The robot's own check: as many box-like segments as the buffer holds, and no other.
+    clean: bool
     scans: int  # how many scans it took (1: no re-scan)
+
+    @property
+    def listed(self) -> tuple[int, ...]:
+        """Positions in ``found`` of the segments the robot is shown to pick from: every
+        box-like segment that lies on a box, in label order."""
+        return tuple(i for i, row in enumerate(self.picks) if row >= 0)
+
+    @property
+    def unpicked(self) -> tuple[int, ...]:
+        """Scene rows of the boxes no listed segment takes (the simulator's count of boxes the
+        robot did not identify at this look)."""
+        taken = set(self.picks)
+        return tuple(i for i in range(len(self.scene.positions_mm)) if i not in taken)
 
 
 def perceive_buffer(
@@ -80,12 +107,12 @@ def perceive_buffer(
         found = tuple(e for e in everything if is_box_like(e, pixels[e.label], image.pixel_mm))
         if len(found) == len(everything) == k:
             break
-    if segmentation == "truth":  # the ablation: the true masks say which box is which
-        by_label = {e.label: e for e in found}
-        estimates = tuple(by_label.get(i) for i in range(k))
-    else:
-        estimates = _assign(found, scene, shown)
-    return BufferPerception(scene, image, labels, found, estimates, scans)
+    blobs = tuple(e for e in everything if all(e is not f for f in found))
+    picks = _picks(image, labels, found)
+    clean = len(found) == len(everything) == k
+    return BufferPerception(
+        scene, image, labels, found, picks, _picks(image, labels, blobs), clean, scans
+    )
 
 
 def _segment(image: DepthImage, preset: SensorPreset, segmentation: Segmentation) -> np.ndarray:
@@ -117,21 +144,27 @@ def is_box_like(estimate: EstimatedBox, pixels: int, pixel_mm: float) -> bool:
     return pixels * pixel_mm**2 >= MIN_FILL * long_mm * short_mm
 
 
-def _assign(
-    found: tuple[EstimatedBox, ...], scene: BufferScene, shown: np.ndarray
-) -> tuple[EstimatedBox | None, ...]:
-    """Per shown object the one segment whose centre lies on it (simulator side), else None."""
-    k = len(shown)
-    hits: list[list[EstimatedBox]] = [[] for _ in range(k)]
-    cos, sin = np.cos(scene.yaws_rad), np.sin(scene.yaws_rad)
-    for estimate in found:
-        dx = estimate.top_centre_mm[0] - scene.positions_mm[:, 0]
-        dy = estimate.top_centre_mm[1] - scene.positions_mm[:, 1]
-        u, v = cos * dx + sin * dy, -sin * dx + cos * dy  # in each box's own frame
-        inside = (np.abs(u) <= shown[:, 0] / 2) & (np.abs(v) <= shown[:, 1] / 2)
-        for i in np.flatnonzero(inside):
-            hits[i].append(estimate)
-    return tuple(h[0] if len(h) == 1 else None for h in hits)
+def _picks(
+    image: DepthImage, labels: np.ndarray, segments: tuple[EstimatedBox, ...]
+) -> tuple[int, ...]:
+    """Per segment, the scene row of the box a gripper aimed at its estimated centre takes (the
+    simulator's side): the true id at the segment's pixel nearest that centre, of its pixels
+    that lie on a box; -1 where none does."""
+    if not segments:
+        return ()
+    xs, ys = image.pixel_centres()
+    windows = ndimage.find_objects(np.maximum(labels + 1, 0))
+    out = []
+    for segment in segments:
+        window = windows[segment.label]
+        on_box = (labels[window] == segment.label) & (image.ids[window] >= 0)
+        if not on_box.any():
+            out.append(-1)
+            continue
+        cx, cy = segment.top_centre_mm[:2]
+        distance = (xs[window][on_box] - cx) ** 2 + (ys[window][on_box] - cy) ** 2
+        out.append(int(image.ids[window][on_box][int(np.argmin(distance))]))
+    return tuple(out)
 
 
 __all__ = [
