@@ -151,3 +151,26 @@ def test_buffer_names_sides_longer_first_by_default_and_catalogue_on_request():
     assert (own["buffer"] != named["buffer"]).any()
     assert ListedActionEnv("irbpp", [case])._episode._sides == "longer-first"
     assert ListedActionEnv("irbpp", [case], sides="catalogue")._episode._sides == "catalogue"
+
+
+@pytest.mark.parametrize("size_prior", ["grid", "none"])
+def test_the_perceived_env_takes_the_size_prior(size_prior):
+    """Pack-v0 and the RL agents' env pass ``size_prior`` to perception: off-grid cartons are
+    shown snapped to the 25 mm / 2 mm grids with ``grid`` and as measured with ``none``."""
+    from packlab.datagen.config import CaseConfig
+    from packlab.datagen.generator import build_case
+    from packlab.rl.envs import ListedActionEnv
+
+    case = build_case(2**51 + 17, "easy", CaseConfig(sizes="off-grid"))
+    env = PackEnv([case], observation="perceived", noise="none", size_prior=size_prior)
+    obs, _ = env.reset(seed=0)
+    sizes = obs["buffer"][obs["buffer_mask"] == 1]
+    on_grid = (sizes[:, :2] % 25 == 0).all() and (sizes[:, 2] % 2 == 0).all()
+    assert on_grid == (size_prior == "grid")
+    rl_env = ListedActionEnv("irbpp", [case], observation="perceived", noise="none",
+                             size_prior=size_prior)  # fmt: skip
+    rl_env.reset(seed=0)
+    listed = np.array([s.size_mm for s in rl_env._episode.observe().shown])
+    assert (listed[:, :2] % 25 == 0).all() == (size_prior == "grid")
+    with pytest.raises(ConfigError, match="size_prior"):
+        PackEnv([case], observation="perceived", size_prior="cm")

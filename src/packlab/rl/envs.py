@@ -20,8 +20,9 @@ Reward: :class:`packlab.rl.rewards.StepReward` (default ``overall``: the return 
 Overall). ``info`` at the end holds ``metrics`` (``EpisodeMetrics.to_dict``), as Pack-v0's.
 
 Modes (as ``packlab bench``'s): ``observation="perceived"`` encodes what the simulated depth
-cameras recover under the ``noise`` preset, ``execution="noisy"`` (mujoco) executes each drop
-with the preset's robot noise; the reward is judged on the true state either way.
+cameras recover under the ``noise`` preset (sizes snapped to the container's grids, or not with
+``size_prior="none"``), ``execution="noisy"`` (mujoco) executes each drop with the preset's robot
+noise; the reward is judged on the true state either way.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from gymnasium import spaces
 from packlab.cases import load_cases
 from packlab.core.choices import (
     DEFAULT_SIDES,
+    DEFAULT_SIZE_PRIOR,
     DEFAULT_TAPNET_PLACEMENT,
     ExecutionMode,
     NoisePreset,
@@ -44,6 +46,7 @@ from packlab.core.choices import (
     RLAgent,
     RLReward,
     SideNames,
+    SizePrior,
     TapnetPlacement,
 )
 from packlab.core.types import Action, Case
@@ -96,10 +99,11 @@ class ListedActionEnv(gym.Env):
         noise: NoisePreset = DEFAULT_NOISE,
         sides: SideNames = DEFAULT_SIDES,
         placement: TapnetPlacement = DEFAULT_TAPNET_PLACEMENT,
+        size_prior: SizePrior = DEFAULT_SIZE_PRIOR,
     ) -> None:
         # The bench's modes (packlab.sim.modes): the agent sees the perceived state; the reward
         # is always judged on the true one. Exact observation names sides as the bench does.
-        modes = episode_modes(observation, execution, noise, sides=sides)
+        modes = episode_modes(observation, execution, noise, sides=sides, size_prior=size_prior)
         if cases is None:
             cases = demo_cases_path()
         self.cases = load_cases(cases) if isinstance(cases, (str, os.PathLike)) else list(cases)

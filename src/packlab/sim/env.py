@@ -17,8 +17,10 @@ the environment may draw, so one policy network can train across container sizes
 * Modes (as ``packlab bench``'s switches, ``packlab.sim.modes``): ``observation="perceived"``
   shows the heightmap and sizes the simulated depth cameras recover under the ``noise``
   preset (``info["replan"]`` per step), the buffer's boxes told apart by ``segmentation``
-  (``"depth"``, the default, or the simulator's ``"truth"`` masks); objects perception missed
-  are set aside unpacked; ``execution="noisy"`` (mujoco backend) executes each drop with the
+  (``"depth"``, the default, or the simulator's ``"truth"`` masks), its size estimates snapped
+  to the container's grids or not (``size_prior``: ``"grid"``, the default, or ``"none"``);
+  boxes the robot cleared off the buffer unidentified are set aside unpacked;
+  ``execution="noisy"`` (mujoco backend) executes each drop with the
   preset's robot noise. Both modes default to ``"exact"``. Exact observation names a box's
   sides longer first (``sides``, the bench's default; ``"catalogue"``: the reference paper's
   protocol, l the side the box lies along x in its perfect layout); a rotation refers to the
@@ -39,11 +41,13 @@ from gymnasium import spaces
 from packlab.cases import load_cases
 from packlab.core.choices import (
     DEFAULT_SIDES,
+    DEFAULT_SIZE_PRIOR,
     ExecutionMode,
     NoisePreset,
     ObservationMode,
     Segmentation,
     SideNames,
+    SizePrior,
 )
 from packlab.core.feasibility import action_mask, observation_candidates
 from packlab.core.types import Action, Case
@@ -112,9 +116,12 @@ class PackEnv(gym.Env):
         noise: NoisePreset = DEFAULT_NOISE,
         segmentation: Segmentation = DEFAULT_SEGMENTATION,
         sides: SideNames = DEFAULT_SIDES,
+        size_prior: SizePrior = DEFAULT_SIZE_PRIOR,
     ) -> None:
         # checks names first
-        modes = episode_modes(observation, execution, noise, segmentation, sides)
+        modes = episode_modes(
+            observation, execution, noise, segmentation, sides, size_prior=size_prior
+        )
         if cases is None:
             cases = demo_cases_path()
         self.cases: list[Case] = (
