@@ -253,7 +253,9 @@ class Episode:
             if self._perceiver is None:
                 return 0
             perception = self._perception
-            self._unclear_looks = 0 if perception.clean else self._unclear_looks + 1
+            # A look that lists nothing fails the check too: the buffer's count says otherwise.
+            unclear = not (perception.clean and self._shown)
+            self._unclear_looks = self._unclear_looks + 1 if unclear else 0
             if self._unclear_looks < LOOKS_BEFORE_SET_ASIDE:
                 self.looked_again += len(perception.missed)
                 if self._shown:
