@@ -285,6 +285,24 @@ def test_a_buffer_the_robot_cannot_read_is_cleared_after_three_looks():
     assert len(observation.shown) == min(case.buffer_size, len(case.objects) - buffered)
 
 
+def _only_noise_segments(scene: Scene, rng: np.random.Generator) -> Perception:
+    """A stub perceiver: while box 0 is buffered, as many box-like segments as boxes (the
+    count matches) but none lies on a box, so nothing is listed."""
+    exact = exact_perceiver(scene, rng)
+    if 0 not in scene.shown:
+        return exact
+    everything = tuple(range(len(scene.shown)))
+    return replace(exact, sizes_mm=(), picks=(), missed=everything, clean=True, cleared=())
+
+
+def test_a_look_that_lists_nothing_is_not_taken_for_a_clean_one():
+    case = make_layered_case(0, pieces=5)
+    episode = Episode("geometric", perceiver=_only_noise_segments)
+    observation = episode.reset(case, 0)  # terminates: the buffer is cleared
+    assert episode.missed == min(case.buffer_size, len(case.objects))
+    assert observation.shown or episode.done
+
+
 def _swapped_sides(scene: Scene, rng: np.random.Generator) -> Perception:
     """A stub perceiver: lists every box w first, and says so (``axis_swapped``)."""
     exact = exact_perceiver(scene, rng)
