@@ -152,7 +152,9 @@ def _picks(
     that lie on a box; -1 where none does."""
     if not segments:
         return ()
-    xs, ys = image.pixel_centres()
+    nx, ny = image.shape
+    x_axis = image.origin_mm[0] + (np.arange(nx) + 0.5) * image.pixel_mm
+    y_axis = image.origin_mm[1] + (np.arange(ny) + 0.5) * image.pixel_mm
     windows = ndimage.find_objects(np.maximum(labels + 1, 0))
     out = []
     for segment in segments:
@@ -162,8 +164,10 @@ def _picks(
             out.append(-1)
             continue
         cx, cy = segment.top_centre_mm[:2]
-        distance = (xs[window][on_box] - cx) ** 2 + (ys[window][on_box] - cy) ** 2
-        out.append(int(image.ids[window][on_box][int(np.argmin(distance))]))
+        dx2 = (x_axis[window[0]] - cx) ** 2
+        dy2 = (y_axis[window[1]] - cy) ** 2
+        distance = np.where(on_box, dx2[:, None] + dy2[None, :], np.inf)
+        out.append(int(image.ids[window][np.unravel_index(np.argmin(distance), on_box.shape)]))
     return tuple(out)
 
 
