@@ -27,18 +27,25 @@ from packlab.policies.registry import make_policy
 from packlab.sim.episode import run_episode
 from packlab.vlm.candidate.collect import Labeller
 from packlab.vlm.candidate.compose import cell_line, line_text, state_messages
-from packlab.vlm.candidate.encoding import Extras, PromptSettings, footprints, settings_grid
-from packlab.vlm.candidate.image import footprint_tokens, heightmap_image
+from packlab.vlm.candidate.encoding import (
+    Extras,
+    PromptSettings,
+    footprints,
+    rings,
+    settings_grid,
+)
+from packlab.vlm.candidate.image import footprint_tokens, heightmap_image, ring_tokens
 from packlab.vlm.candidate.onnx_export import export_onnx
 from packlab.vlm.candidate.pointer import (
     ImageGrid,
     PointerModel,
     collate,
     encode,
+    footprint_context_pool,
     footprint_pool,
 )
 from packlab.vlm.candidate.recipe import DaggerConfig
-from packlab.vlm.candidate.saved import load_pointer
+from packlab.vlm.candidate.saved import load_pointer, save_pointer
 from packlab.vlm.candidate.scoring import score_listed
 from packlab.vlm.candidate.states import append_states, listed_of, observation_of
 from packlab.vlm.candidate.train import PointerTrainConfig, train_pointer
@@ -263,3 +270,140 @@ def test_cell_lines_on_another_grid_export_to_onnx_and_play_alike(states, cases,
         "onnx", 2, "cell")  # fmt: skip
     scores = score_listed(load_pointer(final), obs, listed, onnx._settings)
     assert onnx.act(obs) == listed[int(np.argmax(scores))].action
+
+
+# Footprint context (``footprint_context``): the max over the footprint's tokens and the mean
+# over the one-token ring around it, beside the footprint's mean.
+
+
+def test_ring_tokens_on_a_small_grid():
+    # 8 x 8 cells on a 128 px image: 16 px per cell, 4 x 4 tokens of 32 px (2 x 2 cells each).
+    assert footprint_tokens((8, 8), 2, 2, 2, 2, 128, 32).tolist() == [5]
+    assert ring_tokens((8, 8), 2, 2, 2, 2, 128, 32).tolist() == [0, 1, 2, 4, 6, 8, 9, 10]
+    assert ring_tokens((8, 8), 0, 0, 1, 1, 128, 32).tolist() == [1, 4, 5]  # clipped at a corner
+    assert ring_tokens((8, 8), 3, 0, 2, 1, 128, 32).tolist() == [0, 3, 4, 5, 6, 7]
+    assert ring_tokens((8, 8), 0, 0, 8, 8, 128, 32).tolist() == []  # the whole image
+    # A 10 x 5 container (12 px per cell): a footprint on the top token row, clipped there.
+    assert footprint_tokens((10, 5), 2, 1, 3, 1, 128, 32).tolist() == [0, 1]
+    assert ring_tokens((10, 5), 2, 1, 3, 1, 128, 32).tolist() == [2, 4, 5, 6]
+
+
+@pytest.mark.parametrize(("cells", "side"), [((25, 25), 256), ((10, 5), 128), ((57, 40), 128)])
+def test_the_ring_is_every_token_one_step_from_the_footprint(cells, side):
+    rng = np.random.default_rng(3)
+    per = side // 32
+    for _ in range(40):
+        fx, fy = int(rng.integers(1, cells[0] + 1)), int(rng.integers(1, cells[1] + 1))
+        x, y = int(rng.integers(0, cells[0] - fx + 1)), int(rng.integers(0, cells[1] - fy + 1))
+        under = set(footprint_tokens(cells, x, y, fx, fy, side, 32).tolist())
+        want = {
+            r * per + c
+            for r in range(per)
+            for c in range(per)
+            if r * per + c not in under
+            and any(max(abs(r - t // per), abs(c - t % per)) == 1 for t in under)
+        }
+        assert set(ring_tokens(cells, x, y, fx, fy, side, 32).tolist()) == want
+
+
+def test_footprint_context_pools_mean_max_and_ring_on_a_hand_built_tensor():
+    hidden = torch.tensor([[[9.0, 9.0], [1.0, -4.0], [3.0, 2.0], [5.0, 0.0], [-2.0, 6.0],
+                            [9.0, 9.0]]])  # (1, 6, 2); visual tokens at 1..4  # fmt: skip
+    batch = {
+        "visual_at": torch.tensor([[1, 2, 3, 4]]),
+        # line 0 covers tokens 0, 1 with ring 2, 3; line 1 covers token 3, empty ring; line 2
+        # is padding (covers nothing).
+        "footprint": torch.tensor([[[1.0, 1, 0, 0], [0, 0, 0, 1], [0, 0, 0, 0]]]),
+        "ring": torch.tensor([[[0.0, 0, 1, 1], [0, 0, 0, 0], [0, 0, 0, 0]]]),
+    }
+    got = footprint_context_pool(hidden, batch)
+    want = torch.tensor([[[2.0, -1.0, 3.0, 2.0, 1.5, 3.0],
+                          [-2.0, 6.0, -2.0, 6.0, 0.0, 0.0],
+                          [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]])  # fmt: skip
+    assert torch.equal(got, want)
+    assert torch.equal(got[..., :2], footprint_pool(hidden, batch))  # the mean as before
+    with pytest.raises(ValueError, match="rings"):
+        footprint_context_pool(hidden, {k: v for k, v in batch.items() if k != "ring"})
+
+
+def test_rings_are_encoded_only_with_the_context(pointer, states):
+    tok = pointer.vlm.tokenizer
+    grid = settings_grid(ImageGrid.of(pointer.vlm), PromptSettings("short", image_tokens=8))
+    plain = encode(tok, states[0], "short", map="image", grid=grid, extras=Extras(footprint=True))
+    assert plain.ring.size == 0 and "ring" not in collate([plain], tok.pad_token_id)
+    extras = Extras(footprint=True, context=True)
+    enc = encode(tok, states[0], "short", map="image", grid=grid, extras=extras)
+    obs, listed = observation_of(states[0]), listed_of(states[0])
+    assert np.array_equal(enc.ring, rings(obs, listed, grid))
+    assert not (enc.ring & enc.footprint).any()
+    for k, c in enumerate(listed):
+        cells = ring_tokens(obs.heightmap.shape, c.x, c.y, c.fx, c.fy, grid.side, 32)
+        assert np.flatnonzero(enc.ring[k]).tolist() == cells.tolist()
+    settings = PromptSettings("short", map="image", footprint_pool=True, footprint_context=True)
+    assert Extras.of(settings) == extras
+    assert not Extras.of(replace(settings, footprint_pool=False)).context
+
+
+def test_a_tiny_model_trains_with_the_context_and_its_card_round_trips(states, cases, tmp_path):
+    path = _states_file(states, tmp_path)
+    cfg = PointerTrainConfig(states=(str(path),), out=str(tmp_path / "run"),
+                             model="tiny:qwen3_vl:tiny", line_vectors=False, line_fields="cell",
+                             image_tokens=8, footprint_pool=True, footprint_context=True, k=8,
+                             steps=2, batch=4, warmup=1, eval_every=2, heldout_every=3,
+                             threads=1)  # fmt: skip
+    final = train_pointer(cfg, cases[:1])
+    card = json.loads((final / "packlab_model.json").read_text())
+    assert (card["footprint_pool"], card["footprint_context"]) == (True, True)
+    assert not (final / "onnx.json").exists()
+    model = load_pointer(final)
+    hidden = model.text.config.hidden_size
+    assert model.footprint and model.context
+    assert model.head.mlp[0].in_features == 4 * hidden
+    policy = make_policy("vlm", model=str(final), runtime="torch")
+    policy.reset(cases[0], 0)
+    assert policy._settings.footprint_context
+    obs, listed = observation_of(states[0]), listed_of(states[0])
+    scores = score_listed(model, obs, listed, policy._settings)
+    assert policy.act(obs) == listed[int(np.argmax(scores))].action
+    again = score_listed(load_pointer(final), obs, listed, policy._settings)
+    assert np.allclose(scores, again)
+    with pytest.raises(ConfigError, match="footprint_context"):
+        export_onnx(final, check_states=1)
+    with pytest.raises(ConfigError, match="footprint_context"):  # a continued run keeps it
+        train_pointer(replace(cfg, model=str(final), out=str(tmp_path / "more"),
+                              footprint_context=False))  # fmt: skip
+
+
+def test_a_footprint_model_saved_without_the_context_key_loads_as_before(pointer, tmp_path):
+    meta = {"instructions": "short", "map": "image", "line_vectors": False,
+            "footprint_pool": True}  # fmt: skip
+    final = save_pointer(pointer, tmp_path / "old", meta)
+    card = json.loads((final / "packlab_model.json").read_text())
+    assert "footprint_context" not in card
+    model = load_pointer(final)
+    assert model.footprint and not model.context
+    assert model.head.mlp[0].in_features == 2 * model.text.config.hidden_size
+    assert not PromptSettings.of(card).footprint_context
+    for a, b in zip(pointer.head.parameters(), model.head.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_the_context_needs_footprint_pooling_and_the_cli_sets_it(pointer):
+    from packlab.cli.main import build_parser
+    from packlab.cli.options import config_kwargs
+
+    args = build_parser().parse_args(
+        ["train", "candidate", "--cases", "c", "--out", "o", "--footprint-pool",
+         "--footprint-context"]
+    )  # fmt: skip
+    cfg = DaggerConfig(**config_kwargs(args, "train candidate", DaggerConfig))
+    assert (cfg.footprint_pool, cfg.footprint_context) == (True, True)
+    alone = build_parser().parse_args(
+        ["train", "candidate", "--cases", "c", "--out", "o", "--footprint-context"]
+    )
+    with pytest.raises(ConfigError, match="footprint_pool"):
+        DaggerConfig(**config_kwargs(alone, "train candidate", DaggerConfig))
+    with pytest.raises(ConfigError, match="footprint_pool"):
+        PointerTrainConfig(states=(), out="x", footprint_context=True)
+    with pytest.raises(ValueError, match="footprint pooling"):
+        PointerModel(pointer.vlm, map="image", context=True)

@@ -201,6 +201,12 @@ def register_candidate(sub: argparse._SubParsersAction) -> None:
         "--footprint-pool",
         help="the head also pools the image tokens under each line's footprint (torch only)",
     )
+    field(
+        "footprint_context",
+        "--footprint-context",
+        help="with --footprint-pool: the head also reads the max over the footprint's image "
+        "tokens and the mean over the one-token ring around it (torch only)",
+    )
     field("k", "--k", help="placements listed per state; default {default}")
     field("shuffle", "--no-shuffle", help="ablation: list placements in the proposer's order")
     field("pool", "--pool", choices=("last", "mean"), help="default {default}")

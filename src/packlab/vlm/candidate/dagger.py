@@ -47,6 +47,7 @@ def _round_config(
         line_fields=cfg.line_fields,
         image_tokens=cfg.image_tokens,
         footprint_pool=cfg.footprint_pool,
+        footprint_context=cfg.footprint_context,
         k=cfg.k,
         shuffle=cfg.shuffle,
         pool=cfg.pool,

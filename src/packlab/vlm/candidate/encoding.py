@@ -40,6 +40,7 @@ from packlab.vlm.candidate.image import (
     heightmap_image,
     image_side,
     patchify,
+    ring_tokens,
     visual_tokens,
 )
 from packlab.vlm.candidate.states import LabelledState, listed_of, observation_of
@@ -62,11 +63,15 @@ class PromptSettings:
     image_tokens: int = TOKENS_PER_SIDE
     #: Each line's footprint on the visual token grid is encoded (the head pools there).
     footprint_pool: bool = False
+    #: With ``footprint_pool``: the head also reads the max over the footprint's tokens and the
+    #: mean over the one-token ring around it (:func:`rings`).
+    footprint_context: bool = False
 
     @classmethod
     def of(cls, meta: dict[str, Any], blank_map: bool = False) -> PromptSettings:
         """The settings of a model card; ``blank_map`` forces the blank-map ablation on. A card
-        written before line fields, image tokens and footprint pooling has their defaults."""
+        written before line fields, image tokens and footprint pooling (or its context) has
+        their defaults."""
         return cls(
             meta["instructions"],
             bool(meta.get("blank_map", False)) or blank_map,
@@ -76,6 +81,7 @@ class PromptSettings:
             meta.get("line_fields", "full"),
             int(meta.get("image_tokens", TOKENS_PER_SIDE)),
             bool(meta.get("footprint_pool", False)),
+            bool(meta.get("footprint_context", False)),
         )
 
 
@@ -202,6 +208,9 @@ class Encoded:
     #: Which visual tokens lie under each listed line's footprint (bool (K, visual tokens),
     #: :func:`footprints`); empty: the head does not pool the image.
     footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    #: Which visual tokens form the one-token ring around each listed line's footprint (bool
+    #: (K, visual tokens), :func:`rings`); empty: the head reads no context.
+    ring: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
 
 def prompt_text(tokenizer: Any, messages: list[dict[str, Any]]) -> str:
@@ -314,18 +323,32 @@ def footprints(
     return out
 
 
+def rings(observation: Observation, listed: Sequence[Candidate], grid: ImageGrid) -> np.ndarray:
+    """bool (K, visual tokens): the one-token ring around each listed line's footprint
+    (:func:`.image.ring_tokens`), from the same line fields and layout as :func:`footprints`;
+    no height of the container is read."""
+    out = np.zeros((len(listed), grid.tokens), dtype=bool)
+    cells = tuple(observation.heightmap.shape)
+    for n, c in enumerate(listed):
+        out[n, ring_tokens(cells, c.x, c.y, c.fx, c.fy, grid.side, grid.token_px)] = True
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class Extras:
     """What :func:`encode` adds beside the prompt: line vectors, the lines' fields and the
-    footprints on the image (``footprint`` needs an image ``map``)."""
+    footprints on the image (``footprint`` needs an image ``map``; ``context`` adds the rings
+    around them)."""
 
     lines: bool = False
     line_fields: LineFields = "full"
     footprint: bool = False
+    context: bool = False
 
     @classmethod
     def of(cls, settings: PromptSettings) -> Extras:
-        return cls(settings.line_vectors, settings.line_fields, settings.footprint_pool)
+        return cls(settings.line_vectors, settings.line_fields, settings.footprint_pool,
+                   settings.footprint_pool and settings.footprint_context)  # fmt: skip
 
 
 NO_EXTRAS = Extras()
@@ -337,9 +360,12 @@ def _with_extras(
     if extras.lines:
         enc = replace(enc, vectors=line_vectors(observation, listed))
     if extras.footprint:
-        if enc.grid is None:
+        grid = enc.grid
+        if grid is None:
             raise ValueError("footprint pooling needs an image map")
-        enc = replace(enc, footprint=footprints(observation, listed, enc.grid))
+        enc = replace(enc, footprint=footprints(observation, listed, grid))
+        if extras.context:
+            enc = replace(enc, ring=rings(observation, listed, grid))
     return enc
 
 

@@ -83,6 +83,19 @@ def _cell_pixels(cells: int, start: int, length: int, block: int, scale: int) ->
     return first * scale, (last + 1) * scale
 
 
+def _token_span(
+    cells: tuple[int, int], x: int, y: int, fx: int, fy: int, side: int, token_px: int
+) -> tuple[int, int, int, int]:
+    """(first row, last row, first column, last column) of the merged visual tokens whose
+    pixels hold some cell of the footprint (:func:`footprint_tokens`)."""
+    nx, ny = cells
+    block = -(-max(nx, ny) // side)
+    scale = side // max(-(-nx // block), -(-ny // block))
+    x0, x1 = _cell_pixels(nx, x, fx, block, scale)
+    y0, y1 = _cell_pixels(ny, y, fy, block, scale)
+    return y0 // token_px, (y1 - 1) // token_px, x0 // token_px, (x1 - 1) // token_px
+
+
 def footprint_tokens(
     cells: tuple[int, int], x: int, y: int, fx: int, fy: int, side: int, token_px: int
 ) -> np.ndarray:
@@ -91,15 +104,29 @@ def footprint_tokens(
     fy - 1`` in an image of :func:`heightmap_image` (``cells``: the container's cells per side;
     ``token_px``: pixels per merged token side). Only the image's layout is used: where
     :func:`heightmap_image` draws each cell, never a height."""
-    nx, ny = cells
-    block = -(-max(nx, ny) // side)
-    scale = side // max(-(-nx // block), -(-ny // block))
-    x0, x1 = _cell_pixels(nx, x, fx, block, scale)
-    y0, y1 = _cell_pixels(ny, y, fy, block, scale)
+    r0, r1, c0, c1 = _token_span(cells, x, y, fx, fy, side, token_px)
     per_side = side // token_px
-    cols = np.arange(x0 // token_px, (x1 - 1) // token_px + 1)
-    rows = np.arange(y0 // token_px, (y1 - 1) // token_px + 1)
+    cols = np.arange(c0, c1 + 1)
+    rows = np.arange(r0, r1 + 1)
     return (rows[:, None] * per_side + cols[None, :]).ravel().astype(np.int64)
+
+
+def ring_tokens(
+    cells: tuple[int, int], x: int, y: int, fx: int, fy: int, side: int, token_px: int
+) -> np.ndarray:
+    """Indices (row-major, ascending) of the one-token ring around :func:`footprint_tokens`:
+    the tokens of the footprint's token rectangle grown by one token on every side (corners
+    included), clipped to the image, less the footprint's own tokens. These hold what a box
+    there would be flush with (neighbouring columns, the walls; the padding outside the
+    container is drawn rim-high). Like :func:`footprint_tokens`, only the image's layout is
+    used, never a height; empty when the footprint's tokens cover the whole image."""
+    r0, r1, c0, c1 = _token_span(cells, x, y, fx, fy, side, token_px)
+    per_side = side // token_px
+    rows = np.arange(max(r0 - 1, 0), min(r1 + 1, per_side - 1) + 1)
+    cols = np.arange(max(c0 - 1, 0), min(c1 + 1, per_side - 1) + 1)
+    inside = ((rows >= r0) & (rows <= r1))[:, None] & ((cols >= c0) & (cols <= c1))[None, :]
+    grid = rows[:, None] * per_side + cols[None, :]
+    return grid[~inside].astype(np.int64)
 
 
 def blank_image(side: int) -> np.ndarray:

@@ -195,6 +195,13 @@ EXPORTABLE_FAMILIES = ("qwen3_vl", "qwen2_5_vl")
 
 def _model(directory: Path) -> tuple[PointerModel, OnnxPointer]:
     model = load_pointer(directory)
+    if model.context:
+        raise ConfigError(
+            f"{directory}: a pointer model with footprint pooling and its context "
+            "(footprint_pool = true, footprint_context = true); its head gathers visual tokens "
+            "per listed line (under and around its footprint), which the ONNX text graph does "
+            "not take: play it with runtime=torch"
+        )
     if model.footprint:
         raise ConfigError(
             f"{directory}: a pointer model with footprint pooling (footprint_pool = true); "

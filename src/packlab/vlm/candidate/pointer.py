@@ -24,6 +24,14 @@ whatever the vision tower and the decoder learned to put there from the pixels, 
 image gives the same pooling over tokens that carry no surface. It only lets a line's score
 look at its own part of the image in one step, instead of having to learn to attend there.
 
+**Footprint context** (``context``, ``packlab train candidate --footprint-context``, with
+footprint pooling): the head also reads the max of the same tokens' states (so the network can
+form the resting level, the highest point under the box, itself) and the mean over the
+one-token ring around the footprint (the neighbouring columns and walls a box there would be
+flush with; :func:`.image.ring_tokens`). Both are chosen the same way as the footprint's
+tokens, from the line's own fields and the image's layout, never from a height
+(:func:`footprint_context_pool`).
+
 Why not train the index digit as a generated answer: from random weights, the loss on the digit
 alone stays at chance for hundreds of steps (measured on a prototype), while the pointer loss reads
 each placement's own hidden state and learns within minutes.
@@ -105,7 +113,8 @@ class PointerModel(nn.Module):
     """``scores = head(pooled hidden states of each listed line)``, -inf where padded; with
     ``lines`` the head also reads each line's numeric vector (:class:`LineHead`); with
     ``footprint`` it also reads the mean final state of the visual tokens under each line's
-    footprint (module docstring; an image ``map`` only)."""
+    footprint, and with ``context`` their max and the mean over the ring around them (module
+    docstring; an image ``map`` only)."""
 
     def __init__(
         self,
@@ -114,6 +123,7 @@ class PointerModel(nn.Module):
         map: PointerMap = "text",
         lines: bool = False,
         footprint: bool = False,
+        context: bool = False,
     ) -> None:
         super().__init__()
         if pool not in POOLS:
@@ -127,13 +137,18 @@ class PointerModel(nn.Module):
             self.visual = vlm.model.model.visual
         if footprint and map not in IMAGE_MAPS:
             raise ValueError(f"footprint pooling needs an image map, not map = {map!r}")
+        if context and not footprint:
+            raise ValueError("footprint context needs footprint pooling (footprint = True)")
         self.lines = lines
         self.footprint = footprint
+        self.context = context
         hidden_size = self.text.config.hidden_size
         self.head: nn.Module
         if footprint:
             vector_size = LINE_VECTOR_SIZE if lines else 0
-            self.head = LineHead(2 * hidden_size, vector_size=vector_size)
+            # The line's state, the footprint's mean, and (context) its max and the ring's mean.
+            parts = 4 if context else 2
+            self.head = LineHead(parts * hidden_size, vector_size=vector_size)
         else:
             self.head = LineHead(hidden_size) if lines else nn.Linear(hidden_size, 1)
 
@@ -156,7 +171,9 @@ class PointerModel(nn.Module):
             picked = (_gather(total, ends) - before) / (ends - starts + 1).unsqueeze(-1)
         else:
             picked = _gather(hidden, ends)
-        if self.footprint:
+        if self.context:
+            picked = torch.cat([picked, footprint_context_pool(hidden, batch)], -1)
+        elif self.footprint:
             picked = torch.cat([picked, footprint_pool(hidden, batch)], -1)
         if isinstance(self.head, LineHead):
             vectors = batch["vectors"] if self.lines else picked[..., :0]
@@ -196,6 +213,24 @@ def footprint_pool(hidden: torch.Tensor, batch: dict[str, torch.Tensor]) -> torc
     visual = _gather(hidden, batch["visual_at"])  # (B, V, H)
     weights = batch["footprint"].to(visual.dtype)
     return torch.bmm(weights, visual) / weights.sum(-1, keepdim=True).clamp(min=1)
+
+
+def footprint_context_pool(hidden: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B, K, 3H): for each listed line, [the mean (:func:`footprint_pool`), the elementwise
+    max of the hidden states of the visual tokens its footprint covers, the mean over the
+    tokens of its ring (``ring`` (B, K, V) 0/1)]; zeros where a line covers no token or its
+    ring is empty (a footprint over the whole image, or a padded line)."""
+    if "ring" not in batch:
+        raise ValueError("a footprint-context model needs states encoded with their rings")
+    visual = _gather(hidden, batch["visual_at"])  # (B, V, H)
+    under = batch["footprint"] > 0  # (B, K, V)
+    mean = footprint_pool(hidden, batch)
+    filled = visual.unsqueeze(1).masked_fill(~under.unsqueeze(-1), float("-inf"))  # (B,K,V,H)
+    top = filled.amax(2)
+    top = torch.where(under.any(-1, keepdim=True), top, torch.zeros_like(top))
+    ring = batch["ring"].to(visual.dtype)
+    around = torch.bmm(ring, visual) / ring.sum(-1, keepdim=True).clamp(min=1)
+    return torch.cat([mean, top, around], -1)
 
 
 def to_device(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict:
@@ -275,13 +310,19 @@ def _footprints(batch: Sequence[Encoded], k: int) -> dict[str, torch.Tensor]:
     v = batch[0].footprint.shape[1]
     out = torch.zeros((len(batch), k, v), dtype=torch.float32)
     at = torch.zeros((len(batch), v), dtype=torch.long)
+    rings = any(e.ring.size for e in batch)
+    ring = torch.zeros((len(batch), k, v), dtype=torch.float32)
     for n, e in enumerate(batch):
         places = np.flatnonzero(e.ids == e.image_token)
         if e.footprint.shape[1] != v or len(places) != v:
             raise ValueError(f"footprints over {e.footprint.shape[1]} tokens, {len(places)} shown")
         out[n, : len(e.footprint)] = torch.from_numpy(e.footprint.astype(np.float32))
         at[n] = torch.from_numpy(places)
-    return {"footprint": out, "visual_at": at}
+        if rings:
+            if e.ring.shape != e.footprint.shape:
+                raise ValueError(f"rings {e.ring.shape} for footprints {e.footprint.shape}")
+            ring[n, : len(e.ring)] = torch.from_numpy(e.ring.astype(np.float32))
+    return {"footprint": out, "visual_at": at, **({"ring": ring} if rings else {})}
 
 
 def _vectors(batch: Sequence[Encoded], k: int) -> dict[str, torch.Tensor]:

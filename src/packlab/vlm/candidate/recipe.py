@@ -41,6 +41,9 @@ class DaggerConfig:
     #: The head also pools the visual tokens under each listed line's footprint (image maps;
     #: such a model plays under torch only).
     footprint_pool: bool = False
+    #: With ``footprint_pool``: the head also reads the max over the footprint's tokens and the
+    #: mean over the one-token ring around it.
+    footprint_context: bool = False
     #: Placements listed per state, in collection and at play time.
     k: int = STUDENT_K
     #: List the placements in a random order per state, so position says nothing.
@@ -72,6 +75,8 @@ class DaggerConfig:
             raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
         if self.footprint_pool and self.map == "text":
             raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
+        if self.footprint_context and not self.footprint_pool:
+            raise ConfigError("footprint_context needs footprint_pool (--footprint-pool)")
         if self.rounds < 0:
             raise ConfigError(f"rounds = {self.rounds}: must be >= 0")
         check_device("DaggerConfig", self.device)

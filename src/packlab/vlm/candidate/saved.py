@@ -9,9 +9,10 @@ that field existed holds a text-map model and loads with ``map`` = ``"text"``. I
 ``image_mean`` and ``image_std`` are the normalisation the model was trained with
 (:func:`.encoding.image_norm`); a directory written before they were recorded was trained with
 Qwen3-VL's (0.5), whatever its family's processor says, and loads with those. Its
-``line_fields``, ``image_tokens`` and ``footprint_pool`` (absent: ``"full"``, 4 and off) say
-what the listed lines name, the image's tokens per side and whether the head pools the image
-under each line (:mod:`.encoding`, :mod:`.pointer`).
+``line_fields``, ``image_tokens``, ``footprint_pool`` and ``footprint_context`` (absent:
+``"full"``, 4, off and off) say what the listed lines name, the image's tokens per side,
+whether the head pools the image under each line and whether it also reads the max there and
+the ring around it (:mod:`.encoding`, :mod:`.pointer`).
 Imports torch: only the vlm extra may import this module.
 """
 
@@ -59,6 +60,9 @@ def load_pointer(path: str | Path, device: str = "cpu") -> PointerModel:
     vlm.meta.setdefault("image_std", list(QWEN3_STD))
     lines = bool(vlm.meta.get("line_vectors", False))  # a card before line vectors: text only
     footprint = bool(vlm.meta.get("footprint_pool", False))  # a card before it: none
-    model = PointerModel(vlm, vlm.meta.get("pool", "last"), vlm.meta["map"], lines, footprint)
+    context = footprint and bool(vlm.meta.get("footprint_context", False))  # likewise
+    model = PointerModel(
+        vlm, vlm.meta.get("pool", "last"), vlm.meta["map"], lines, footprint, context
+    )
     model.head.load_state_dict(load_file(str(path / HEAD_FILE)))
     return model.to(device).eval()

@@ -76,6 +76,9 @@ class PointerTrainConfig:
     #: The head also reads the visual tokens under each line's footprint (pointer module
     #: docstring; image maps; plays under torch only, no ONNX export).
     footprint_pool: bool = False
+    #: With ``footprint_pool``: the head also reads the max over the footprint's tokens and the
+    #: mean over the one-token ring around it (pointer module docstring).
+    footprint_context: bool = False
     #: Placements the states list (the proposer's K the policy will list at play time).
     k: int = STUDENT_K
     answer: Answer = "index"  # pointer over the listed lines, or free JSON tokens
@@ -110,6 +113,8 @@ class PointerTrainConfig:
             raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
         if self.footprint_pool and self.map == "text":
             raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
+        if self.footprint_context and not self.footprint_pool:
+            raise ConfigError("footprint_context needs footprint_pool")
         check_device("PointerTrainConfig", self.device)
         check_dtype("PointerTrainConfig", self.dtype, self.device)
 
@@ -146,7 +151,8 @@ def load_encoded(
 def settings_of(cfg: PointerTrainConfig) -> PromptSettings:
     """The prompt settings the model is trained with (what its card will record)."""
     return PromptSettings(cfg.instructions, cfg.blank_map, cfg.answer, cfg.map, cfg.line_vectors,
-                          cfg.line_fields, cfg.image_tokens, cfg.footprint_pool)  # fmt: skip
+                          cfg.line_fields, cfg.image_tokens, cfg.footprint_pool,
+                          cfg.footprint_context)  # fmt: skip
 
 
 #: The card fields a pointer directory continued in training must share with the config.
@@ -161,7 +167,11 @@ def _check_continued(cfg: PointerTrainConfig, model: PointerModel) -> None:
                 f"model = {cfg.model!r} was trained with {name} = "
                 f"{getattr(settings, name)!r}, not {getattr(cfg, name)!r}"
             )
-    for name, have in (("line_vectors", model.lines), ("footprint_pool", model.footprint)):
+    for name, have in (
+        ("line_vectors", model.lines),
+        ("footprint_pool", model.footprint),
+        ("footprint_context", model.context),
+    ):
         if have != getattr(cfg, name):
             raise ConfigError(
                 f"model = {cfg.model!r} was trained with {name} = {have}, not {getattr(cfg, name)}"
@@ -179,7 +189,9 @@ def _model(cfg: PointerTrainConfig) -> PointerModel:
     if not cfg.model.startswith("tiny:") and not Path(cfg.model).is_dir():
         raise ConfigError(f"model = {cfg.model!r}: expected tiny:<family>:<size> or a directory")
     vlm = make_model(cfg.model, seed=cfg.seed)
-    return PointerModel(vlm, cfg.pool, cfg.map, cfg.line_vectors, cfg.footprint_pool).train()
+    return PointerModel(
+        vlm, cfg.pool, cfg.map, cfg.line_vectors, cfg.footprint_pool, cfg.footprint_context
+    ).train()
 
 
 def _schedule(cfg: PointerTrainConfig):
@@ -327,6 +339,7 @@ def _card(cfg: PointerTrainConfig) -> dict[str, Any]:
         "line_fields": cfg.line_fields,
         "image_tokens": cfg.image_tokens,
         "footprint_pool": cfg.footprint_pool,
+        "footprint_context": cfg.footprint_context,
         "instructions": cfg.instructions,
         "blank_map": cfg.blank_map,
         "map": cfg.map,
