@@ -1,4 +1,6 @@
-"""Fixtures shared by the vlm tests: one fixed packing state used by the golden prompt tests."""
+"""Fixtures shared by the vlm tests: one fixed packing state used by the golden prompt tests, and
+for the candidate-mode model tests torch on one thread for a module and the sdf-labelled states
+of one generated medium case."""
 
 from __future__ import annotations
 
@@ -34,3 +36,40 @@ def fixed_state():
         (s1, Unparsable(text="I would place it left", error="no JSON object found")),
     ]
     return container, past, s2
+
+
+#: The proposer the candidate-mode tests' states are listed with (the tests that propose again
+#: use the same settings).
+CANDIDATE_PROPOSER = {"k": 8, "rule": "lowest"}
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """torch on one thread for the module (tiny models), restored after."""
+    torch = pytest.importorskip("torch")
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def cases():
+    """One generated medium case of the training domain."""
+    from packlab.datagen.generator import generate_cases
+
+    return generate_cases("medium", 1, 11, validate=False, domain="train")
+
+
+@pytest.fixture(scope="module")
+def states(cases):
+    """The labelled states (more than two placements listed) of ``cases[0]`` played by the
+    sdf teacher through the candidate proposer."""
+    from packlab.policies.candidates import ProposerConfig
+    from packlab.policies.listed import ListedTeacher
+    from packlab.sim.episode import run_episode
+    from packlab.vlm.candidate.collect import Labeller
+
+    labeller = Labeller(ListedTeacher("sdf"), ProposerConfig(**CANDIDATE_PROPOSER), "teacher")
+    run_episode(cases[0], labeller, seed=0, backend="geometric")
+    return [s for s in labeller.states if s.label >= 0 and len(s.listed) > 2]

@@ -20,12 +20,8 @@ pytest.importorskip("transformers")
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container
-from packlab.datagen.generator import generate_cases
 from packlab.policies.candidates import ProposerConfig
-from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
-from packlab.sim.episode import run_episode
-from packlab.vlm.candidate.collect import Labeller
 from packlab.vlm.candidate.compose import cell_line, line_text, state_messages
 from packlab.vlm.candidate.encoding import (
     Extras,
@@ -53,30 +49,11 @@ from packlab.vlm.model.tiny import build_tiny_model
 from packlab.vlm.model.tokenizer import IMAGE_PAD
 from packlab.vlm.prompt.compact import candidate_line
 
-pytestmark = pytest.mark.torch
+# One torch thread, and the sdf-labelled states of one medium case (tests/vlm/conftest.py).
+pytestmark = [pytest.mark.torch, pytest.mark.usefixtures("one_torch_thread")]
 
 PROPOSER = ProposerConfig(k=8, rule="lowest")
 CELL_ONLY = re.compile(r"\d+: b\d+ r[01] x\d+ y\d+")
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-@pytest.fixture(scope="module")
-def cases():
-    return generate_cases("medium", 1, 11, validate=False, domain="train")
-
-
-@pytest.fixture(scope="module")
-def states(cases):
-    labeller = Labeller(ListedTeacher("sdf"), PROPOSER, "teacher")
-    run_episode(cases[0], labeller, seed=0, backend="geometric")
-    return [s for s in labeller.states if s.label >= 0 and len(s.listed) > 2]
 
 
 @pytest.fixture(scope="module")

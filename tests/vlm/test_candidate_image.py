@@ -19,12 +19,8 @@ pytest.importorskip("transformers")
 
 from packlab.core.errors import ConfigError
 from packlab.core.types import Container
-from packlab.datagen.generator import generate_cases
 from packlab.policies.candidates import ProposerConfig
-from packlab.policies.listed import ListedTeacher
 from packlab.policies.registry import make_policy
-from packlab.sim.episode import run_episode
-from packlab.vlm.candidate.collect import Labeller
 from packlab.vlm.candidate.compose import state_messages
 from packlab.vlm.candidate.device import autocast, placement, resolve_device
 from packlab.vlm.candidate.image import QWEN3_MEAN, QWEN3_STD, heightmap_image, patchify
@@ -46,33 +42,14 @@ from packlab.vlm.model.tiny import build_tiny_model
 from packlab.vlm.model.tokenizer import IMAGE_PAD, VISION_END, VISION_START
 from packlab.vlm.prompt.render import PROMPT_VERSION
 
-pytestmark = pytest.mark.torch
+# One torch thread, and the sdf-labelled states of one medium case (tests/vlm/conftest.py).
+pytestmark = [pytest.mark.torch, pytest.mark.usefixtures("one_torch_thread")]
 
 PROPOSER = ProposerConfig(k=8, rule="lowest")
 CARD = {"proposer": asdict(PROPOSER), "instructions": "short", "prompt_version": PROMPT_VERSION}
 #: OpenAI CLIP's normalisation, Qwen2.5-VL's processor's.
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-@pytest.fixture(scope="module")
-def cases():
-    return generate_cases("medium", 1, 11, validate=False, domain="train")
-
-
-@pytest.fixture(scope="module")
-def states(cases):
-    labeller = Labeller(ListedTeacher("sdf"), PROPOSER, "teacher")
-    run_episode(cases[0], labeller, seed=0, backend="geometric")
-    return [s for s in labeller.states if s.label >= 0 and len(s.listed) > 2]
 
 
 @pytest.fixture(scope="module")

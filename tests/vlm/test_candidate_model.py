@@ -45,7 +45,8 @@ from packlab.vlm.model.tiny import build_tiny_model
 from packlab.vlm.prompt.compact import candidate_line
 from packlab.vlm.prompt.render import PROMPT_VERSION, action_text
 
-pytestmark = pytest.mark.torch
+# One torch thread for the module (tests/vlm/conftest.py).
+pytestmark = [pytest.mark.torch, pytest.mark.usefixtures("one_torch_thread")]
 
 PROPOSER = ProposerConfig(k=8, rule="lowest")
 CARD = {"proposer": asdict(PROPOSER), "instructions": "short", "prompt_version": PROMPT_VERSION}
@@ -60,15 +61,6 @@ def _labelled(cases, teacher: str = "sdf"):
         run_episode(case, labeller, seed=0, backend="geometric")
         states += labeller.states
     return states
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """One torch thread here (the trainer and the policy set it anyway), restored after."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")

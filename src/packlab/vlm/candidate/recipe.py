@@ -16,6 +16,25 @@ from packlab.vlm.candidate.precision import check_device, check_dtype
 DAGGER_MODULE = "packlab.vlm.candidate.dagger"
 
 
+def check_model_view(
+    map: PointerMap,
+    line_fields: LineFields,
+    image_tokens: int,
+    footprint_pool: bool,
+    footprint_context: bool,
+) -> None:
+    """ConfigError naming the field unless the settings of what the model reads go together
+    (the training and the DAgger recipes take the same ones)."""
+    require_choice(map, PointerMap, "map")
+    require_choice(line_fields, LineFields, "line_fields")
+    if image_tokens < 1:
+        raise ConfigError(f"image_tokens = {image_tokens}: must be >= 1")
+    if footprint_pool and map == "text":
+        raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
+    if footprint_context and not footprint_pool:
+        raise ConfigError("footprint_context needs footprint_pool (--footprint-pool)")
+
+
 @dataclass(frozen=True)
 class DaggerConfig:
     out: str
@@ -69,14 +88,13 @@ class DaggerConfig:
         for name in ("cases_per_round", "steps", "round_steps", "batch", "workers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} = {getattr(self, name)}: must be >= 1")
-        require_choice(self.map, PointerMap, "map")
-        require_choice(self.line_fields, LineFields, "line_fields")
-        if self.image_tokens < 1:
-            raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
-        if self.footprint_pool and self.map == "text":
-            raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
-        if self.footprint_context and not self.footprint_pool:
-            raise ConfigError("footprint_context needs footprint_pool (--footprint-pool)")
+        check_model_view(
+            self.map,
+            self.line_fields,
+            self.image_tokens,
+            self.footprint_pool,
+            self.footprint_context,
+        )
         if self.rounds < 0:
             raise ConfigError(f"rounds = {self.rounds}: must be >= 0")
         check_device("DaggerConfig", self.device)

@@ -48,6 +48,7 @@ from packlab.vlm.candidate.pointer import (
     to_device,
 )
 from packlab.vlm.candidate.precision import check_device, check_dtype
+from packlab.vlm.candidate.recipe import check_model_view
 from packlab.vlm.candidate.saved import load_pointer, save_pointer
 from packlab.vlm.candidate.states import read_states, shuffled
 from packlab.vlm.model.spec import make_model
@@ -106,15 +107,14 @@ class PointerTrainConfig:
     meta: dict[str, Any] = field(default_factory=dict)  # recorded in the model card
 
     def __post_init__(self) -> None:
-        require_choice(self.map, PointerMap, "map")
         require_choice(self.answer, Answer, "answer")
-        require_choice(self.line_fields, LineFields, "line_fields")
-        if self.image_tokens < 1:
-            raise ConfigError(f"image_tokens = {self.image_tokens}: must be >= 1")
-        if self.footprint_pool and self.map == "text":
-            raise ConfigError("footprint_pool needs a map with an image, not map = 'text'")
-        if self.footprint_context and not self.footprint_pool:
-            raise ConfigError("footprint_context needs footprint_pool")
+        check_model_view(
+            self.map,
+            self.line_fields,
+            self.image_tokens,
+            self.footprint_pool,
+            self.footprint_context,
+        )
         check_device("PointerTrainConfig", self.device)
         check_dtype("PointerTrainConfig", self.dtype, self.device)
 
