@@ -16,8 +16,10 @@ from packlab.policies import make_policy
 from packlab.policies.plan.complete import (
     CompletionConfig,
     find_completion,
+    height_classes,
     height_order,
     lowest_components,
+    lowest_level_top,
     repeated_height_share,
 )
 from packlab.policies.plan.cover import JOKER
@@ -247,3 +249,38 @@ def test_mixed_evidence_is_an_option_of_plan():
     for bad in (-0.1, 1.5, True, "half"):
         with pytest.raises(ConfigError, match="mixed_evidence"):
             make_policy("plan", mixed_evidence=bad)
+
+
+def test_heights_a_few_mm_apart_make_one_class_and_whole_centimetres_their_own():
+    assert height_classes([196, 200, 197, 186, 190, 300]) == {
+        300: 300,
+        200: 200,
+        197: 200,
+        196: 200,
+        190: 190,
+        186: 190,
+    }
+    # a class spans at most the tolerance: no chain from 200 down to 192
+    assert height_classes([200, 197, 194, 192])[192] == 194
+
+
+def test_a_layer_of_cartons_a_few_mm_apart_in_height_is_closed_as_one():
+    hm = np.zeros((8, 6), dtype=np.int32)
+    shown = _shown([(4, 3, 196), (4, 3, 199), (4, 3, 200), (4, 3, 198)])
+    found = find_completion(hm, shown, 400, unseen=0, smallest_side=3)
+    assert found is not None and found.height_mm == 200 and len(found.slots) == 4
+    # jokers count the class's heights seen
+    two = _shown([(4, 3, 196), (4, 3, 199)])
+    seen = [196, 199, 200]
+    assert find_completion(hm, two, 400, unseen=2, smallest_side=3, seen_heights=seen)
+
+
+def test_the_lowest_level_reaches_across_an_uneven_top_only_when_heights_spread():
+    hm = np.full((6, 6), 320, dtype=np.int32)
+    hm[:, :3] = [[292, 295, 299]]  # a layer top 7 mm uneven, beside a column 2 cm higher
+    assert lowest_level_top(hm, 4) == 296  # boxes on a centimetre grid: 4 mm, as ever
+    assert lowest_level_top(hm, 4, spread_mm=4) == 299  # in steps of 4 mm, up to 4 + 8 mm
+    z0, masks = lowest_components(hm, 4, spread_mm=4)
+    assert z0 == 292 and [int(m.sum()) for m in masks] == [18]
+    hm[:, 2] = 310  # a real step stays out
+    assert lowest_level_top(hm, 4, spread_mm=4) == 296

@@ -10,7 +10,10 @@ no gap at that level, and the planner commits its first box.
 Boxes of one height: a component closed with one height gets a flat top, the state a layered
 layout goes through; heights are tried in order of how well they continue the neighbours (a
 height that brings the component level with the columns around it first), then by the area
-shown in that height.
+shown in that height. "One height" is one height class (:func:`height_classes`): heights within
+the level tolerance of the class's tallest, so cartons a few mm lower than their slots still
+close a layer (to a top as uneven as the class, which :func:`lowest_level_top` reads as one
+level); heights in whole centimetres each make their own class.
 
 When no exact tiling exists and boxes are still to come, a *guess* may leave up to
 ``max_jokers`` rectangles for them (:class:`.cover.CoverRules`), for the component's likeliest
@@ -29,7 +32,7 @@ from scipy import ndimage
 
 from packlab.core.choices import CommitRule
 from packlab.core.types import ShownItem
-from packlab.policies.features import LEVEL_TOLERANCE_MM, at_or_below, same_level
+from packlab.policies.features import LEVEL_TOLERANCE_MM, same_level
 from packlab.policies.plan.cover import JOKER, CoverResult, CoverRules, Piece, Slot, exact_cover
 from packlab.policies.windows import ring4
 
@@ -155,13 +158,34 @@ def commit_of(result: CoverResult, region: np.ndarray, rule: CommitRule = "enclo
     return chosen if enclosed_sides(region, chosen) > enclosed_sides(region, first) else first
 
 
+def lowest_level_top(hm: np.ndarray, tolerance_mm: int, spread_mm: int = 0) -> int:
+    """The highest height (mm) of the lowest level: ``tolerance_mm`` over the minimum, and with
+    boxes whose heights spread (``spread_mm`` > 0: the widest height class seen, tallest minus
+    lowest, see :func:`height_classes`) the heights reached from the minimum in steps of at
+    most the tolerance, up to ``tolerance_mm + 2 * spread_mm`` over it. A layer of boxes a few
+    mm apart in height leaves its top that uneven, and the next layer on it more so (two
+    layers' spread: chosen on generated off-grid training cases, where 8 and 12 mm of reach
+    scored alike); levels of boxes whose heights come in whole centimetres (no spread) read as
+    the same-level tolerance alone reads them."""
+    z0 = int(hm.min())
+    if spread_mm <= 0:
+        return z0 + tolerance_mm
+    reach, top = z0 + tolerance_mm + 2 * spread_mm, z0
+    for v in np.unique(hm)[1:]:
+        if v - top > tolerance_mm or v > reach:
+            break
+        top = int(v)
+    return max(top, z0 + tolerance_mm)
+
+
 def lowest_components(
-    heightmap: np.ndarray, tolerance_mm: int = LEVEL_TOLERANCE_MM
+    heightmap: np.ndarray, tolerance_mm: int = LEVEL_TOLERANCE_MM, spread_mm: int = 0
 ) -> tuple[int, list[np.ndarray]]:
-    """(the lowest level in mm, its 4-connected components as bool masks, smallest first)."""
+    """(the lowest level in mm, its 4-connected components as bool masks, smallest first);
+    ``spread_mm``: see :func:`lowest_level_top`."""
     hm = np.asarray(heightmap)
     z0 = int(hm.min())
-    labels, n = ndimage.label(at_or_below(hm, z0, tolerance_mm), structure=_FOUR)
+    labels, n = ndimage.label(hm <= lowest_level_top(hm, tolerance_mm, spread_mm), structure=_FOUR)
     masks = [labels == k for k in range(1, n + 1)]
     masks.sort(key=lambda m: (int(m.sum()), int(np.argmax(m.ravel()))))
     return z0, masks
@@ -172,18 +196,42 @@ def rim_heights(heightmap: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.asarray(heightmap)[ring4(mask)]
 
 
+def height_classes(
+    heights: Sequence[int], tolerance_mm: int = LEVEL_TOLERANCE_MM
+) -> dict[int, int]:
+    """Each height (mm) mapped to its class: the tallest height not yet in a class takes every
+    height down to ``tolerance_mm`` below it, and so on down. Boxes of one class close a
+    component to a top level within the tolerance (what the lowest level reads as one level
+    next): cartons made a few mm lower than their slot, or heights a sensor measured to a few
+    mm, still make one layer. Heights on the generator's grid (whole centimetres) each make
+    their own class."""
+    classes: dict[int, int] = {}
+    top: int | None = None
+    for h in sorted(set(heights), reverse=True):
+        if top is None or h < top - tolerance_mm:
+            top = h
+        classes[h] = top
+    return classes
+
+
 def height_order(
     heightmap: np.ndarray,
     mask: np.ndarray,
     z0: int,
     shown: Sequence[ShownItem],
     tolerance_mm: int = LEVEL_TOLERANCE_MM,
+    class_of: dict[int, int] | None = None,
 ) -> list[int]:
-    """The shown box heights (mm) in the order to try them for ``mask`` (module docstring)."""
+    """The shown boxes' height classes (``class_of``, by default :func:`height_classes` of
+    the shown heights; each named by its tallest height, mm) in the order to try them for
+    ``mask`` (module docstring)."""
     rim = rim_heights(heightmap, mask) - z0
+    if class_of is None:
+        class_of = height_classes([s.size_mm[2] for s in shown], tolerance_mm)
     area: dict[int, int] = {}
     for s in shown:
-        area[s.size_mm[2]] = area.get(s.size_mm[2], 0) + s.size_cells[0] * s.size_cells[1]
+        h = class_of[s.size_mm[2]]
+        area[h] = area.get(h, 0) + s.size_cells[0] * s.size_cells[1]
 
     def key(h: int) -> tuple[int, int, int]:
         level_with = int(np.count_nonzero(same_level(rim, h, tolerance_mm)))
@@ -203,9 +251,16 @@ def find_completion(
 ) -> Completion | None:
     """A tiling of one lowest component by shown boxes of one height, and with ``unseen`` > 0
     (boxes still to come) up to the configured jokers for them; None when no stage finds one."""
-    z0, masks = lowest_components(heightmap, config.tolerance_mm)
+    # One set of classes for the shown boxes and the heights seen (a guess counts its class's).
+    class_of = height_classes(
+        [s.size_mm[2] for s in shown] + list(seen_heights), config.tolerance_mm
+    )
+    spread = max((top - h for h, top in class_of.items()), default=0)  # the widest class
+    z0, masks = lowest_components(heightmap, config.tolerance_mm, spread)
     spent = 0  # nodes of this decision's searches so far (CompletionConfig.decision_nodes)
-    orders = [height_order(heightmap, mask, z0, shown, config.tolerance_mm) for mask in masks]
+    orders = [
+        height_order(heightmap, mask, z0, shown, config.tolerance_mm, class_of) for mask in masks
+    ]
     for jokers, use_all in config.stages:
         if jokers > unseen:
             continue
@@ -219,11 +274,12 @@ def find_completion(
                 pieces = [
                     Piece(s.shown_index, s.size_cells[0], s.size_cells[1])
                     for s in shown
-                    if s.size_mm[2] == h
+                    if class_of[s.size_mm[2]] == h
                 ]
                 if not jokers and sum(p.area for p in pieces) < area:
                     continue
-                if jokers and list(seen_heights).count(h) < config.joker_min_seen:
+                seen = sum(class_of[g] == h for g in seen_heights)
+                if jokers and seen < config.joker_min_seen:
                     continue
                 budget = min(config.max_nodes, config.decision_nodes - spent)
                 if budget <= 0:
