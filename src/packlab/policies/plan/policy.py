@@ -57,6 +57,7 @@ from packlab.policies.plan.evaluate import Weights, smallest_footprints
 from packlab.policies.plan.finale import FINALE_BOXES, with_finale
 from packlab.policies.plan.guide import AgentGuide
 from packlab.policies.plan.outlook import observation_outlook
+from packlab.policies.plan.placed import with_own_placements
 from packlab.policies.plan.proposer import first_placements
 from packlab.policies.plan.search import Budget, Problem, search
 from packlab.policies.registry import SeedFreeMode, declare_seed_free
@@ -223,7 +224,8 @@ class PlanPolicy:
             else observation.remaining - len(observation.shown)
         )
         return find_completion(
-            observation.heightmap,
+            # Its own boxes' edges that a cell-centre reading lost, read back (.placed).
+            with_own_placements(observation),
             observation.shown,
             observation.container.height_mm,
             unseen,
