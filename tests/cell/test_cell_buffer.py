@@ -85,3 +85,32 @@ def test_a_session_measures_boxes_under_its_size_prior(prior):
             assert got[0] % 25 == got[1] % 25 == got[2] % 2 == 0
         else:
             assert max(abs(g - w) for g, w in zip(got, want, strict=True)) <= 4  # two pixels
+
+
+def test_segments_packlab_measured_are_listed_where_the_same_detections_are_refused():
+    """More box-like segments than the buffer holds (a box cut in two) and one larger than the
+    container (touching boxes merged) are perception's outcome, listed as the simulated robot
+    lists them; sent by the cell as detections they are a bad request."""
+    from packlab.cell import schema
+    from packlab.cell.convert import cell_config
+    from packlab.cell.errors import CellInputError
+    from packlab.cell.simulated import planned_steps, session_request
+    from packlab.cell.step import MeasuredBox, StepInput, _check_boxes
+
+    case = generated_case("medium", 5)
+    steps = planned_steps(case, "none", 1)
+    config = cell_config(session_request(case, "none", steps[0]), "dblf")
+    x, y, _ = config.container.size_mm
+    merged = MeasuredBox(0, (2 * max(x, y), 100, 100), None)
+    extra = tuple(MeasuredBox(i, (100, 100, 100), None) for i in range(config.buffer_size + 1))
+    image = np.zeros((4, 4))
+    from_image = StepInput(steps[0].container_image.depth_mm, buffer_depth_mm=image)
+    _check_boxes(config, from_image, (merged,))
+    _check_boxes(config, from_image, extra)
+    detected = StepInput(
+        steps[0].container_image.depth_mm, detections=(schema.Detection(size_mm=[1, 1, 1]),)
+    )
+    with pytest.raises(CellInputError, match="larger than the container"):
+        _check_boxes(config, detected, (merged,))
+    with pytest.raises(CellInputError, match="more boxes than the session's buffer_size"):
+        _check_boxes(config, detected, extra)

@@ -339,13 +339,19 @@ def _check_shape(name: str, depth: np.ndarray | None, calibration: Calibration) 
 
 
 def _check_boxes(config: CellConfig, step: StepInput, boxes: tuple[MeasuredBox, ...]) -> None:
-    """Refuse a buffer the policy cannot act on: empty, over the session's buffer size, a box
-    that fits the container in no rotation, or fewer boxes to come than are shown."""
+    """Refuse a buffer the policy cannot act on: empty, detections over the session's buffer
+    size, a detection that fits the container in no rotation, or fewer boxes to come than are
+    shown. What packlab measured itself in a buffer image is not the cell's error where it is
+    more segments than the buffer holds (a box cut in two) or a segment too large (boxes
+    touching, merged into one): the segments are listed, as the simulated robot lists them,
+    and the policy sets one aside or places another box."""
     source = "detections" if step.detections is not None else "buffer_image"
     if not boxes:
         seen = "no box-like segment found" if source == "buffer_image" else "an empty list"
         raise CellInputError(source, 0, f"{seen}: the buffer must show at least one box")
-    if len(boxes) > min(config.buffer_size, MAX_BOXES):
+    # A box cut in two by the segmentation is listed twice, as the simulated robot lists it.
+    most = MAX_BOXES if source == "buffer_image" else min(config.buffer_size, MAX_BOXES)
+    if len(boxes) > most:
         raise CellInputError(
             source, len(boxes), f"more boxes than the session's buffer_size {config.buffer_size}"
         )
@@ -355,6 +361,8 @@ def _check_boxes(config: CellConfig, step: StepInput, boxes: tuple[MeasuredBox, 
         if min(l, w, h) <= 0:
             where = f"{source}[{box.index}].size_mm"
             raise CellInputError(where, list(box.size_mm), "sides must be > 0")
+        if source == "buffer_image":
+            continue
         if h > z or not ((l <= x and w <= y) or (w <= x and l <= y)):
             raise CellInputError(
                 f"{source}[{box.index}].size_mm",
