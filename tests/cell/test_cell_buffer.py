@@ -114,3 +114,17 @@ def test_segments_packlab_measured_are_listed_where_the_same_detections_are_refu
         _check_boxes(config, detected, (merged,))
     with pytest.raises(CellInputError, match="more boxes than the session's buffer_size"):
         _check_boxes(config, detected, extra)
+
+
+def test_measured_sides_a_few_mm_over_a_cell_multiple_take_that_multiple():
+    """The service's shown items take the measured-side slack perceived mode takes
+    (``MEASURED_SIDE_SLACK_MM``), so both show a policy the same cells."""
+    from packlab.cell.step import MeasuredBox, shown_items
+    from packlab.core.types import Container
+    from packlab.sim.buffer import MEASURED_SIDE_SLACK_MM, size_cells
+
+    container = Container((500, 500, 400))
+    boxes = (MeasuredBox(0, (252, 126, 100), None), MeasuredBox(1, (260, 140, 97), None))
+    items = shown_items(boxes, container, 0)
+    assert [i.size_cells for i in items] == [(10, 5, 50), (11, 6, 49)]
+    assert items[0].size_cells == size_cells((252, 126, 100), container, MEASURED_SIDE_SLACK_MM)

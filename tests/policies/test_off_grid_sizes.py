@@ -10,7 +10,7 @@ from test_no_peeking import BENCH_POLICIES, PEEKS_BY_DESIGN, _policy_maker
 from packlab.core.types import Action, Box, Case, Container
 from packlab.datagen.config import CaseConfig
 from packlab.datagen.generator import build_case
-from packlab.sim.buffer import size_cells
+from packlab.sim.buffer import MEASURED_SIDE_SLACK_MM, size_cells
 from packlab.sim.episode import Episode, run_episode
 
 #: Policies whose actions are a model's free text: here a tiny random-weight model
@@ -28,6 +28,10 @@ def _case_of(difficulty: str, seed: int = 2**51 + 17) -> Case:
 def test_a_260_by_140_by_97_box_covers_11_by_6_cells():
     container = Container(size_mm=(500, 500, 400))
     assert size_cells((260, 140, 97), container) == (11, 6, 49)
+    # A measured side up to the slack over a cell multiple takes that multiple; heights none.
+    assert size_cells((253, 128, 97), container, MEASURED_SIDE_SLACK_MM) == (10, 5, 49)
+    assert size_cells((254, 129, 97), container, MEASURED_SIDE_SLACK_MM) == (11, 6, 49)
+    assert size_cells((250, 125, 96), container, MEASURED_SIDE_SLACK_MM) == (10, 5, 48)
     # The episode's shown item, the geometric heightmap and the next drop agree.
     case = Case(
         episode_id="one-off-grid",

@@ -36,7 +36,7 @@ from packlab.core.types import (
     Unparsable,
 )
 from packlab.policies.registry import policy_factory
-from packlab.sim.buffer import episode_rng, size_cells
+from packlab.sim.buffer import MEASURED_SIDE_SLACK_MM, episode_rng, size_cells
 from packlab.sim.execution import ExecutedDrop, ExecutionNoise, full_faces, place_command
 from packlab.sim.execution import seat_sides as skill_seat_sides
 from packlab.sim.physics.place_skill import APPROACH_MM, PLACE_RETRIES, PlaceCommand
@@ -260,14 +260,15 @@ def shown_items(
     boxes: tuple[MeasuredBox, ...], container: Container, first_id: int
 ) -> tuple[ShownItem, ...]:
     """The buffer as perceived mode shows it (``packlab.sim.perceived.seen_items``): measured
-    sizes, cells rounded up, fresh ids ``seen-<n>`` counted from ``first_id``, no catalogue
-    type (a camera cannot tell which box it saw at the previous step)."""
+    sizes, cells rounded up less ``MEASURED_SIDE_SLACK_MM``, fresh ids ``seen-<n>`` counted from
+    ``first_id``, no catalogue type (a camera cannot tell which box it saw at the previous
+    step)."""
     return tuple(
         ShownItem(
             shown_index=i,
             internal_id=f"seen-{first_id + i:05d}",
             size_mm=box.size_mm,
-            size_cells=size_cells(box.size_mm, container),
+            size_cells=size_cells(box.size_mm, container, MEASURED_SIDE_SLACK_MM),
         )
         for i, box in enumerate(boxes)
     )
@@ -381,7 +382,9 @@ def _placement(
     """The target pose and the place skill's approach for a valid placement of ``box``."""
     assert isinstance(action, Action)  # judge() let it through
     rotation, x, y = int(action.rotation), int(action.x), int(action.y)
-    item = ShownItem(0, "chosen", box.size_mm, size_cells(box.size_mm, config.container))
+    item = ShownItem(
+        0, "chosen", box.size_mm, size_cells(box.size_mm, config.container, MEASURED_SIDE_SLACK_MM)
+    )
     fx, fy = believed_footprint(item, rotation)
     bottom = placement_height(heightmap, x, y, fx, fy)
     cell = config.container.cell_xy_mm

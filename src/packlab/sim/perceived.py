@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from packlab.core.types import Case, ShownItem
-from packlab.sim.buffer import size_cells
+from packlab.sim.buffer import MEASURED_SIDE_SLACK_MM, size_cells
 from packlab.sim.execution import NO_GRASP_ERROR
 from packlab.sim.replan import Perceiver, Perception, Scene, predict_heightmap
 
@@ -54,9 +54,9 @@ def seen_items(
     shown: tuple[ShownItem, ...], perception: Perception, case: Case, first_id: int
 ) -> tuple[ShownItem, ...]:
     """The buffer as the policy is shown it in perceived mode: ``shown`` the listed boxes' exact
-    items (``Perception.listed_boxes``), given the perceived sizes (cells
-    rounded up, as for exact sizes) under ids ``seen-<n>`` counted from ``first_id``, and no
-    catalogue type.
+    items (``Perception.listed_boxes``), given the perceived sizes (cells rounded up less
+    :data:`~packlab.sim.buffer.MEASURED_SIDE_SLACK_MM`) under ids ``seen-<n>`` counted from
+    ``first_id``, and no catalogue type.
 
     Ids are fresh at every observation: a camera tells a box from its neighbours in one image,
     not which box of the layout it is, nor that it is the box it saw at the previous step (the
@@ -71,7 +71,7 @@ def seen_items(
                 internal_id=f"seen-{first_id + i:05d}",  # zero-padded: sorts as counted
                 type_id=0,
                 size_mm=size_mm,
-                size_cells=size_cells(size_mm, case.container),
+                size_cells=size_cells(size_mm, case.container, MEASURED_SIDE_SLACK_MM),
             )
         )
     return tuple(items)
