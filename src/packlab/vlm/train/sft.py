@@ -422,4 +422,17 @@ def train_sft(
     )
     if result.is_main_process and result.losses:
         _write_summary(result, counts)
+    _leave_process_group()
     return result
+
+
+def _leave_process_group() -> None:
+    """Close a multi-process run's process group once every rank is done. Left to interpreter
+    exit, gloo's threads can abort the rank that exits first ("terminate called without an
+    active exception", exit code -6), and torchrun then fails the whole run after it wrote its
+    model."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
