@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from packlab.core.feasibility import footprint_cells, footprint_fits, placement_height
 from packlab.core.types import Action, Observation
 from packlab.policies.features import LEVEL_TOLERANCE_MM
 
@@ -40,14 +41,12 @@ def with_own_placements(
         if not 0 <= action.object_id < len(entry.shown):
             continue
         item = entry.shown[action.object_id]
-        lx, ly, _ = item.size_cells
-        fx, fy = (ly, lx) if action.rotation == 1 else (lx, ly)
+        fx, fy = footprint_cells(item, action.rotation)
         x, y = action.x, action.y
         # A footprint under 3 cells across has no inside to show the box by.
-        if fx < 3 or fy < 3 or x < 0 or y < 0 or x + fx > hm.shape[0] or y + fy > hm.shape[1]:
+        if fx < 3 or fy < 3 or not footprint_fits(hm.shape, x, y, fx, fy):
             continue
-        bottom = int(entry.heightmap[x : x + fx, y : y + fy].max())
-        top = bottom + int(item.size_mm[2])
+        top = placement_height(entry.heightmap, x, y, fx, fy) + int(item.size_mm[2])
         current = hm if out is None else out
         window = current[x : x + fx, y : y + fy]
         inside = window[1:-1, 1:-1]
